@@ -1,0 +1,43 @@
+//! Subcommand implementations. Errors reach `main` as `anyhow` errors; an error that wraps
+//! [`BadInput`] means the user gave something unusable and exits 2.
+
+pub mod info;
+pub mod simulate;
+
+use std::process::ExitCode;
+
+/// Marks an error as the user's input being unusable (exit code 2), not a failure of ours.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct BadInput(pub String);
+
+/// Logs go to stderr, filtered by `RUST_LOG` (default `info`).
+pub fn init_logging() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .init();
+}
+
+/// Prints the error chain once and maps it to an exit code.
+pub fn exit_code(result: anyhow::Result<()>) -> ExitCode {
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(err) => {
+            eprintln!("error: {err:#}");
+            if err.chain().any(|e| e.is::<BadInput>()) || is_input_error(&err) {
+                ExitCode::from(2)
+            } else {
+                ExitCode::FAILURE
+            }
+        }
+    }
+}
+
+/// Errors from reading the user's files count as bad input.
+fn is_input_error(err: &anyhow::Error) -> bool {
+    err.chain()
+        .any(|e| e.is::<scanfuse::record::RecordError>() || e.is::<scanfuse::sim::PlanError>())
+}

@@ -1,0 +1,8 @@
+//! scanfuse: drives several Hokuyo laser scanners, works out where each one stands from the
+//! scans alone, keeps that up to date, and publishes one fused map.
+//!
+//! Every stage is usable alone; see `DESIGN.md` in the repository for the data flow.
+
+pub mod record;
+pub mod scan;
+pub mod sim;

@@ -1,0 +1,33 @@
+//! The `scanfuse` command line. Each subcommand lives in `cli/<name>.rs`; this file only parses
+//! and dispatches, and turns errors into exit codes (2 = bad input, 1 = anything else).
+
+mod cli;
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(name = "scanfuse", version, about = "Fuse several Hokuyo laser scanners into one site frame")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Describe a recording: sensors, models, PP fields, scan counts, rate, gaps, truth.
+    Info(cli::info::Args),
+    /// Simulate a floor plan with sensors and people into a recording with ground truth.
+    Simulate(cli::simulate::Args),
+}
+
+fn main() -> ExitCode {
+    cli::init_logging();
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Info(args) => cli::info::run(args),
+        Command::Simulate(args) => cli::simulate::run(args),
+    };
+    cli::exit_code(result)
+}
