@@ -6,5 +6,6 @@
 pub mod features;
 pub mod geometry;
 pub mod record;
+pub mod register;
 pub mod scan;
 pub mod sim;
