@@ -24,6 +24,8 @@ enum Command {
     Info(cli::info::Args),
     /// Simulate a floor plan with sensors and people into a recording with ground truth.
     Simulate(cli::simulate::Args),
+    /// Measure registration: success per overlap bin, errors, time, baselines, real data.
+    Eval(cli::eval::Args),
 }
 
 fn main() -> ExitCode {
@@ -32,6 +34,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Info(args) => cli::info::run(args),
         Command::Simulate(args) => cli::simulate::run(args),
+        Command::Eval(args) => cli::eval::run(args),
     };
     cli::exit_code(result)
 }

@@ -3,7 +3,8 @@
 
 use super::RegisterParams;
 use crate::features::{self, Features, PointClass};
-use crate::geometry::ScanPoint;
+use crate::geometry::{Mount, ScanPoint, beam_angles_rad, project_scan};
+use crate::scan::{Scan, ScanGeometry};
 use nalgebra::{Point2, Vector2};
 use std::f64::consts::{PI, TAU};
 
@@ -136,7 +137,7 @@ impl ScanModel {
     /// Prepares a scan; `step_rad` is its beam spacing.
     pub fn new(points: &[ScanPoint], step_rad: f64, params: &RegisterParams) -> Self {
         let features = features::extract(points, step_rad, &params.features);
-        let normals = normals_of(&features, params.features.edge_neighbour_m);
+        let normals = normals_of(&features, params.normal_radius_m);
         let grouped: Vec<usize> = features.groups.iter().flat_map(|g| g.clone()).collect();
         let score_sample = spread(&features.points, &grouped, params.score_points);
         let icp_sample = spread(&features.points, &grouped, params.icp_points);
@@ -150,6 +151,23 @@ impl ScanModel {
             grid,
             polar,
         }
+    }
+
+    /// Projects a scan (exact PP angles when `geometry` fits it, tilted mount, floor hits
+    /// removed) and prepares it.
+    pub fn from_scan(
+        scan: &Scan,
+        geometry: Option<&ScanGeometry>,
+        mount: &Mount,
+        params: &RegisterParams,
+    ) -> Self {
+        let points = project_scan(scan, geometry, mount, &params.project);
+        let angles = beam_angles_rad(scan, geometry);
+        let step_rad = match (angles.first(), angles.last()) {
+            (Some(a), Some(b)) if angles.len() > 1 => ((b - a) / (angles.len() - 1) as f64).abs(),
+            _ => 0.25f64.to_radians(),
+        };
+        Self::new(&points, step_rad, params)
     }
 
     pub fn points(&self) -> &[Point2<f64>] {

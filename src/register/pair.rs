@@ -3,9 +3,9 @@
 //! ICP, then a verdict: registered with a covariance, or not registered with the reason.
 
 use super::hypotheses::hypotheses;
-use super::icp::{IcpResult, refine};
+use super::icp::{IcpResult, refine_guarded};
 use super::matching::match_score;
-use super::score::{PoseScore, score};
+use super::score::{PoseScore, score, score_coarse};
 use super::{RegisterParams, ScanModel};
 use crate::geometry::{Pose2, pose_error};
 use nalgebra::Matrix3;
@@ -103,7 +103,7 @@ fn same_pose(x: &Pose2, y: &Pose2, p: &RegisterParams) -> bool {
 pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairResult {
     let mut coarse: Vec<(PoseScore, Pose2)> = hypotheses(a, b, p)
         .into_par_iter()
-        .map(|(_, pose)| (score(a, b, &pose, p), pose))
+        .map(|(_, pose)| (score_coarse(a, b, &pose, p), pose))
         .collect();
     coarse.sort_by(|x, y| y.0.value.total_cmp(&x.0.value));
     let hypotheses_count = coarse.len();
@@ -113,14 +113,19 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         if seeds.len() >= p.refine_best {
             break;
         }
-        if seeds.iter().all(|s| !same_pose(s, pose, p)) {
+        let apart = |s: &Pose2| {
+            let (dt, dyaw) = pose_error(s, pose);
+            dt >= p.seed_gap_m || dyaw >= p.seed_gap_rad
+        };
+        if seeds.iter().all(apart) {
             seeds.push(*pose);
         }
     }
     let mut refined: Vec<(Candidate, IcpResult)> = seeds
         .par_iter()
         .map(|seed| {
-            let icp = refine(a, b, seed, p, p.class_aware);
+            let guard = |pose: &Pose2| score(a, b, pose, p).value;
+            let icp = refine_guarded(a, b, seed, p, p.class_aware, Some(&guard));
             (
                 Candidate {
                     a_from_b: icp.a_from_b,
@@ -159,7 +164,15 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         Some(r) if best.score.value > 0.0 => (r.score.value / best.score.value).max(0.0),
         _ => 0.0,
     };
-    let (covariance, weak) = covariance_of(&icp, p);
+    // Linearise once more at the chosen pose with the narrow gate: that is the information
+    // the scans carry about it (the guarded ICP may have stopped at an early, wide-gate iterate).
+    let narrow = RegisterParams {
+        icp_max_iterations: 1,
+        max_correspondence_m: 0.2,
+        ..p.clone()
+    };
+    let at_best = super::icp::refine(a, b, &best.a_from_b, &narrow, p.class_aware);
+    let (covariance, weak) = covariance_of(&at_best, p);
     let overlap = best.score.overlap();
     let verdict = if best.score.value <= 0.0 || overlap < p.min_overlap {
         Err(Abstain::TooLittleOverlap { overlap })
@@ -167,7 +180,7 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         Err(Abstain::ContradictsFreeSpace {
             violation: best.score.violation(),
         })
-    } else if let Some(weak_axis_deg) = weak {
+    } else if let Some(weak_axis_deg) = weak.filter(|deg| slides_freely(a, b, &best, *deg, p)) {
         Err(Abstain::Degenerate { weak_axis_deg })
     } else if ambiguity > p.max_ambiguity {
         let other = runner_up.map_or(Pose2::identity(), |r| best.a_from_b.inverse() * r.a_from_b);
@@ -190,6 +203,25 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         hypotheses: hypotheses_count,
         icp_iterations: icp.iterations,
     }
+}
+
+/// ICP cannot see along `axis_deg` (every matched surface is parallel to it); the free-space
+/// score may still pin the pose there (a door recess, a corridor's end). True when poses slid
+/// ±0.25 m and ±0.5 m along the axis score nearly as well as the best.
+fn slides_freely(
+    a: &ScanModel,
+    b: &ScanModel,
+    best: &Candidate,
+    axis_deg: f64,
+    p: &RegisterParams,
+) -> bool {
+    let axis = nalgebra::Vector2::new(axis_deg.to_radians().cos(), axis_deg.to_radians().sin());
+    let best_value = best.score.value;
+    [-0.5, -0.25, 0.25, 0.5].iter().any(|&d| {
+        let shift = axis * d;
+        let moved = crate::geometry::pose2(shift.x, shift.y, 0.0) * best.a_from_b;
+        score(a, b, &moved, p).value > p.max_ambiguity * best_value
+    })
 }
 
 /// Covariance σ²·(JᵀWJ)⁻¹, inflated for correlated residuals, and the direction (deg) of a

@@ -41,7 +41,7 @@ fn score_dir(
     from: &ScanModel,
     into: &ScanModel,
     into_from_from: &Pose2,
-    p: &RegisterParams,
+    p: &Tolerance,
 ) -> DirScore {
     let (mut hit, mut overlap, mut violation) = (0.0, 0usize, 0usize);
     let pts = from.points();
@@ -68,8 +68,44 @@ fn score_dir(
     }
 }
 
+/// Hit distance and free-space margins of one scoring pass.
+#[derive(Debug, Clone, Copy)]
+struct Tolerance {
+    hit_m: f64,
+    free_margin_m: f64,
+    free_margin_frac: f64,
+    violation_weight: f64,
+}
+
 /// Scores the pose `a_from_b` of B in A's frame.
 pub fn score(a: &ScanModel, b: &ScanModel, a_from_b: &Pose2, p: &RegisterParams) -> PoseScore {
+    let t = Tolerance {
+        hit_m: p.hit_m,
+        free_margin_m: p.free_margin_m,
+        free_margin_frac: p.free_margin_frac,
+        violation_weight: p.violation_weight,
+    };
+    score_with(a, b, a_from_b, &t)
+}
+
+/// Scores an unrefined hypothesis: its heading may be a degree off, so hits and free-space
+/// margins are widened by `coarse_slack_m`.
+pub fn score_coarse(
+    a: &ScanModel,
+    b: &ScanModel,
+    a_from_b: &Pose2,
+    p: &RegisterParams,
+) -> PoseScore {
+    let t = Tolerance {
+        hit_m: p.hit_m + p.coarse_slack_m,
+        free_margin_m: p.free_margin_m + p.coarse_slack_m,
+        free_margin_frac: p.free_margin_frac,
+        violation_weight: p.violation_weight,
+    };
+    score_with(a, b, a_from_b, &t)
+}
+
+fn score_with(a: &ScanModel, b: &ScanModel, a_from_b: &Pose2, p: &Tolerance) -> PoseScore {
     let b_in_a = score_dir(b, a, a_from_b, p);
     let a_in_b = score_dir(a, b, &a_from_b.inverse(), p);
     let value = 0.5 * (a_in_b.hit + b_in_a.hit)
