@@ -8,6 +8,7 @@ pub mod model;
 pub mod pair;
 pub mod params;
 pub mod score;
+pub mod site;
 
 pub use model::ScanModel;
 pub use pair::{Abstain, Candidate, PairResult, register_pair};
