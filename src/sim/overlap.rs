@@ -83,3 +83,92 @@ fn covered(by: &[[f64; 2]], of: &[[f64; 2]], tol_m: f64) -> f64 {
     };
     of.iter().filter(|p| near(p)).count() as f64 / of.len() as f64
 }
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use super::*;
+
+    /// Pairwise overlaps of a fixture plan at 0.10 m, printed (`cargo test fixture -- --nocapture`).
+    fn overlaps(file: &str) -> Vec<(String, String, f64)> {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("fixtures/plans")
+            .join(file);
+        let plan = Plan::load(&path).unwrap();
+        let mut out = Vec::new();
+        for (i, a) in plan.sensors.iter().enumerate() {
+            for b in &plan.sensors[i + 1..] {
+                let o = view_overlap(&plan, &a.id, &b.id, 0.10).unwrap();
+                println!("{file}: {} – {}: {:.0} %", a.id, b.id, o * 100.0);
+                out.push((a.id.clone(), b.id.clone(), o));
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn lab_pairs_overlap_30_to_70_percent() {
+        for (a, b, o) in overlaps("lab.toml") {
+            assert!((0.30..=0.70).contains(&o), "{a}–{b}: {o}");
+        }
+    }
+
+    #[test]
+    fn hall_has_one_pair_sharing_about_a_fifth_and_level_pairs_a_quarter_or_more() {
+        for (a, b, o) in overlaps("hall.toml") {
+            if (a.as_str(), b.as_str()) == ("gate", "tough") {
+                assert!((0.15..=0.25).contains(&o), "{a}–{b}: {o}");
+            } else if a != "tilt" && b != "tilt" {
+                assert!((0.25..=0.70).contains(&o), "{a}–{b}: {o}");
+            }
+        }
+    }
+
+    /// A plan without what locates it in its file, to compare plans across files.
+    fn placeless(mut plan: Plan) -> Plan {
+        plan.origin.clear();
+        plan.name.clear();
+        plan.moves.clear();
+        plan.walls.iter_mut().for_each(|x| x.line = None);
+        plan.boxes.iter_mut().for_each(|x| x.line = None);
+        plan.circles.iter_mut().for_each(|x| x.line = None);
+        plan.doors.iter_mut().for_each(|x| x.line = None);
+        plan.sensors.iter_mut().for_each(|x| x.line = None);
+        plan.people.iter_mut().for_each(|x| x.line = None);
+        plan
+    }
+
+    #[test]
+    fn moved_is_the_lab_with_bench_shifted_half_a_metre_and_turned_ten_degrees_at_one_second() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/plans");
+        let lab = Plan::load(&dir.join("lab.toml")).unwrap();
+        let moved = Plan::load(&dir.join("moved.toml")).unwrap();
+        assert_eq!(moved.name, "moved");
+        let moves = moved.moves.clone();
+        let [m] = moves.as_slice() else {
+            panic!("moved.toml should have exactly one move");
+        };
+        assert_eq!((m.sensor.as_str(), m.at_s), ("bench", 1.0));
+        assert!((m.dx.hypot(m.dy) - 0.5).abs() < 1e-9 && m.dyaw_deg == 10.0);
+        assert_eq!(placeless(lab), placeless(moved.clone()));
+        // After the move, bench still shares 30–70 % with every other sensor.
+        let mut after = moved;
+        if let Some(s) = after.sensors.iter_mut().find(|s| s.id == "bench") {
+            s.x += m.dx;
+            s.y += m.dy;
+            s.yaw_deg += m.dyaw_deg;
+        }
+        for other in ["entrance", "north", "east"] {
+            let o = view_overlap(&after, "bench", other, 0.10).unwrap();
+            println!(
+                "moved.toml after the move: bench – {other}: {:.0} %",
+                o * 100.0
+            );
+            assert!(
+                (0.30..=0.70).contains(&o),
+                "bench–{other} after the move: {o}"
+            );
+        }
+    }
+}
