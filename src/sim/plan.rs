@@ -388,6 +388,29 @@ impl Plan {
         self.sensors.iter().find(|s| s.id == id)
     }
 
+    /// The box or circle (described with its line) that holds the point at `height_m`, if any.
+    fn solid_at(&self, p: [f64; 2], height_m: f64) -> Option<String> {
+        let at = |line: Option<usize>| line.map_or(String::new(), |l| format!(" at line {l}"));
+        for b in &self.boxes {
+            let (sin, cos) = b.yaw_deg.to_radians().sin_cos();
+            let (dx, dy) = (p[0] - b.center[0], p[1] - b.center[1]);
+            let (u, v) = (cos * dx + sin * dy, -sin * dx + cos * dy);
+            if u.abs() < b.size[0] / 2.0
+                && v.abs() < b.size[1] / 2.0
+                && (b.z_min_m..=b.height_m).contains(&height_m)
+            {
+                return Some(format!("[[box]]{}", at(b.line)));
+            }
+        }
+        for c in &self.circles {
+            let d = (p[0] - c.center[0]).hypot(p[1] - c.center[1]);
+            if d < c.radius_m && (c.z_min_m..=c.height_m).contains(&height_m) {
+                return Some(format!("[[circle]]{}", at(c.line)));
+            }
+        }
+        None
+    }
+
     /// Checks everything a simulation relies on; the error names the table, key and what is valid.
     pub fn validate(&self) -> Result<(), PlanError> {
         let err = |line: Option<usize>, key: &str, problem: String| {
@@ -501,6 +524,16 @@ impl Plan {
                 );
             }
             check_points(self, s.line, "sensor.x/y", &[[s.x, s.y]], 1)?;
+            if let Some(inside) = self.solid_at([s.x, s.y], s.height_m) {
+                return err(
+                    s.line,
+                    "sensor.x/y",
+                    format!(
+                        "sensor `{}` is inside the {inside}; place it in free space",
+                        s.id
+                    ),
+                );
+            }
             check_finite(self, s.line, "sensor.yaw_deg", s.yaw_deg)?;
             if !(s.height_m.is_finite() && s.height_m > 0.0) {
                 return err(
@@ -808,6 +841,22 @@ yaw_deg = 180
         assert!(err.problem.contains("between -60 and 60"));
         let err = error_of(&GOOD.replace("id = \"b\"", "id = \"b/2\""));
         assert_eq!(err.key.as_deref(), Some("sensor.id"));
+    }
+
+    #[test]
+    fn sensor_inside_a_pillar_is_refused() {
+        let text = format!("{GOOD}\n[[circle]]\ncenter = [2.1, 3.0]\nradius_m = 0.3\n");
+        let err = error_of(&text);
+        assert_eq!(err.key.as_deref(), Some("sensor.x/y"));
+        let pillar = line_with(&text, "[[circle]]");
+        assert!(
+            err.problem
+                .contains(&format!("[[circle]] at line {pillar}")),
+            "{err}"
+        );
+        // Above a low box is fine: a unit standing on a cabinet.
+        let on_top = format!("{GOOD}\n[[box]]\ncenter = [2, 3]\nsize = [1, 1]\nheight_m = 0.8\n");
+        assert!(Plan::from_toml(&on_top, "plan.toml").is_ok());
     }
 
     #[test]

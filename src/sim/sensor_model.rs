@@ -115,16 +115,23 @@ const NO_RETURN: Reading = Reading {
     mixed: false,
 };
 
-/// A standard normal draw (Box–Muller).
-pub(crate) fn normal(rng: &mut impl Rng) -> f64 {
+/// Two independent standard normal draws (Box–Muller).
+pub(crate) fn normal_pair(rng: &mut impl Rng) -> (f64, f64) {
     let u1: f64 = 1.0 - rng.random::<f64>();
     let u2: f64 = rng.random();
-    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    let radius = (-2.0 * u1.ln()).sqrt();
+    let (sin, cos) = (std::f64::consts::TAU * u2).sin_cos();
+    (radius * cos, radius * sin)
 }
 
 /// What the sensor reports for a beam whose three footprint sub-rays hit `subs`
 /// (centre in the middle).
-pub(crate) fn read_beam(model: &BeamModel, subs: &[Option<Hit>; 3], rng: &mut impl Rng) -> Reading {
+pub(crate) fn read_beam(
+    model: &BeamModel,
+    subs: &[Option<Hit>; 3],
+    with_intensity: bool,
+    rng: &mut impl Rng,
+) -> Reading {
     let [_, centre, _] = subs;
     let near = subs
         .iter()
@@ -144,8 +151,10 @@ pub(crate) fn read_beam(model: &BeamModel, subs: &[Option<Hit>; 3], rng: &mut im
         .max_by(|a, b| a.range_m.total_cmp(&b.range_m))
         .copied();
     // Share of the footprint on the near surface, blurred: the spot is not a top hat.
-    let jitter = (rng.random::<f64>() - 0.5) / 3.0;
-    let near_share = ((near_count as f64) / 3.0 + jitter).clamp(0.05, 0.95);
+    let mut near_share = || {
+        let jitter = (rng.random::<f64>() - 0.5) / 3.0;
+        ((near_count as f64) / 3.0 + jitter).clamp(0.05, 0.95)
+    };
 
     let (hit, signal, mixed) = match (near_count, far) {
         (3, _) => {
@@ -153,8 +162,9 @@ pub(crate) fn read_beam(model: &BeamModel, subs: &[Option<Hit>; 3], rng: &mut im
             (hit, model.signal(&hit), false)
         }
         // Part of the footprint sees nothing: the near surface returns with less energy.
-        (_, None) => (near, model.signal(&near) * near_share, false),
+        (_, None) => (near, model.signal(&near) * near_share(), false),
         (_, Some(far)) => {
+            let near_share = near_share();
             let e_near = model.signal(&near) * near_share;
             let e_far = model.signal(&far) * (1.0 - near_share);
             if rng.random::<f64>() < MIXED_PROBABILITY {
@@ -179,11 +189,16 @@ pub(crate) fn read_beam(model: &BeamModel, subs: &[Option<Hit>; 3], rng: &mut im
         let range_m = model.dmin_m + rng.random::<f64>() * (hit.range_m - model.dmin_m).max(0.0);
         return finish(model, range_m, 300.0 + 500.0 * rng.random::<f64>(), false);
     }
-    let intensity = model.intensity(&hit) * (1.0 + 0.03 * normal(rng)) + 20.0 * normal(rng);
     if rng.random::<f64>() < model.dropout_probability(signal) {
         return NO_RETURN;
     }
-    let range_m = hit.range_m + model.sigma_m(hit.range_m, signal) * normal(rng);
+    let (range_noise, intensity_noise) = normal_pair(rng);
+    let range_m = hit.range_m + model.sigma_m(hit.range_m, signal) * range_noise;
+    let intensity = if with_intensity {
+        model.intensity(&hit) * (1.0 + 0.03 * intensity_noise)
+    } else {
+        0.0
+    };
     finish(model, range_m, intensity, mixed)
 }
 
@@ -225,7 +240,14 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let n = 20_000;
         let errors: Vec<f64> = (0..n)
-            .map(|_| read_beam(&model, &[hit(5.0, 0), hit(5.0, 0), hit(5.0, 0)], &mut rng))
+            .map(|_| {
+                read_beam(
+                    &model,
+                    &[hit(5.0, 0), hit(5.0, 0), hit(5.0, 0)],
+                    true,
+                    &mut rng,
+                )
+            })
             .filter(|r| r.range_m > 0.0)
             .map(|r| r.range_m as f64 - 5.0)
             .collect();
@@ -278,7 +300,12 @@ mod tests {
         let mut near = 0;
         let mut far = 0;
         for _ in 0..n {
-            let r = read_beam(&model, &[hit(3.0, 0), hit(3.0, 0), hit(6.0, 1)], &mut rng);
+            let r = read_beam(
+                &model,
+                &[hit(3.0, 0), hit(3.0, 0), hit(6.0, 1)],
+                true,
+                &mut rng,
+            );
             let d = r.range_m as f64;
             if r.range_m == 0.0 {
                 continue;
