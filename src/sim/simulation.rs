@@ -729,4 +729,76 @@ y = 0.0
             })
         );
     }
+
+    #[test]
+    fn hall_fixture_scans_look_like_hokuyo_data() {
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/plans/hall.toml");
+        let plan = Plan::load(&path).unwrap();
+        let mut s = Simulation::new(&plan, 1).unwrap();
+        let infos = s.sensors().to_vec();
+        let mut per_sensor: Vec<Vec<Scan>> = vec![Vec::new(); infos.len()];
+        s.run(2.0, |i, scan| {
+            per_sensor[i].push(scan);
+            Ok::<(), ()>(())
+        })
+        .unwrap();
+        for (info, scans) in infos.iter().zip(&per_sensor) {
+            let g = info.geometry.unwrap();
+            let expected = (2.0 / g.period_s()) as usize;
+            assert!(
+                scans.len() + 1 >= expected && scans.len() <= expected,
+                "{}: {} scans",
+                info.id,
+                scans.len()
+            );
+            let beams = scans.len() * g.step_count();
+            let returns = scans
+                .iter()
+                .flat_map(|s| &s.ranges_m)
+                .filter(|r| **r > 0.0)
+                .count();
+            let share = returns as f64 / beams as f64;
+            assert!(
+                (0.75..0.995).contains(&share),
+                "{}: {share} of beams return",
+                info.id
+            );
+            let mut intensities: Vec<f32> = scans
+                .iter()
+                .flat_map(|s| s.ranges_m.iter().zip(&s.intensities))
+                .filter(|(r, _)| **r > 0.0)
+                .map(|(_, i)| *i)
+                .collect();
+            if info.model == "UTM-30LX-EW" {
+                intensities.sort_by(f32::total_cmp);
+                let median = intensities[intensities.len() / 2];
+                assert!(
+                    (800.0..4000.0).contains(&median),
+                    "{}: median intensity {median}",
+                    info.id
+                );
+            } else {
+                assert!(
+                    intensities.is_empty(),
+                    "{}: UXM sends no intensities by default",
+                    info.id
+                );
+            }
+        }
+        // The tilted unit, 2.5 m up and pitched 20° down, sees the floor 7.31 m ahead.
+        let tilt = infos.iter().position(|i| i.id == "tilt").unwrap();
+        let g = ScanGeometry::UXM_30LX_E;
+        let mut fronts: Vec<f64> = per_sensor[tilt]
+            .iter()
+            .map(|s| front(s, &g) as f64)
+            .filter(|r| *r > 0.0)
+            .collect();
+        fronts.sort_by(f64::total_cmp);
+        let median = fronts[fronts.len() / 2];
+        assert!(
+            (median - 2.5 / 20f64.to_radians().sin()).abs() < 0.01,
+            "tilt front median {median}"
+        );
+    }
 }
