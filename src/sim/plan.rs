@@ -17,8 +17,8 @@
 //! Shapes (all have `height_m`, the top above the floor, `z_min_m`, the bottom, default 0 —
 //! set it for a table top or a shelf board that a beam can pass under — and `reflectivity`,
 //! a diffuse albedo in (0, 1], up to 10 for retro-reflective tape):
-//! - `[[wall]]`: `points = [[x, y], …]` (at least 2), `closed` (default false: joins the last
-//!   point back to the first), `height_m` (default 3.0), `z_min_m`, `reflectivity` (0.7).
+//! - `[[wall]]`: `points = [[x, y], …]` (at least 2), `closed` (default false; true joins the
+//!   last point back to the first), `height_m` (default 3.0), `z_min_m`, `reflectivity` (0.7).
 //!   Walls have no thickness.
 //! - `[[box]]`: furniture, shelves, desks: `center = [x, y]`, `size = [length, width]` (along
 //!   the box's own x and y), `yaw_deg` (default 0), `height_m` (default 1.0), `z_min_m`,
@@ -294,12 +294,7 @@ struct PlanFile {
 
 /// 1-based line of a byte offset.
 fn line_of(text: &str, offset: usize) -> usize {
-    let end = offset.min(text.len());
-    text.as_bytes()[..end]
-        .iter()
-        .filter(|&&b| b == b'\n')
-        .count()
-        + 1
+    text.bytes().take(offset).filter(|&b| b == b'\n').count() + 1
 }
 
 /// Unwraps spanned tables, remembering the line each starts on.
@@ -317,10 +312,9 @@ fn located<T>(text: &str, items: Vec<Spanned<T>>, set: impl Fn(&mut T, usize)) -
 
 /// The key written on the line a parser error points at, if any.
 fn key_at(text: &str, span: &Range<usize>) -> Option<String> {
-    let start = text[..span.start.min(text.len())]
-        .rfind('\n')
-        .map_or(0, |i| i + 1);
-    let line = text[start..].lines().next()?;
+    let before = text.get(..span.start)?;
+    let start = before.rfind('\n').map_or(0, |i| i + 1);
+    let line = text.get(start..)?.lines().next()?;
     let (key, _) = line.split_once('=')?;
     let key = key.trim();
     (!key.is_empty() && !key.starts_with('[')).then(|| key.to_string())

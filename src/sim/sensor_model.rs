@@ -7,6 +7,8 @@
 //!   10 m and ±50 mm to 30 m give σ = 10 mm up to 10 m rising linearly to 16.7 mm at 30 m
 //!   (and on beyond); the UXM's ±50/±100 mm give 16.7 → 33.3 mm. Weak returns (dark, far,
 //!   grazing) are noisier: σ grows with 1/√signal below a reference signal, up to 3×.
+//!   Weak returns also read long, by up to [`WEAK_BIAS_M`] (the range walk of a time-of-flight
+//!   receiver on a small pulse), so dark and grazing surfaces sit a little behind where they are.
 //!   Ranges are whole millimetres, as SCIP sends them.
 //! - **Dropouts.** Probability `floor + 1 / (1 + (s / s50)²)` on the received signal
 //!   `s = reflectivity · cos(incidence) · (10 m / range)²`: a white wall square on at 10 m
@@ -33,6 +35,8 @@ const HALF_DROP_SIGNAL: f64 = 0.03;
 const DROPOUT_FLOOR: f64 = 0.002;
 /// Signal at and above which noise is the spec figure.
 const FULL_SIGNAL: f64 = 0.2;
+/// How much further than the truth the weakest returns read, m.
+pub(crate) const WEAK_BIAS_M: f64 = 0.015;
 /// Chance a beam reports a spurious short range.
 const SPURIOUS_RATE: f64 = 2e-4;
 
@@ -85,6 +89,12 @@ impl BeamModel {
         let base = self.sigma_near_m + slope * (range_m - 10.0).max(0.0);
         let weak = (FULL_SIGNAL / signal.max(1e-9)).sqrt().clamp(1.0, 3.0);
         base * weak
+    }
+
+    /// Systematic range error of a return of this signal: none at full signal, growing to
+    /// [`WEAK_BIAS_M`] as the signal vanishes.
+    pub fn bias_m(&self, signal: f64) -> f64 {
+        WEAK_BIAS_M * (1.0 - (signal / FULL_SIGNAL).min(1.0))
     }
 
     /// Probability that a return of this signal is lost.
@@ -193,7 +203,8 @@ pub(crate) fn read_beam(
         return NO_RETURN;
     }
     let (range_noise, intensity_noise) = normal_pair(rng);
-    let range_m = hit.range_m + model.sigma_m(hit.range_m, signal) * range_noise;
+    let range_m =
+        hit.range_m + model.bias_m(signal) + model.sigma_m(hit.range_m, signal) * range_noise;
     let intensity = if with_intensity {
         model.intensity(&hit) * (1.0 + 0.03 * intensity_noise)
     } else {
@@ -262,6 +273,38 @@ mod tests {
         assert!((sd - 0.010).abs() < 0.001, "sd {sd}");
         let beyond = errors.iter().filter(|e| e.abs() > 0.030).count() as f64 / errors.len() as f64;
         assert!(beyond < 0.01, "{beyond} beyond the spec bound");
+    }
+
+    #[test]
+    fn dark_surfaces_read_noisier_and_a_little_long() {
+        let model = utm();
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        // Albedo 0.05 at 10 m: signal 0.05, a quarter of full.
+        let dark = Some(Hit {
+            range_m: 10.0,
+            cos_incidence: 1.0,
+            reflectivity: 0.05,
+            surface: Surface::Shape(0),
+        });
+        let errors: Vec<f64> = (0..40_000)
+            .map(|_| read_beam(&model, &[dark, dark, dark], false, &mut rng))
+            .filter(|r| r.range_m > 0.0)
+            .map(|r| r.range_m as f64 - 10.0)
+            .filter(|e| e.abs() < 0.2)
+            .collect();
+        assert!(errors.len() > 20_000, "{} returns", errors.len());
+        let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+        let sd =
+            (errors.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / errors.len() as f64).sqrt();
+        let expected_bias = WEAK_BIAS_M * 0.75;
+        assert!(
+            (mean - expected_bias).abs() < 0.001,
+            "mean {mean}, expected {expected_bias}"
+        );
+        assert!(
+            (sd - 0.020).abs() < 0.002,
+            "sd {sd}: twice the spec σ at a quarter of full signal"
+        );
     }
 
     #[test]
