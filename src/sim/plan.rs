@@ -862,4 +862,51 @@ yaw_deg = 180
             "{err}"
         );
     }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
+
+        /// Any value of any key of the lab plan replaced by nonsense: an error naming the file,
+        /// or a plan that simulates without panicking.
+        #[test]
+        fn mangled_values_are_refused_or_simulated_never_a_panic(
+            pick in 0usize..10_000,
+            value in proptest::sample::select(vec![
+                "nan", "inf", "-inf", "-1", "0", "1e308", "-1e308", "\"x\"", "[]", "[[0, 0]]",
+                "true", "{}", "0.0001", "1e-300",
+            ]),
+        ) {
+            let lab = include_str!("../../fixtures/plans/lab.toml");
+            let keyed: Vec<usize> = lab
+                .lines()
+                .enumerate()
+                .filter(|(_, l)| !l.starts_with('#') && l.contains(" = "))
+                .map(|(i, _)| i)
+                .collect();
+            let target = keyed[pick % keyed.len()];
+            let text: String = lab
+                .lines()
+                .enumerate()
+                .map(|(i, l)| match l.split_once(" = ") {
+                    Some((key, _)) if i == target => format!("{key} = {value}\n"),
+                    _ => format!("{l}\n"),
+                })
+                .collect();
+            match Plan::from_toml(&text, "lab.toml") {
+                Err(e) => proptest::prop_assert!(e.to_string().starts_with("lab.toml"), "{e}"),
+                Ok(plan) => {
+                    if let Ok(mut sim) = crate::sim::Simulation::new(&plan, 1) {
+                        sim.run(0.03, |_, _| Ok::<(), ()>(())).ok();
+                    }
+                }
+            }
+        }
+
+        #[test]
+        fn arbitrary_text_is_refused_with_the_file_named(text in "\\PC{0,200}") {
+            if let Err(e) = Plan::from_toml(&text, "any.toml") {
+                proptest::prop_assert!(e.to_string().starts_with("any.toml"));
+            }
+        }
+    }
 }
