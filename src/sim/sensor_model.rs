@@ -1,7 +1,8 @@
 //! What a Hokuyo reports for one beam, given what the beam's footprint covers.
 //!
-//! Each beam is cast as three sub-rays across its footprint (one step wide). From those hits
-//! this module draws the reported range and intensity:
+//! Each beam is cast as three sub-rays across its footprint (centre and ±0.4 step, so a depth
+//! edge is straddled by about one beam). From those hits this module draws the reported range
+//! and intensity:
 //!
 //! - **Noise.** Gaussian, σ = a third of the spec bound (METHOD.md §7): the UTM's ±30 mm to
 //!   10 m and ±50 mm to 30 m give σ = 10 mm up to 10 m rising linearly to 16.7 mm at 30 m
