@@ -864,19 +864,24 @@ yaw_deg = 180
     }
 
     proptest::proptest! {
-        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(128))]
 
-        /// Any value of any key of the lab plan replaced by nonsense: an error naming the file,
+        /// Any value of any key of the lab (or moved) plan replaced by nonsense: an error naming the file,
         /// or a plan that simulates without panicking.
         #[test]
         fn mangled_values_are_refused_or_simulated_never_a_panic(
             pick in 0usize..10_000,
+            moved in proptest::bool::ANY,
             value in proptest::sample::select(vec![
                 "nan", "inf", "-inf", "-1", "0", "1e308", "-1e308", "\"x\"", "[]", "[[0, 0]]",
                 "true", "{}", "0.0001", "1e-300",
             ]),
         ) {
-            let lab = include_str!("../../fixtures/plans/lab.toml");
+            let lab = if moved {
+                include_str!("../../fixtures/plans/moved.toml")
+            } else {
+                include_str!("../../fixtures/plans/lab.toml")
+            };
             let keyed: Vec<usize> = lab
                 .lines()
                 .enumerate()

@@ -183,7 +183,7 @@ impl Simulation {
                 poses.push((m.at_s, pose));
                 moves.push(MoveTruth {
                     sensor_id: sensor.id.clone(),
-                    at_ns: start_ns + ns_of_s(m.at_s),
+                    at_ns: start_ns.saturating_add(ns_of_s(m.at_s)),
                     pose: truth_of(pose),
                 });
             }
@@ -398,7 +398,7 @@ impl Simulation {
         let sensor_ms = (t_start * (1.0 + unit.drift) * 1000.0).floor() as u64;
         Some(Scan {
             stamp_ns,
-            sensor_stamp_ms: Some(unit.clock_offset_ms + sensor_ms),
+            sensor_stamp_ms: Some(unit.clock_offset_ms.saturating_add(sensor_ms)),
             start_angle_rad: unit.geometry.angle_of_step_rad(unit.geometry.amin),
             end_angle_rad: unit.geometry.angle_of_step_rad(unit.geometry.amax),
             ranges_m,
