@@ -3,6 +3,15 @@
 //! A [`Plan`] (TOML floor plan, see [`plan`]) becomes a [`Simulation`] that streams the scans
 //! every sensor would make, with Hokuyo-like noise, dropouts, mixed pixels, intensities, people
 //! walking and sensors being moved. Nothing here writes files: the `simulate` command does.
+//!
+//! - [`plan`]: the TOML format and its checks (every key documented there).
+//! - `scene`: 3D ray casting against extruded 2D shapes, floor and ceiling.
+//! - `sensor_model`: noise, dropouts, mixed pixels, intensity, spurious returns.
+//! - `simulation`: timing, clocks, moves, people, streaming in stamp order.
+//! - `overlap`: [`view_overlap`], how much two sensors see of the same walls.
+//!
+//! Same plan and seed give bit-identical scans. Speed: `cargo bench --bench sim_speed` prints
+//! how long a minute of `fixtures/plans/hall.toml` takes.
 
 mod overlap;
 mod people;

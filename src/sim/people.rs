@@ -49,14 +49,21 @@ impl Walker {
         }
         let s = (self.start_m + self.speed_m_s * t_s).rem_euclid(self.loop_m);
         // First corner beyond s; the leg before it holds s.
-        let i = self
-            .at_m
-            .partition_point(|&a| a <= s)
-            .clamp(1, self.corners.len() - 1);
-        let (a, b) = (self.corners[i - 1], self.corners[i]);
-        let leg_m = self.at_m[i] - self.at_m[i - 1];
+        let i = self.at_m.partition_point(|&a| a <= s).max(1);
+        let (Some(&a), Some(&b), Some(&from_m), Some(&to_m)) = (
+            self.corners.get(i - 1),
+            self.corners.get(i),
+            self.at_m.get(i - 1),
+            self.at_m.get(i),
+        ) else {
+            return (
+                self.corners.first().copied().unwrap_or([0.0, 0.0]),
+                [0.0, 0.0],
+            );
+        };
+        let leg_m = to_m - from_m;
         let f = if leg_m > 0.0 {
-            (s - self.at_m[i - 1]) / leg_m
+            (s - from_m) / leg_m
         } else {
             0.0
         };

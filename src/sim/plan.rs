@@ -17,8 +17,8 @@
 //! Shapes (all have `height_m`, the top above the floor, `z_min_m`, the bottom, default 0 —
 //! set it for a table top or a shelf board that a beam can pass under — and `reflectivity`,
 //! a diffuse albedo in (0, 1], up to 10 for retro-reflective tape):
-//! - `[[wall]]`: `points = [[x, y], …]` (at least 2), `closed` (default false: joins the last
-//!   point back to the first), `height_m` (default 3.0), `z_min_m`, `reflectivity` (0.7).
+//! - `[[wall]]`: `points = [[x, y], …]` (at least 2), `closed` (default false; true joins the
+//!   last point back to the first), `height_m` (default 3.0), `z_min_m`, `reflectivity` (0.7).
 //!   Walls have no thickness.
 //! - `[[box]]`: furniture, shelves, desks: `center = [x, y]`, `size = [length, width]` (along
 //!   the box's own x and y), `yaw_deg` (default 0), `height_m` (default 1.0), `z_min_m`,
@@ -294,12 +294,7 @@ struct PlanFile {
 
 /// 1-based line of a byte offset.
 fn line_of(text: &str, offset: usize) -> usize {
-    let end = offset.min(text.len());
-    text.as_bytes()[..end]
-        .iter()
-        .filter(|&&b| b == b'\n')
-        .count()
-        + 1
+    text.bytes().take(offset).filter(|&b| b == b'\n').count() + 1
 }
 
 /// Unwraps spanned tables, remembering the line each starts on.
@@ -317,10 +312,9 @@ fn located<T>(text: &str, items: Vec<Spanned<T>>, set: impl Fn(&mut T, usize)) -
 
 /// The key written on the line a parser error points at, if any.
 fn key_at(text: &str, span: &Range<usize>) -> Option<String> {
-    let start = text[..span.start.min(text.len())]
-        .rfind('\n')
-        .map_or(0, |i| i + 1);
-    let line = text[start..].lines().next()?;
+    let before = text.get(..span.start)?;
+    let start = before.rfind('\n').map_or(0, |i| i + 1);
+    let line = text.get(start..)?.lines().next()?;
     let (key, _) = line.split_once('=')?;
     let key = key.trim();
     (!key.is_empty() && !key.starts_with('[')).then(|| key.to_string())
@@ -386,6 +380,29 @@ impl Plan {
     /// The sensor with this id.
     pub fn sensor(&self, id: &str) -> Option<&SensorPlan> {
         self.sensors.iter().find(|s| s.id == id)
+    }
+
+    /// The box or circle (described with its line) that holds the point at `height_m`, if any.
+    fn solid_at(&self, p: [f64; 2], height_m: f64) -> Option<String> {
+        let at = |line: Option<usize>| line.map_or(String::new(), |l| format!(" at line {l}"));
+        for b in &self.boxes {
+            let (sin, cos) = b.yaw_deg.to_radians().sin_cos();
+            let (dx, dy) = (p[0] - b.center[0], p[1] - b.center[1]);
+            let (u, v) = (cos * dx + sin * dy, -sin * dx + cos * dy);
+            if u.abs() < b.size[0] / 2.0
+                && v.abs() < b.size[1] / 2.0
+                && (b.z_min_m..=b.height_m).contains(&height_m)
+            {
+                return Some(format!("[[box]]{}", at(b.line)));
+            }
+        }
+        for c in &self.circles {
+            let d = (p[0] - c.center[0]).hypot(p[1] - c.center[1]);
+            if d < c.radius_m && (c.z_min_m..=c.height_m).contains(&height_m) {
+                return Some(format!("[[circle]]{}", at(c.line)));
+            }
+        }
+        None
     }
 
     /// Checks everything a simulation relies on; the error names the table, key and what is valid.
@@ -501,6 +518,16 @@ impl Plan {
                 );
             }
             check_points(self, s.line, "sensor.x/y", &[[s.x, s.y]], 1)?;
+            if let Some(inside) = self.solid_at([s.x, s.y], s.height_m) {
+                return err(
+                    s.line,
+                    "sensor.x/y",
+                    format!(
+                        "sensor `{}` is inside the {inside}; place it in free space",
+                        s.id
+                    ),
+                );
+            }
             check_finite(self, s.line, "sensor.yaw_deg", s.yaw_deg)?;
             if !(s.height_m.is_finite() && s.height_m > 0.0) {
                 return err(
@@ -811,6 +838,22 @@ yaw_deg = 180
     }
 
     #[test]
+    fn sensor_inside_a_pillar_is_refused() {
+        let text = format!("{GOOD}\n[[circle]]\ncenter = [2.1, 3.0]\nradius_m = 0.3\n");
+        let err = error_of(&text);
+        assert_eq!(err.key.as_deref(), Some("sensor.x/y"));
+        let pillar = line_with(&text, "[[circle]]");
+        assert!(
+            err.problem
+                .contains(&format!("[[circle]] at line {pillar}")),
+            "{err}"
+        );
+        // Above a low box is fine: a unit standing on a cabinet.
+        let on_top = format!("{GOOD}\n[[box]]\ncenter = [2, 3]\nsize = [1, 1]\nheight_m = 0.8\n");
+        assert!(Plan::from_toml(&on_top, "plan.toml").is_ok());
+    }
+
+    #[test]
     fn missing_file_names_the_file() {
         let err = Plan::load(Path::new("/nonexistent/plan.toml")).unwrap_err();
         assert!(
@@ -818,5 +861,57 @@ yaw_deg = 180
                 .starts_with("/nonexistent/plan.toml: cannot read"),
             "{err}"
         );
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(128))]
+
+        /// Any value of any key of the lab (or moved) plan replaced by nonsense: an error naming the file,
+        /// or a plan that simulates without panicking.
+        #[test]
+        fn mangled_values_are_refused_or_simulated_never_a_panic(
+            pick in 0usize..10_000,
+            moved in proptest::bool::ANY,
+            value in proptest::sample::select(vec![
+                "nan", "inf", "-inf", "-1", "0", "1e308", "-1e308", "\"x\"", "[]", "[[0, 0]]",
+                "true", "{}", "0.0001", "1e-300",
+            ]),
+        ) {
+            let lab = if moved {
+                include_str!("../../fixtures/plans/moved.toml")
+            } else {
+                include_str!("../../fixtures/plans/lab.toml")
+            };
+            let keyed: Vec<usize> = lab
+                .lines()
+                .enumerate()
+                .filter(|(_, l)| !l.starts_with('#') && l.contains(" = "))
+                .map(|(i, _)| i)
+                .collect();
+            let target = keyed[pick % keyed.len()];
+            let text: String = lab
+                .lines()
+                .enumerate()
+                .map(|(i, l)| match l.split_once(" = ") {
+                    Some((key, _)) if i == target => format!("{key} = {value}\n"),
+                    _ => format!("{l}\n"),
+                })
+                .collect();
+            match Plan::from_toml(&text, "lab.toml") {
+                Err(e) => proptest::prop_assert!(e.to_string().starts_with("lab.toml"), "{e}"),
+                Ok(plan) => {
+                    if let Ok(mut sim) = crate::sim::Simulation::new(&plan, 1) {
+                        sim.run(0.03, |_, _| Ok::<(), ()>(())).ok();
+                    }
+                }
+            }
+        }
+
+        #[test]
+        fn arbitrary_text_is_refused_with_the_file_named(text in "\\PC{0,200}") {
+            if let Err(e) = Plan::from_toml(&text, "any.toml") {
+                proptest::prop_assert!(e.to_string().starts_with("any.toml"));
+            }
+        }
     }
 }

@@ -530,4 +530,105 @@ radius_m = 0.3
         assert_eq!(err.line, at_line);
         assert!(err.to_string().contains("within 0.5 m"), "{err}");
     }
+
+    /// A box as four walls of the same extent and reflectivity.
+    fn box_as_walls(cx: f64, cy: f64, len: f64, wid: f64, yaw_deg: f64) -> Scene {
+        let (sin, cos) = yaw_deg.to_radians().sin_cos();
+        let corner = |u: f64, v: f64| [cx + cos * u - sin * v, cy + sin * u + cos * v];
+        let (hl, hw) = (len / 2.0, wid / 2.0);
+        let pts = [
+            corner(-hl, -hw),
+            corner(hl, -hw),
+            corner(hl, hw),
+            corner(-hl, hw),
+        ];
+        let extent = Extent {
+            z_min_m: 0.0,
+            z_max_m: 1.0,
+        };
+        Scene {
+            segments: (0..4)
+                .map(|i| Segment {
+                    a: pts[i],
+                    b: pts[(i + 1) % 4],
+                    extent,
+                    reflectivity: 0.5,
+                })
+                .collect(),
+            blocks: Vec::new(),
+            cylinders: Vec::new(),
+            floor_reflectivity: 0.3,
+            ceiling: None,
+        }
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn level_beam_from_inside_a_room_lands_on_its_boundary_at_the_nearest_wall(
+            x in 0.1f64..9.9, y in 0.1f64..5.9, yaw in -3.2f64..3.2, theta in -2.4f64..2.4,
+        ) {
+            let scene = Scene::build(&plan(
+                "name = \"r\"\n[[wall]]\npoints = [[0, 0], [10, 0], [10, 6], [0, 6]]\nclosed = true\n",
+            ))
+            .unwrap();
+            let ray = Ray::from_sensor([x, y, yaw], 1.0, 0.0, theta);
+            let hit = scene.cast(&ray).unwrap();
+            let [ux, uy, _] = ray.dir;
+            // Distance to each wall line along the beam; the nearest positive one is the hit.
+            let candidates = [(0.0 - x) / ux, (10.0 - x) / ux, (0.0 - y) / uy, (6.0 - y) / uy];
+            let expected = candidates.iter().copied().filter(|t| *t > 0.0).fold(f64::INFINITY, f64::min);
+            proptest::prop_assert!((hit.range_m - expected).abs() < 1e-9);
+            let [hx, hy] = ray.xy_at(hit.range_m);
+            let on_edge = hx.abs() < 1e-9 || (hx - 10.0).abs() < 1e-9 || hy.abs() < 1e-9 || (hy - 6.0).abs() < 1e-9;
+            proptest::prop_assert!(on_edge);
+            proptest::prop_assert!((0.0..=1.0 + 1e-12).contains(&hit.cos_incidence));
+        }
+
+        #[test]
+        fn box_hits_like_its_four_walls_from_outside(
+            cx in -2.0f64..2.0, cy in -2.0f64..2.0, len in 0.2f64..3.0, wid in 0.2f64..3.0,
+            box_yaw in -180.0f64..180.0, bearing in -3.2f64..3.2, theta in -0.1f64..0.1, aim in -0.4f64..0.4,
+        ) {
+            // The sensor stands 6 m from the box centre, outside it, looking roughly at it.
+            let (x, y) = (cx + 6.0 * bearing.cos(), cy + 6.0 * bearing.sin());
+            let walls = box_as_walls(cx, cy, len, wid, box_yaw);
+            let block = Scene {
+                blocks: vec![Block {
+                    center: [cx, cy],
+                    axis: [box_yaw.to_radians().cos(), box_yaw.to_radians().sin()],
+                    half: [len / 2.0, wid / 2.0],
+                    extent: Extent { z_min_m: 0.0, z_max_m: 1.0 },
+                    reflectivity: 0.5,
+                }],
+                segments: Vec::new(),
+                ..walls.clone()
+            };
+            let yaw = bearing + std::f64::consts::PI + aim;
+            let ray = Ray::from_sensor([x, y, yaw], 0.5, 0.0, theta);
+            match (walls.cast(&ray), block.cast(&ray)) {
+                (None, None) => {}
+                (Some(a), Some(b)) => {
+                    proptest::prop_assert!((a.range_m - b.range_m).abs() < 1e-9);
+                    proptest::prop_assert!((a.cos_incidence - b.cos_incidence).abs() < 1e-9);
+                }
+                (a, b) => proptest::prop_assert!(false, "walls {:?} vs box {:?}", a, b),
+            }
+        }
+
+        #[test]
+        fn beam_directions_are_unit_and_tilt_follows_method_section_1(
+            pitch_deg in -60.0f64..60.0, theta in -2.4f64..2.4, yaw in -3.2f64..3.2, d in 0.1f64..30.0,
+        ) {
+            let pitch = pitch_deg.to_radians();
+            let ray = Ray::from_sensor([1.0, 2.0, yaw], 1.5, pitch, theta);
+            let [ux, uy, uz] = ray.dir;
+            proptest::prop_assert!(((ux * ux + uy * uy + uz * uz) - 1.0).abs() < 1e-12);
+            // z = h + d cosθ sinφ; horizontal distance = d √(cos²θ cos²φ + sin²θ).
+            proptest::prop_assert!((ray.origin[2] + d * uz - (1.5 + d * theta.cos() * pitch.sin())).abs() < 1e-9);
+            let [hx, hy] = ray.xy_at(d);
+            let horizontal = (hx - 1.0).hypot(hy - 2.0);
+            let expected = d * ((theta.cos() * pitch.cos()).powi(2) + theta.sin().powi(2)).sqrt();
+            proptest::prop_assert!((horizontal - expected).abs() < 1e-9);
+        }
+    }
 }

@@ -1,12 +1,15 @@
 //! What a Hokuyo reports for one beam, given what the beam's footprint covers.
 //!
-//! Each beam is cast as three sub-rays across its footprint (one step wide). From those hits
-//! this module draws the reported range and intensity:
+//! Each beam is cast as three sub-rays across its footprint (centre and ±0.4 step, so a depth
+//! edge is straddled by about one beam). From those hits this module draws the reported range
+//! and intensity:
 //!
 //! - **Noise.** Gaussian, σ = a third of the spec bound (METHOD.md §7): the UTM's ±30 mm to
 //!   10 m and ±50 mm to 30 m give σ = 10 mm up to 10 m rising linearly to 16.7 mm at 30 m
 //!   (and on beyond); the UXM's ±50/±100 mm give 16.7 → 33.3 mm. Weak returns (dark, far,
 //!   grazing) are noisier: σ grows with 1/√signal below a reference signal, up to 3×.
+//!   Weak returns also read long, by up to [`WEAK_BIAS_M`] (the range walk of a time-of-flight
+//!   receiver on a small pulse), so dark and grazing surfaces sit a little behind where they are.
 //!   Ranges are whole millimetres, as SCIP sends them.
 //! - **Dropouts.** Probability `floor + 1 / (1 + (s / s50)²)` on the received signal
 //!   `s = reflectivity · cos(incidence) · (10 m / range)²`: a white wall square on at 10 m
@@ -33,6 +36,8 @@ const HALF_DROP_SIGNAL: f64 = 0.03;
 const DROPOUT_FLOOR: f64 = 0.002;
 /// Signal at and above which noise is the spec figure.
 const FULL_SIGNAL: f64 = 0.2;
+/// How much further than the truth the weakest returns read, m.
+pub(crate) const WEAK_BIAS_M: f64 = 0.015;
 /// Chance a beam reports a spurious short range.
 const SPURIOUS_RATE: f64 = 2e-4;
 
@@ -87,6 +92,12 @@ impl BeamModel {
         base * weak
     }
 
+    /// Systematic range error of a return of this signal: none at full signal, growing to
+    /// [`WEAK_BIAS_M`] as the signal vanishes.
+    pub fn bias_m(&self, signal: f64) -> f64 {
+        WEAK_BIAS_M * (1.0 - (signal / FULL_SIGNAL).min(1.0))
+    }
+
     /// Probability that a return of this signal is lost.
     pub fn dropout_probability(&self, signal: f64) -> f64 {
         let x = signal / HALF_DROP_SIGNAL;
@@ -115,16 +126,23 @@ const NO_RETURN: Reading = Reading {
     mixed: false,
 };
 
-/// A standard normal draw (Box–Muller).
-pub(crate) fn normal(rng: &mut impl Rng) -> f64 {
+/// Two independent standard normal draws (Box–Muller).
+pub(crate) fn normal_pair(rng: &mut impl Rng) -> (f64, f64) {
     let u1: f64 = 1.0 - rng.random::<f64>();
     let u2: f64 = rng.random();
-    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    let radius = (-2.0 * u1.ln()).sqrt();
+    let (sin, cos) = (std::f64::consts::TAU * u2).sin_cos();
+    (radius * cos, radius * sin)
 }
 
 /// What the sensor reports for a beam whose three footprint sub-rays hit `subs`
 /// (centre in the middle).
-pub(crate) fn read_beam(model: &BeamModel, subs: &[Option<Hit>; 3], rng: &mut impl Rng) -> Reading {
+pub(crate) fn read_beam(
+    model: &BeamModel,
+    subs: &[Option<Hit>; 3],
+    with_intensity: bool,
+    rng: &mut impl Rng,
+) -> Reading {
     let [_, centre, _] = subs;
     let near = subs
         .iter()
@@ -144,8 +162,10 @@ pub(crate) fn read_beam(model: &BeamModel, subs: &[Option<Hit>; 3], rng: &mut im
         .max_by(|a, b| a.range_m.total_cmp(&b.range_m))
         .copied();
     // Share of the footprint on the near surface, blurred: the spot is not a top hat.
-    let jitter = (rng.random::<f64>() - 0.5) / 3.0;
-    let near_share = ((near_count as f64) / 3.0 + jitter).clamp(0.05, 0.95);
+    let mut near_share = || {
+        let jitter = (rng.random::<f64>() - 0.5) / 3.0;
+        ((near_count as f64) / 3.0 + jitter).clamp(0.05, 0.95)
+    };
 
     let (hit, signal, mixed) = match (near_count, far) {
         (3, _) => {
@@ -153,8 +173,9 @@ pub(crate) fn read_beam(model: &BeamModel, subs: &[Option<Hit>; 3], rng: &mut im
             (hit, model.signal(&hit), false)
         }
         // Part of the footprint sees nothing: the near surface returns with less energy.
-        (_, None) => (near, model.signal(&near) * near_share, false),
+        (_, None) => (near, model.signal(&near) * near_share(), false),
         (_, Some(far)) => {
+            let near_share = near_share();
             let e_near = model.signal(&near) * near_share;
             let e_far = model.signal(&far) * (1.0 - near_share);
             if rng.random::<f64>() < MIXED_PROBABILITY {
@@ -179,11 +200,17 @@ pub(crate) fn read_beam(model: &BeamModel, subs: &[Option<Hit>; 3], rng: &mut im
         let range_m = model.dmin_m + rng.random::<f64>() * (hit.range_m - model.dmin_m).max(0.0);
         return finish(model, range_m, 300.0 + 500.0 * rng.random::<f64>(), false);
     }
-    let intensity = model.intensity(&hit) * (1.0 + 0.03 * normal(rng)) + 20.0 * normal(rng);
     if rng.random::<f64>() < model.dropout_probability(signal) {
         return NO_RETURN;
     }
-    let range_m = hit.range_m + model.sigma_m(hit.range_m, signal) * normal(rng);
+    let (range_noise, intensity_noise) = normal_pair(rng);
+    let range_m =
+        hit.range_m + model.bias_m(signal) + model.sigma_m(hit.range_m, signal) * range_noise;
+    let intensity = if with_intensity {
+        model.intensity(&hit) * (1.0 + 0.03 * intensity_noise)
+    } else {
+        0.0
+    };
     finish(model, range_m, intensity, mixed)
 }
 
@@ -225,7 +252,14 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let n = 20_000;
         let errors: Vec<f64> = (0..n)
-            .map(|_| read_beam(&model, &[hit(5.0, 0), hit(5.0, 0), hit(5.0, 0)], &mut rng))
+            .map(|_| {
+                read_beam(
+                    &model,
+                    &[hit(5.0, 0), hit(5.0, 0), hit(5.0, 0)],
+                    true,
+                    &mut rng,
+                )
+            })
             .filter(|r| r.range_m > 0.0)
             .map(|r| r.range_m as f64 - 5.0)
             .collect();
@@ -240,6 +274,38 @@ mod tests {
         assert!((sd - 0.010).abs() < 0.001, "sd {sd}");
         let beyond = errors.iter().filter(|e| e.abs() > 0.030).count() as f64 / errors.len() as f64;
         assert!(beyond < 0.01, "{beyond} beyond the spec bound");
+    }
+
+    #[test]
+    fn dark_surfaces_read_noisier_and_a_little_long() {
+        let model = utm();
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        // Albedo 0.05 at 10 m: signal 0.05, a quarter of full.
+        let dark = Some(Hit {
+            range_m: 10.0,
+            cos_incidence: 1.0,
+            reflectivity: 0.05,
+            surface: Surface::Shape(0),
+        });
+        let errors: Vec<f64> = (0..40_000)
+            .map(|_| read_beam(&model, &[dark, dark, dark], false, &mut rng))
+            .filter(|r| r.range_m > 0.0)
+            .map(|r| r.range_m as f64 - 10.0)
+            .filter(|e| e.abs() < 0.2)
+            .collect();
+        assert!(errors.len() > 20_000, "{} returns", errors.len());
+        let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+        let sd =
+            (errors.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / errors.len() as f64).sqrt();
+        let expected_bias = WEAK_BIAS_M * 0.75;
+        assert!(
+            (mean - expected_bias).abs() < 0.001,
+            "mean {mean}, expected {expected_bias}"
+        );
+        assert!(
+            (sd - 0.020).abs() < 0.002,
+            "sd {sd}: twice the spec σ at a quarter of full signal"
+        );
     }
 
     #[test]
@@ -278,7 +344,12 @@ mod tests {
         let mut near = 0;
         let mut far = 0;
         for _ in 0..n {
-            let r = read_beam(&model, &[hit(3.0, 0), hit(3.0, 0), hit(6.0, 1)], &mut rng);
+            let r = read_beam(
+                &model,
+                &[hit(3.0, 0), hit(3.0, 0), hit(6.0, 1)],
+                true,
+                &mut rng,
+            );
             let d = r.range_m as f64;
             if r.range_m == 0.0 {
                 continue;

@@ -52,6 +52,8 @@ struct UnitRun {
     /// Per beam, three sub-rays across the footprint (centre in the middle).
     rays: Vec<[Ray; 3]>,
     statics: Vec<[Option<Hit>; 3]>,
+    /// Horizontal unit direction of each beam's centre ray, to cull people quickly.
+    headings: Vec<[f64; 2]>,
 }
 
 /// A plan ready to produce scans. Same plan and seed give bit-identical scans.
@@ -181,7 +183,7 @@ impl Simulation {
                 poses.push((m.at_s, pose));
                 moves.push(MoveTruth {
                     sensor_id: sensor.id.clone(),
-                    at_ns: start_ns + ns_of_s(m.at_s),
+                    at_ns: start_ns.saturating_add(ns_of_s(m.at_s)),
                     pose: truth_of(pose),
                 });
             }
@@ -268,6 +270,7 @@ impl Simulation {
                 pose_index: None,
                 rays: Vec::new(),
                 statics: Vec::new(),
+                headings: Vec::new(),
             })
             .collect();
         let mut pending: Vec<Option<Scan>> = Vec::with_capacity(runs.len());
@@ -324,19 +327,50 @@ impl Simulation {
                 .iter()
                 .map(|rays| rays.each_ref().map(|r| self.scene.cast(r)))
                 .collect();
+            run.headings = run
+                .rays
+                .iter()
+                .map(|[_, centre, _]| {
+                    let [x, y, _] = centre.dir;
+                    let norm = x.hypot(y).max(1e-12);
+                    [x / norm, y / norm]
+                })
+                .collect();
             run.pose_index = Some(pose_index);
         }
         let people: Vec<([f64; 2], [f64; 2])> =
             self.walkers.iter().map(|w| w.state_at(t_start)).collect();
+        // Each person can only be hit by beams within a cone around their direction: its
+        // half-angle covers their radius, their walk during the scan and the beam footprint.
+        let origin = run.rays.first().map_or([0.0; 3], |r| r[1].origin);
+        let cones: Vec<([f64; 2], f64)> = people
+            .iter()
+            .zip(&self.walkers)
+            .map(|((pos, vel), walker)| {
+                let (dx, dy) = (pos[0] - origin[0], pos[1] - origin[1]);
+                let dist = dx.hypot(dy);
+                let reach = walker.radius_m + vel[0].hypot(vel[1]) * unit.period_s + 0.05;
+                if dist <= reach * 1.5 {
+                    return ([1.0, 0.0], -2.0);
+                }
+                let half = (reach / dist).asin() + 3.0 * unit.geometry.step_rad();
+                ([dx / dist, dy / dist], half.cos())
+            })
+            .collect();
         let step_s = unit.period_s / unit.geometry.ares as f64;
         let with_intensities = unit.plan.has_intensities();
         let n = run.rays.len();
         let mut ranges_m = Vec::with_capacity(n);
         let mut intensities = Vec::with_capacity(if with_intensities { n } else { 0 });
-        for (i, (rays, statics)) in run.rays.iter().zip(&run.statics).enumerate() {
+        let beams = run.rays.iter().zip(&run.statics).zip(&run.headings);
+        for (i, ((rays, statics), heading)) in beams.enumerate() {
             let mut subs = *statics;
             let dt = i as f64 * step_s;
-            for (p, ((pos, vel), walker)) in people.iter().zip(&self.walkers).enumerate() {
+            let crowd = people.iter().zip(&self.walkers).zip(&cones);
+            for (p, (((pos, vel), walker), (towards, cos_limit))) in crowd.enumerate() {
+                if heading[0] * towards[0] + heading[1] * towards[1] < *cos_limit {
+                    continue;
+                }
                 let body = Cylinder {
                     center: [pos[0] + vel[0] * dt, pos[1] + vel[1] * dt],
                     radius_m: walker.radius_m,
@@ -354,7 +388,7 @@ impl Simulation {
                     }
                 }
             }
-            let reading = read_beam(&unit.beam, &subs, &mut run.rng);
+            let reading = read_beam(&unit.beam, &subs, with_intensities, &mut run.rng);
             ranges_m.push(reading.range_m);
             if with_intensities {
                 intensities.push(reading.intensity);
@@ -364,7 +398,7 @@ impl Simulation {
         let sensor_ms = (t_start * (1.0 + unit.drift) * 1000.0).floor() as u64;
         Some(Scan {
             stamp_ns,
-            sensor_stamp_ms: Some(unit.clock_offset_ms + sensor_ms),
+            sensor_stamp_ms: Some(unit.clock_offset_ms.saturating_add(sensor_ms)),
             start_angle_rad: unit.geometry.angle_of_step_rad(unit.geometry.amin),
             end_angle_rad: unit.geometry.angle_of_step_rad(unit.geometry.amax),
             ranges_m,
@@ -693,6 +727,78 @@ y = 0.0
                 y_m: 0.0,
                 yaw_deg: 0.0
             })
+        );
+    }
+
+    #[test]
+    fn hall_fixture_scans_look_like_hokuyo_data() {
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/plans/hall.toml");
+        let plan = Plan::load(&path).unwrap();
+        let mut s = Simulation::new(&plan, 1).unwrap();
+        let infos = s.sensors().to_vec();
+        let mut per_sensor: Vec<Vec<Scan>> = vec![Vec::new(); infos.len()];
+        s.run(2.0, |i, scan| {
+            per_sensor[i].push(scan);
+            Ok::<(), ()>(())
+        })
+        .unwrap();
+        for (info, scans) in infos.iter().zip(&per_sensor) {
+            let g = info.geometry.unwrap();
+            let expected = (2.0 / g.period_s()) as usize;
+            assert!(
+                scans.len() + 1 >= expected && scans.len() <= expected,
+                "{}: {} scans",
+                info.id,
+                scans.len()
+            );
+            let beams = scans.len() * g.step_count();
+            let returns = scans
+                .iter()
+                .flat_map(|s| &s.ranges_m)
+                .filter(|r| **r > 0.0)
+                .count();
+            let share = returns as f64 / beams as f64;
+            assert!(
+                (0.75..0.995).contains(&share),
+                "{}: {share} of beams return",
+                info.id
+            );
+            let mut intensities: Vec<f32> = scans
+                .iter()
+                .flat_map(|s| s.ranges_m.iter().zip(&s.intensities))
+                .filter(|(r, _)| **r > 0.0)
+                .map(|(_, i)| *i)
+                .collect();
+            if info.model == "UTM-30LX-EW" {
+                intensities.sort_by(f32::total_cmp);
+                let median = intensities[intensities.len() / 2];
+                assert!(
+                    (800.0..4000.0).contains(&median),
+                    "{}: median intensity {median}",
+                    info.id
+                );
+            } else {
+                assert!(
+                    intensities.is_empty(),
+                    "{}: UXM sends no intensities by default",
+                    info.id
+                );
+            }
+        }
+        // The tilted unit, 2.5 m up and pitched 20° down, sees the floor 7.31 m ahead.
+        let tilt = infos.iter().position(|i| i.id == "tilt").unwrap();
+        let g = ScanGeometry::UXM_30LX_E;
+        let mut fronts: Vec<f64> = per_sensor[tilt]
+            .iter()
+            .map(|s| front(s, &g) as f64)
+            .filter(|r| *r > 0.0)
+            .collect();
+        fronts.sort_by(f64::total_cmp);
+        let median = fronts[fronts.len() / 2];
+        assert!(
+            (median - 2.5 / 20f64.to_radians().sin()).abs() < 0.01,
+            "tilt front median {median}"
         );
     }
 }
