@@ -4,6 +4,7 @@
 //! Every stage is usable alone; see `DESIGN.md` in the repository for the data flow.
 
 pub mod features;
+pub mod fuse;
 pub mod geometry;
 pub mod record;
 pub mod register;

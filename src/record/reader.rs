@@ -8,8 +8,8 @@ use std::borrow::Cow;
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
-use mcap::read::{ChunkFlattener, Options};
 use mcap::records::Record;
+use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
 use prost::Message as _;
 
 use super::RecordError;
@@ -75,6 +75,9 @@ pub fn read_lenient(path: &Path) -> Result<Recording, RecordError> {
     parse(path, &bytes)
 }
 
+/// Largest record or decompressed chunk accepted, bytes.
+const MAX_RECORD_BYTES: usize = 256 << 20;
+
 enum Kind {
     Laser { sensor_id: String, json: bool },
     Scip { sensor_id: String },
@@ -108,16 +111,30 @@ fn parse(path: &Path, bytes: &[u8]) -> Result<Recording, RecordError> {
             "not an MCAP recording (the file does not start with the MCAP magic bytes)".into(),
         ));
     }
-    let records = ChunkFlattener::new_with_options(
-        bytes,
-        Options::IgnoreEndMagic | Options::ValidateChunkCrcs,
-    )
-    .map_err(|e| invalid(format!("cannot start reading: {e}")))?;
-
+    // A corrupt length field must not make the reader allocate what it says: no record or
+    // decompressed chunk is larger than this in any recording scanfuse or Foxglove writes.
+    let mut reader = LinearReader::new_with_options(
+        LinearReaderOptions::default()
+            .with_skip_end_magic(true)
+            .with_validate_chunk_crcs(true)
+            .with_record_length_limit(MAX_RECORD_BYTES),
+    );
+    let mut rest = bytes;
     let mut state = Parse::default();
     let mut damage = None;
     let mut saw_data_end = false;
-    for record in records {
+    while let Some(event) = reader.next_event() {
+        let record = match event {
+            Ok(LinearReadEvent::ReadRequest(need)) => {
+                let len = need.min(rest.len());
+                reader.insert(len).copy_from_slice(&rest[..len]);
+                reader.notify_read(len);
+                rest = &rest[len..];
+                continue;
+            }
+            Ok(LinearReadEvent::Record { data, opcode }) => mcap::read::parse_record(opcode, data),
+            Err(e) => Err(e),
+        };
         let record = match record {
             Ok(record) => record,
             Err(e) => {

@@ -44,7 +44,7 @@ impl RecordingWriter {
         Self::create_with_level(path, DEFAULT_ZSTD_LEVEL)
     }
 
-    /// Like [`create`](Self::create) with a zstd level (1–22): 19 makes fixtures ~10 % smaller
+    /// Like [`create`](Self::create) with a zstd level (1–22): 19 makes fixtures ~17 % smaller
     /// but compresses at a few MB/s, too slow to keep up with live sensors.
     pub fn create_with_level(path: &Path, zstd_level: u32) -> Result<Self, RecordError> {
         let partial = partial_path(path);
