@@ -24,6 +24,8 @@ enum Command {
     Info(cli::info::Args),
     /// Simulate a floor plan with sensors and people into a recording with ground truth.
     Simulate(cli::simulate::Args),
+    /// Work out every sensor's pose from the scans in the given recordings.
+    Register(cli::register::Args),
     /// Measure registration: success per overlap bin, errors, time, baselines, real data.
     Eval(cli::eval::Args),
 }
@@ -35,6 +37,7 @@ fn main() -> ExitCode {
         Command::Info(args) => cli::info::run(args),
         Command::Simulate(args) => cli::simulate::run(args),
         Command::Eval(args) => cli::eval::run(args),
+        Command::Register(args) => cli::register::run(args),
     };
     cli::exit_code(result)
 }

@@ -3,6 +3,7 @@
 
 pub mod eval;
 pub mod info;
+pub mod register;
 pub mod simulate;
 
 use std::process::ExitCode;
