@@ -6,10 +6,15 @@
 use anyhow::{Context, Result, bail};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use scanfuse::features::static_view;
 use scanfuse::geometry::{Mount, Pose2, pose_error, pose2};
 use scanfuse::register::model::NearestGrid;
+use scanfuse::register::site::{SensorInput, SiteParams, register_site};
 use scanfuse::register::{RegisterParams, ScanModel, register_pair};
 use scanfuse::scan::Scan;
+use scanfuse::scan::SensorInfo;
+use scanfuse::sim::plan::{Model, Plan, SensorPlan};
+use scanfuse::sim::{Simulation, view_overlap};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -28,6 +33,12 @@ pub struct Args {
     /// Seed of every random draw.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Folder of the floor plans random placements are drawn in.
+    #[arg(long, default_value = "fixtures/plans")]
+    pub plans: PathBuf,
+    /// Simulated sites of 8 sensors to solve.
+    #[arg(long, default_value_t = 3)]
+    pub sites: usize,
     /// Parts to run: sim, site, real, classes (comma separated; default all).
     #[arg(long, value_delimiter = ',')]
     pub only: Vec<String>,
@@ -36,6 +47,24 @@ pub struct Args {
 pub fn run(args: Args) -> Result<()> {
     let wants = |part: &str| args.only.is_empty() || args.only.iter().any(|o| o == part);
     let params = RegisterParams::default();
+    if wants("sim") || wants("site") {
+        let plans = load_plans(&args.plans)?;
+        if wants("sim") {
+            let cases = sim_cases(&plans, args.pairs, args.seed, &params)?;
+            println!(
+                "\n== Simulated pairs (fixture plans, both models, tilted units, people), success ≤ 10 cm and ≤ 1° =="
+            );
+            evaluate(&cases, 0.10, 1f64.to_radians(), &params, args.seed);
+            println!(
+                "\n== ICP with point classes on vs. off (simulated pairs ≥ 30 % overlap, start 0.3 m / 3° off) =="
+            );
+            classes_on_off(&cases, &params, args.seed);
+        }
+        if wants("site") {
+            println!("\n== Simulated sites of 8 sensors: every sensor within 10 cm / 1°? ==");
+            sites(&plans, args.sites, args.seed, &params)?;
+        }
+    }
     if wants("real") || wants("classes") {
         if args.real_data.is_dir() {
             let cases = real_cases(&args, &params)?;
@@ -55,6 +84,246 @@ pub fn run(args: Args) -> Result<()> {
                 args.real_data.display()
             );
         }
+    }
+    Ok(())
+}
+
+fn load_plans(dir: &std::path::Path) -> Result<Vec<Plan>> {
+    let mut plans = Vec::new();
+    for name in ["lab", "hall"] {
+        let path = dir.join(format!("{name}.toml"));
+        plans.push(
+            Plan::load(&path)
+                .with_context(|| format!("{}: cannot load the plan", path.display()))?,
+        );
+    }
+    Ok(plans)
+}
+
+/// A random sensor somewhere in `plan`: either model, one in five tilted like a ceiling unit.
+fn random_sensor(
+    plan: &Plan,
+    id: &str,
+    near: Option<(f64, f64)>,
+    rng: &mut ChaCha8Rng,
+) -> SensorPlan {
+    let (mut lo, mut hi) = (
+        (f64::INFINITY, f64::INFINITY),
+        (f64::NEG_INFINITY, f64::NEG_INFINITY),
+    );
+    for w in &plan.walls {
+        for p in &w.points {
+            lo = (lo.0.min(p[0]), lo.1.min(p[1]));
+            hi = (hi.0.max(p[0]), hi.1.max(p[1]));
+        }
+    }
+    let (x, y) = match near {
+        Some((x0, y0)) => {
+            let d = rng.random_range(2.0..12.0);
+            let a = rng.random_range(0.0..std::f64::consts::TAU);
+            (x0 + d * a.cos(), y0 + d * a.sin())
+        }
+        None => (rng.random_range(lo.0..hi.0), rng.random_range(lo.1..hi.1)),
+    };
+    let model = if rng.random_bool(0.7) {
+        Model::Utm30lxEw
+    } else {
+        Model::Uxm30lxE
+    };
+    let tilted = rng.random_bool(0.2);
+    SensorPlan {
+        line: None,
+        id: id.to_string(),
+        model,
+        x,
+        y,
+        yaw_deg: rng.random_range(-180.0..180.0),
+        height_m: if tilted {
+            rng.random_range(2.0..2.6)
+        } else {
+            rng.random_range(0.8..1.5)
+        },
+        pitch_deg: if tilted {
+            -rng.random_range(8.0..20.0)
+        } else {
+            0.0
+        },
+        intensities: None,
+    }
+}
+
+/// Simulates `plan` for a second and prepares every sensor's static view; `None` when a sensor
+/// stands somewhere useless (inside furniture, outside the building).
+fn simulate_models(
+    plan: &Plan,
+    seed: u64,
+    params: &RegisterParams,
+) -> Result<Option<Vec<(SensorInfo, ScanModel)>>> {
+    // A placement the simulator refuses (inside furniture, in a wall) is simply not drawn.
+    let Ok(mut sim) = Simulation::new(plan, seed) else {
+        return Ok(None);
+    };
+    let infos: Vec<SensorInfo> = sim.sensors().to_vec();
+    let mut scans: Vec<Vec<Scan>> = vec![Vec::new(); infos.len()];
+    sim.run(SIM_SECONDS, |i, scan| {
+        if let Some(v) = scans.get_mut(i) {
+            v.push(scan);
+        }
+        Ok::<(), std::convert::Infallible>(())
+    })
+    .ok();
+    let mut out = Vec::new();
+    for (info, scans) in infos.into_iter().zip(scans) {
+        let Some(view) = static_view(&scans, SIM_SECONDS) else {
+            return Ok(None);
+        };
+        let returns: Vec<f32> = view.ranges_m.iter().copied().filter(|r| *r > 0.0).collect();
+        // Outside the building most beams return nothing; inside a box everything is close.
+        if returns.len() * 2 < view.ranges_m.len()
+            || returns.iter().filter(|r| **r > 1.0).count() * 2 < returns.len()
+        {
+            return Ok(None);
+        }
+        let mount = Mount {
+            height_m: info.height_m,
+            pitch_rad: info.pitch_deg.unwrap_or(0.0).to_radians(),
+        };
+        let model = ScanModel::from_scan(&view, info.geometry.as_ref(), &mount, params);
+        out.push((info, model));
+    }
+    Ok(Some(out))
+}
+
+/// Seconds simulated per placement; the static view is the median over them.
+const SIM_SECONDS: f64 = 0.5;
+
+fn truth_pose(info: &SensorInfo) -> Option<Pose2> {
+    info.truth
+        .map(|t| pose2(t.x_m, t.y_m, t.yaw_deg.to_radians()))
+}
+
+/// Random pairs in the fixture plans, spread over the overlap bins.
+fn sim_cases(
+    plans: &[Plan],
+    count: usize,
+    seed: u64,
+    params: &RegisterParams,
+) -> Result<Vec<Case>> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x51a);
+    let quota = count.div_ceil(BINS.len());
+    let mut filled = [0usize; BINS.len()];
+    let mut cases = Vec::new();
+    let mut attempts = 0;
+    while cases.len() < count && attempts < count * 60 {
+        attempts += 1;
+        let Some(base) = plans.get(rng.random_range(0..plans.len())) else {
+            break;
+        };
+        let mut plan = base.clone();
+        plan.moves.clear();
+        let a = random_sensor(&plan, "a", None, &mut rng);
+        let b = random_sensor(&plan, "b", Some((a.x, a.y)), &mut rng);
+        plan.sensors = vec![a, b];
+        // Overlap first (cheap): skip placements whose bin is already full.
+        let Ok(overlap) = view_overlap(&plan, "a", "b", 0.1) else {
+            continue;
+        };
+        let bin = bin_of(overlap);
+        if filled[bin] >= quota {
+            continue;
+        }
+        let Some(models) = simulate_models(&plan, rng.random(), params)? else {
+            continue;
+        };
+        let [(ia, ma), (ib, mb)] = <[(SensorInfo, ScanModel); 2]>::try_from(models)
+            .map_err(|_| anyhow::anyhow!("expected two sensors"))?;
+        let (Some(ta), Some(tb)) = (truth_pose(&ia), truth_pose(&ib)) else {
+            continue;
+        };
+        filled[bin] += 1;
+        if cases.len() % 25 == 0 {
+            eprintln!("simulated {} of {count} pairs…", cases.len());
+        }
+        cases.push(Case {
+            label: format!(
+                "{} {} {}→{} {}",
+                plan.name,
+                ia.model,
+                (ta.translation.x * 10.0).round() / 10.0,
+                (tb.translation.x * 10.0).round() / 10.0,
+                ib.model
+            ),
+            a: ma,
+            b: mb,
+            a_from_b: ta.inverse() * tb,
+            overlap,
+        });
+    }
+    Ok(cases)
+}
+
+/// Sites of 8 random sensors: the joint solve's error against truth, and its time.
+fn sites(plans: &[Plan], count: usize, seed: u64, params: &RegisterParams) -> Result<()> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5173);
+    println!(
+        "{:<6} {:<6} {:>7} {:>9} {:>11} {:>10} {:>9}",
+        "site", "plan", "placed", "≤10cm/1°", "max err cm", "max err °", "time ms"
+    );
+    let mut done = 0;
+    let mut attempts = 0;
+    while done < count && attempts < count * 50 {
+        attempts += 1;
+        let Some(base) = plans.get(attempts % plans.len()) else {
+            break;
+        };
+        let mut plan = base.clone();
+        plan.moves.clear();
+        plan.sensors = (0..8)
+            .map(|k| random_sensor(&plan, &format!("s{k}"), None, &mut rng))
+            .collect();
+        let Some(models) = simulate_models(&plan, rng.random(), params)? else {
+            continue;
+        };
+        let truths: Vec<Pose2> = models.iter().filter_map(|(i, _)| truth_pose(i)).collect();
+        let inputs: Vec<SensorInput> = models
+            .into_iter()
+            .map(|(info, model)| SensorInput {
+                id: info.id.clone(),
+                mount: Mount {
+                    height_m: info.height_m,
+                    pitch_rad: info.pitch_deg.unwrap_or(0.0).to_radians(),
+                },
+                model,
+                prior: None,
+            })
+            .collect();
+        let t0 = Instant::now();
+        let site = register_site(&inputs, 0, params, &SiteParams::default());
+        let ms = t0.elapsed().as_secs_f64() * 1e3;
+        let (mut placed, mut ok, mut max_m, mut max_deg) = (0, 0, 0.0f64, 0.0f64);
+        for (k, s) in site.sensors.iter().enumerate() {
+            let (Ok(p), Some(t), Some(t0)) = (&s.pose, truths.get(k), truths.first()) else {
+                continue;
+            };
+            placed += 1;
+            let (dt, dyaw) = pose_error(&p.pose.planar(), &(t0.inverse() * t));
+            max_m = max_m.max(dt);
+            max_deg = max_deg.max(dyaw.to_degrees());
+            if dt <= 0.1 && dyaw <= 1f64.to_radians() {
+                ok += 1;
+            }
+        }
+        done += 1;
+        println!(
+            "{:<6} {:<6} {:>5}/8 {:>7}/8 {:>11.1} {:>10.2} {:>9.0}",
+            done,
+            plan.name,
+            placed,
+            ok,
+            max_m * 100.0,
+            max_deg,
+            ms
+        );
     }
     Ok(())
 }
@@ -178,39 +447,6 @@ pub fn evaluate(cases: &[Case], tol_m: f64, tol_rad: f64, params: &RegisterParam
             };
             if r.candidates.iter().any(near) {
                 recall_hits += 1;
-            } else if std::env::var_os("SCANFUSE_DEBUG").is_some() {
-                let truth_yaw = scanfuse::geometry::yaw_rad(&case.a_from_b);
-                let thetas =
-                    scanfuse::register::hypotheses::rotation_candidates(&case.a, &case.b, params);
-                let dtheta = thetas
-                    .iter()
-                    .map(|t| {
-                        scanfuse::geometry::wrap_angle_rad(t - truth_yaw)
-                            .abs()
-                            .to_degrees()
-                    })
-                    .fold(f64::INFINITY, f64::min);
-                let hyps = scanfuse::register::hypotheses::hypotheses(&case.a, &case.b, params);
-                let (best_h, rank) = hyps
-                    .iter()
-                    .enumerate()
-                    .map(|(k, (_, h))| (pose_error(h, &case.a_from_b), k))
-                    .min_by(|x, y| (x.0.0 + x.0.1 * 5.0).total_cmp(&(y.0.0 + y.0.1 * 5.0)))
-                    .unwrap_or(((f64::NAN, f64::NAN), 0));
-                eprintln!(
-                    "recall miss {}: ov {:.2}, segs {}/{}, edges {}/{}, thetas {}, nearest theta {:.1}°, hyps {}, nearest hyp {:.2} m {:.1}° (#{rank})",
-                    case.label,
-                    case.overlap,
-                    case.a.features.segments.len(),
-                    case.b.features.segments.len(),
-                    case.a.features.edges.len(),
-                    case.b.features.edges.len(),
-                    thetas.len(),
-                    dtheta,
-                    hyps.len(),
-                    best_h.0,
-                    best_h.1.to_degrees()
-                );
             }
         }
         tallies[0][bin].add(estimate.as_ref(), &case.a_from_b, tol_m, tol_rad);
@@ -381,26 +617,6 @@ fn classes_on_off(cases: &[Case], params: &RegisterParams, seed: u64) {
             c.a_from_b * pose2(0.3 * d.cos(), 0.3 * d.sin(), s * 3f64.to_radians())
         })
         .collect();
-    if std::env::var_os("SCANFUSE_DEBUG").is_some() {
-        for c in &chosen {
-            let r = scanfuse::register::icp::refine(&c.a, &c.b, &c.a_from_b, params, false);
-            let (dt, dyaw) = pose_error(&r.a_from_b, &c.a_from_b);
-            let s_t = scanfuse::register::score::score(&c.a, &c.b, &c.a_from_b, params);
-            let s_r = scanfuse::register::score::score(&c.a, &c.b, &r.a_from_b, params);
-            eprintln!(
-                "from truth {}: ov {:.2} -> {:.1} cm {:.2}°, iters {}, rms {:.3}, n {}, score truth {:.3} refined {:.3}",
-                c.label,
-                c.overlap,
-                dt * 100.0,
-                dyaw.to_degrees(),
-                r.iterations,
-                r.rms_m,
-                r.correspondences,
-                s_t.value,
-                s_r.value
-            );
-        }
-    }
     for on in [false, true] {
         let (mut iters, mut times, mut errs) = (Vec::new(), Vec::new(), Vec::new());
         let mut within = 0usize;

@@ -174,7 +174,7 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
     let at_best = super::icp::refine(a, b, &best.a_from_b, &narrow, p.class_aware);
     let (covariance, weak) = covariance_of(&at_best, p);
     let overlap = best.score.overlap();
-    let verdict = if best.score.value <= 0.0 || overlap < p.min_overlap {
+    let verdict = if best.score.value < p.min_score || overlap < p.min_overlap {
         Err(Abstain::TooLittleOverlap { overlap })
     } else if best.score.violation() > p.max_violation {
         Err(Abstain::ContradictsFreeSpace {
@@ -217,11 +217,15 @@ fn slides_freely(
 ) -> bool {
     let axis = nalgebra::Vector2::new(axis_deg.to_radians().cos(), axis_deg.to_radians().sin());
     let best_value = best.score.value;
-    [-0.5, -0.25, 0.25, 0.5].iter().any(|&d| {
-        let shift = axis * d;
-        let moved = crate::geometry::pose2(shift.x, shift.y, 0.0) * best.a_from_b;
-        score(a, b, &moved, p).value > p.max_ambiguity * best_value
-    })
+    let ratios: Vec<f64> = [-0.5, -0.25, 0.25, 0.5]
+        .iter()
+        .map(|&d| {
+            let shift = axis * d;
+            let moved = crate::geometry::pose2(shift.x, shift.y, 0.0) * best.a_from_b;
+            score(a, b, &moved, p).value / best_value
+        })
+        .collect();
+    ratios.iter().any(|r| *r > p.slide_ratio)
 }
 
 /// Covariance σ²·(JᵀWJ)⁻¹, inflated for correlated residuals, and the direction (deg) of a

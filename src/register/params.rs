@@ -69,6 +69,11 @@ pub struct RegisterParams {
     pub max_violation: f64,
     /// Abstain when the runner-up (a different pose) scores at least this fraction of the best.
     pub max_ambiguity: f64,
+    /// Abstain when the best score (hit share minus weighted violations) is below this.
+    pub min_score: f64,
+    /// A pose slid ±0.25/0.5 m along an axis ICP cannot see that keeps this share of the best
+    /// score means the scans do not fix the position along it.
+    pub slide_ratio: f64,
     /// Abstain when the weakest translation direction carries less than this share of the
     /// constraint (a corridor seen lengthwise).
     pub min_constraint_share: f64,
@@ -110,6 +115,8 @@ impl Default for RegisterParams {
             min_overlap: 0.15,
             max_violation: 0.15,
             max_ambiguity: 0.8,
+            min_score: 0.08,
+            slide_ratio: 0.95,
             min_constraint_share: 0.005,
         }
     }
