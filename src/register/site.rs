@@ -194,7 +194,62 @@ pub fn register_site(
         }
     }
 
-    let solution = solve(n, anchor, &edges, sensors, sp);
+    // Every placed sensor must agree with every other placed sensor about free space, not
+    // only with the ones it was registered to: a sensor hanging on one wrong edge has no cycle
+    // to expose it, but its scan lands where a third sensor saw nothing. Drop the weaker side's
+    // edges and solve again until no placement contradicts another.
+    let mut solution = solve(n, anchor, &edges, sensors, sp);
+    let mut contradicted = vec![None::<usize>; n];
+    loop {
+        let placed: Vec<(usize, Pose2)> = solution
+            .iter()
+            .enumerate()
+            .filter_map(|(i, s)| s.map(|(p, _)| (i, p)))
+            .collect();
+        let conflict = placed
+            .par_iter()
+            .flat_map_iter(|&(i, pi)| {
+                placed
+                    .iter()
+                    .filter(move |(j, _)| *j > i)
+                    .map(move |&(j, pj)| (i, pi, j, pj))
+            })
+            .find_first(|&(i, pi, j, pj)| {
+                let v = super::score::score(
+                    &sensors[i].model,
+                    &sensors[j].model,
+                    &(pi.inverse() * pj),
+                    p,
+                );
+                v.violation() > p.max_violation
+            })
+            .map(|(i, _, j, _)| (i, j));
+        let Some((i, j)) = conflict else { break };
+        let support = |k: usize| edges.iter().filter(|e| e.a == k || e.b == k).count();
+        // Never drop the anchor; otherwise the sensor with fewer edges loses them all.
+        let loser = if i == anchor {
+            j
+        } else if j == anchor || support(i) < support(j) {
+            i
+        } else if support(j) < support(i) {
+            j
+        } else {
+            i.max(j)
+        };
+        contradicted[loser] = Some(if loser == i { j } else { i });
+        let keep: Vec<bool> = edges.iter().map(|e| e.a != loser && e.b != loser).collect();
+        let mut k = 0;
+        edges.retain(|_| {
+            k += 1;
+            keep[k - 1]
+        });
+        let mut k = 0;
+        origin.retain(|_| {
+            k += 1;
+            keep[k - 1]
+        });
+        solution = solve(n, anchor, &edges, sensors, sp);
+    }
     let anchor_pitch = sensors.get(anchor).map_or(0.0, |s| s.mount.pitch_rad);
     let placements = sensors
         .iter()
@@ -212,7 +267,13 @@ pub fn register_site(
                     sigma_y_m: sigma[1],
                     sigma_yaw_rad: sigma[2],
                 }),
-                None => Err(unplaced_reason(i, &pairs, &results)),
+                None => Err(match contradicted[i] {
+                    Some(j) => format!(
+                        "its only registrations put its scan in space {} saw empty",
+                        sensors.get(j).map_or("another sensor", |s| s.id.as_str())
+                    ),
+                    None => unplaced_reason(i, &pairs, &results),
+                }),
             },
         })
         .collect();
