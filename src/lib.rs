@@ -5,4 +5,5 @@
 
 pub mod record;
 pub mod scan;
+pub mod scip;
 pub mod sim;

@@ -8,7 +8,11 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
-#[command(name = "scanfuse", version, about = "Fuse several Hokuyo laser scanners into one site frame")]
+#[command(
+    name = "scanfuse",
+    version,
+    about = "Fuse several Hokuyo laser scanners into one site frame"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

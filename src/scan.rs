@@ -229,12 +229,15 @@ impl Scan {
         if n < 2 {
             return self.start_angle_rad;
         }
-        self.start_angle_rad + (self.end_angle_rad - self.start_angle_rad) * i as f64 / (n - 1) as f64
+        self.start_angle_rad
+            + (self.end_angle_rad - self.start_angle_rad) * i as f64 / (n - 1) as f64
     }
 
     /// True when range `i` is a real return (not 0, not NaN, finite).
     pub fn is_return(&self, i: usize) -> bool {
-        self.ranges_m.get(i).is_some_and(|r| r.is_finite() && *r > 0.0)
+        self.ranges_m
+            .get(i)
+            .is_some_and(|r| r.is_finite() && *r > 0.0)
     }
 }
 
