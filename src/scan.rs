@@ -161,7 +161,8 @@ pub struct SensorInfo {
     pub connect: String,
     /// Layout from PP; `None` for recordings from other writers that do not state it.
     pub geometry: Option<ScanGeometry>,
-    /// Every PP/VV/II field as the sensor reported it (`MODL`, `SERI`, `FIRM`, …).
+    /// Every PP/VV/II field as the sensor reported it (`MODL`, `SERI`, `FIRM`, …), including
+    /// the PP keys `geometry` was read from.
     pub fields: BTreeMap<String, String>,
     /// Height of the optical centre above the floor, m.
     pub height_m: Option<f64>,
@@ -241,6 +242,18 @@ impl Scan {
     }
 }
 
+/// Checks a sensor id: it names MCAP topics (`/<id>/scan`) and config entries, so it must be
+/// 1–64 characters of ASCII letters, digits, `_`, `-` or `.`.
+pub fn check_sensor_id(id: &str) -> Result<(), String> {
+    let ok_char = |c: char| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.');
+    if id.is_empty() || id.len() > 64 || !id.chars().all(ok_char) {
+        return Err(format!(
+            "sensor id {id:?} is not valid: use 1–64 ASCII letters, digits, '_', '-' or '.'"
+        ));
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -271,5 +284,13 @@ mod tests {
             ScanGeometry::from_fields(&fields),
             Err(GeometryError::Missing("ARES"))
         );
+    }
+
+    #[test]
+    fn sensor_ids_must_fit_in_a_topic() {
+        assert!(check_sensor_id("hall-3.east_2").is_ok());
+        for bad in ["", "a/b", "a b", "é", &"x".repeat(65)] {
+            assert!(check_sensor_id(bad).is_err(), "{bad:?}");
+        }
     }
 }

@@ -1,6 +1,18 @@
 //! Recordings: MCAP files with one `foxglove.LaserScan` channel per sensor (DESIGN.md "Formats").
+//!
+//! [`RecordingWriter`] writes them, [`read`]/[`read_lenient`] read them (from scanfuse or any
+//! other writer), [`stats`] summarises them for `scanfuse info`.
+
+pub mod laserscan;
+pub mod metadata;
+mod reader;
+pub mod stats;
+mod writer;
 
 use std::path::PathBuf;
+
+pub use reader::{Recording, SkippedChannel, read, read_lenient};
+pub use writer::{RecordingWriter, SCIP_ENCODING, partial_path};
 
 /// What went wrong reading or writing a recording; always names the file.
 #[derive(Debug, thiserror::Error)]
@@ -14,4 +26,14 @@ pub enum RecordError {
     },
     #[error("{path}: {what}")]
     Invalid { path: PathBuf, what: String },
+}
+
+/// Topic of a sensor's scans.
+pub fn scan_topic(sensor_id: &str) -> String {
+    format!("/{sensor_id}/scan")
+}
+
+/// Topic of a sensor's raw SCIP bytes.
+pub fn scip_topic(sensor_id: &str) -> String {
+    format!("/{sensor_id}/scip")
 }
