@@ -7,4 +7,5 @@ pub mod emulator;
 pub mod record;
 pub mod scan;
 pub mod scip;
+pub mod sensor;
 pub mod sim;

@@ -57,7 +57,8 @@ struct FaultState {
 }
 
 struct Shared {
-    unit: Mutex<Unit>,
+    /// Each connection gets a fresh copy, as a unit drops its stream when its client leaves.
+    unit: Unit,
     sources: Vec<SourceScan>,
     playback: Playback,
     faults: Faults,
@@ -105,7 +106,7 @@ impl Emulator {
         let (finished, _) = watch::channel(false);
         Ok(Emulator {
             shared: Arc::new(Shared {
-                unit: Mutex::new(Unit::new(info, geometry)),
+                unit: Unit::new(info, geometry),
                 sources,
                 playback,
                 faults: config.faults,
@@ -172,24 +173,34 @@ impl Emulator {
         stream: S,
     ) -> Result<(), EmulatorError> {
         let (mut rd, mut wr) = tokio::io::split(stream);
-        let result = self.connection(&mut rd, &mut wr).await;
-        lock(&self.shared.unit).disconnect();
+        let mut unit = self.shared.unit.clone();
+        let result = self.connection(&mut unit, &mut rd, &mut wr).await;
         let _ = wr.shutdown().await;
         result
     }
 
+    /// Serves one client over a serial port (a pty in tests).
+    pub async fn serve_serial(
+        &self,
+        port: Box<dyn serialport::SerialPort>,
+    ) -> Result<(), EmulatorError> {
+        let stream = crate::sensor::transport::bridge(port)?;
+        self.serve_stream(stream).await
+    }
+
     async fn connection<R: AsyncRead + Unpin, W: AsyncWrite + Unpin>(
         &self,
+        unit: &mut Unit,
         rd: &mut R,
         wr: &mut W,
     ) -> Result<(), EmulatorError> {
         let shared = &self.shared;
         let mut pending: Vec<u8> = Vec::new();
         let mut chunk = [0u8; 1024];
-        let mut streams_seen = lock(&shared.unit).streams_started();
+        let mut streams_seen = unit.streams_started();
         let mut next_k: u64 = 0;
         loop {
-            let streaming = lock(&shared.unit).is_streaming();
+            let streaming = unit.is_streaming();
             let play_start = *lock(&shared.play_start);
             let due = match (streaming, play_start) {
                 (true, Some(start)) => match shared.playback.due_ms(next_k) {
@@ -217,9 +228,9 @@ impl Emulator {
                         if line.is_empty() {
                             continue; // the other half of a CR LF
                         }
-                        let reply = self.answer(&line);
+                        let reply = self.answer(unit, &line);
                         wr.write_all(&reply).await?;
-                        let started = lock(&shared.unit).streams_started();
+                        let started = unit.streams_started();
                         if started != streams_seen {
                             streams_seen = started;
                             next_k = self.first_due_after_now();
@@ -227,7 +238,7 @@ impl Emulator {
                     }
                 }
                 _ = sleep, if due.is_some() => {
-                    if !self.emit(wr, &mut next_k).await? {
+                    if !self.emit(unit, wr, &mut next_k).await? {
                         return Ok(());
                     }
                 }
@@ -235,14 +246,14 @@ impl Emulator {
         }
     }
 
-    fn answer(&self, line: &[u8]) -> Vec<u8> {
+    fn answer(&self, unit: &mut Unit, line: &[u8]) -> Vec<u8> {
         let shared = &self.shared;
         let now_ms = self.now_ms();
         let current = self
             .current_k()
             .and_then(|k| shared.playback.index(k))
             .and_then(|i| shared.sources.get(i));
-        lock(&shared.unit).handle(line, now_ms, current.or(shared.sources.first()))
+        unit.handle(line, now_ms, current.or(shared.sources.first()))
     }
 
     fn current_k(&self) -> Option<u64> {
@@ -272,6 +283,7 @@ impl Emulator {
     /// Returns `false` when a fault closes the connection.
     async fn emit<W: AsyncWrite + Unpin>(
         &self,
+        unit: &mut Unit,
         wr: &mut W,
         next_k: &mut u64,
     ) -> Result<bool, EmulatorError> {
@@ -283,7 +295,7 @@ impl Emulator {
             return Ok(true);
         };
         let now_ms = self.now_ms();
-        let Some(mut block) = lock(&shared.unit).stream_block(source, now_ms) else {
+        let Some(mut block) = unit.stream_block(source, now_ms) else {
             return Ok(true);
         };
         let faults = &shared.faults;

@@ -173,13 +173,6 @@ impl Unit {
         self.streams_started
     }
 
-    /// Stops a stream, as a real unit does when its TCP client goes away.
-    pub fn disconnect(&mut self) {
-        if self.is_streaming() {
-            self.mode = Mode::Idle;
-        }
-    }
-
     fn reset(&mut self, now_ms: u64, keep_speed: bool) {
         self.mode = Mode::Idle;
         self.laser_on = false;
