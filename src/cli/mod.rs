@@ -3,6 +3,7 @@
 
 pub mod emulate;
 pub mod info;
+pub mod record;
 pub mod simulate;
 
 use std::process::ExitCode;
