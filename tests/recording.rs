@@ -224,3 +224,54 @@ fn bad_sensor_ids_and_unknown_sensors_are_refused() {
         .unwrap_err();
     assert!(err.to_string().contains("ghost"));
 }
+
+mod damage {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn sample() -> &'static [u8] {
+        static BYTES: std::sync::OnceLock<Vec<u8>> = std::sync::OnceLock::new();
+        BYTES.get_or_init(|| {
+            let dir = tempfile::tempdir().unwrap();
+            let path = dir.path().join("s.mcap");
+            write_sample(&path, 40);
+            std::fs::read(&path).unwrap()
+        })
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(300))]
+
+        /// Any cut, any flipped bytes: the reader returns, never panics, and what it returns
+        /// is either the whole recording or damage with the file named.
+        #[test]
+        fn damaged_files_never_panic_the_reader(
+            cut in 0usize..=100,
+            flips in proptest::collection::vec((0usize..100_000, any::<u8>()), 0..8),
+        ) {
+            let mut bytes = sample().to_vec();
+            let len = bytes.len() * cut / 100;
+            bytes.truncate(len.max(8));
+            for (at, x) in flips {
+                let n = bytes.len();
+                bytes[at % n] ^= x | 1;
+            }
+            let dir = tempfile::tempdir().unwrap();
+            let path = dir.path().join("d.mcap");
+            std::fs::write(&path, &bytes).unwrap();
+            match record::read_lenient(&path) {
+                Ok(rec) => {
+                    if let Some(d) = &rec.damage {
+                        prop_assert!(d.to_string().contains("d.mcap"));
+                    }
+                    for scans in rec.scans.values() {
+                        for s in scans {
+                            prop_assert!(s.intensities.is_empty() || s.intensities.len() == s.ranges_m.len());
+                        }
+                    }
+                }
+                Err(e) => prop_assert!(e.to_string().contains("d.mcap")),
+            }
+        }
+    }
+}

@@ -12,7 +12,7 @@ mod writer;
 use std::path::PathBuf;
 
 pub use reader::{Recording, SkippedChannel, read, read_lenient};
-pub use writer::{RecordingWriter, SCIP_ENCODING, partial_path};
+pub use writer::{DEFAULT_ZSTD_LEVEL, RecordingWriter, SCIP_ENCODING, partial_path};
 
 /// What went wrong reading or writing a recording; always names the file.
 #[derive(Debug, thiserror::Error)]

@@ -1,6 +1,57 @@
 //! Ray-cast simulator of floor plans, sensor models and people: fixtures with ground truth.
+//!
+//! A [`Plan`] (TOML floor plan, see [`plan`]) becomes a [`Simulation`] that streams the scans
+//! every sensor would make, with Hokuyo-like noise, dropouts, mixed pixels, intensities, people
+//! walking and sensors being moved. Nothing here writes files: the `simulate` command does.
 
-/// A floor plan that cannot be used, with the file and what is wrong.
-#[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct PlanError(pub String);
+mod overlap;
+mod people;
+pub mod plan;
+mod scene;
+mod sensor_model;
+mod simulation;
+
+use std::fmt;
+
+pub use overlap::view_overlap;
+pub use plan::{BoxShape, Circle, Door, Model, Move, Person, Plan, SensorPlan, Wall};
+pub use simulation::Simulation;
+
+/// A floor plan that cannot be used: the file, the line when known, the key and what is valid.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct PlanError {
+    /// The file (or other origin) the plan came from.
+    pub file: String,
+    /// 1-based line of the table or value at fault, when known.
+    pub line: Option<usize>,
+    /// The key at fault, e.g. `sensor.pitch_deg`.
+    pub key: Option<String>,
+    /// What is wrong and what would be valid.
+    pub problem: String,
+}
+
+impl PlanError {
+    pub(crate) fn new(file: &str, line: Option<usize>, key: Option<&str>, problem: String) -> Self {
+        PlanError {
+            file: file.to_string(),
+            line,
+            key: key.map(str::to_string),
+            problem,
+        }
+    }
+}
+
+impl fmt::Display for PlanError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.file)?;
+        if let Some(line) = self.line {
+            write!(f, ":{line}")?;
+        }
+        if let Some(key) = &self.key {
+            write!(f, ": `{key}`")?;
+        }
+        write!(f, ": {}", self.problem)
+    }
+}
+
+impl std::error::Error for PlanError {}

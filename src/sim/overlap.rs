@@ -1,0 +1,174 @@
+//! How much two sensors see of the same things: the fixture plans are tuned with this.
+
+use std::collections::HashMap;
+
+use super::PlanError;
+use super::scene::{Scene, Surface};
+use super::simulation::beam_rays;
+use crate::scan::ScanGeometry;
+
+use super::plan::{Model, Plan};
+
+/// Fraction of B's static returns (noise-free, no people, initial poses) that lie within `tol_m`
+/// of a return of A, and the same the other way; returns the smaller.
+///
+/// Returns are the centre rays' hits within [DMIN, DMAX], as horizontal points in the site
+/// frame. Floor and ceiling hits are left out: registration drops them (METHOD.md §1), so they
+/// are not shared view.
+pub fn view_overlap(plan: &Plan, a_id: &str, b_id: &str, tol_m: f64) -> Result<f64, PlanError> {
+    let scene = Scene::build(plan)?;
+    let points = |id: &str| -> Result<Vec<[f64; 2]>, PlanError> {
+        let sensor = plan.sensor(id).ok_or_else(|| {
+            let known: Vec<&str> = plan.sensors.iter().map(|s| s.id.as_str()).collect();
+            PlanError::new(
+                &plan.origin,
+                None,
+                Some("sensor.id"),
+                format!(
+                    "`{id}` is not a sensor of this plan; known: {}",
+                    known.join(", ")
+                ),
+            )
+        })?;
+        let geometry = match sensor.model {
+            Model::Utm30lxEw => ScanGeometry::UTM_30LX_EW,
+            Model::Uxm30lxE => ScanGeometry::UXM_30LX_E,
+        };
+        let (dmin_m, dmax_m) = (
+            geometry.dmin_mm as f64 / 1000.0,
+            geometry.dmax_mm as f64 / 1000.0,
+        );
+        let pose = [sensor.x, sensor.y, sensor.yaw_deg.to_radians()];
+        Ok(beam_rays(sensor, &geometry, pose)
+            .iter()
+            .filter_map(|[_, centre, _]| {
+                let hit = scene.cast(centre)?;
+                let wall = matches!(hit.surface, Surface::Shape(_));
+                (wall && (dmin_m..=dmax_m).contains(&hit.range_m))
+                    .then(|| centre.xy_at(hit.range_m))
+            })
+            .collect())
+    };
+    if !(tol_m.is_finite() && tol_m > 0.0) {
+        return Err(PlanError::new(
+            &plan.origin,
+            None,
+            Some("tol_m"),
+            format!("is {tol_m}; use a distance > 0 m"),
+        ));
+    }
+    let a = points(a_id)?;
+    let b = points(b_id)?;
+    Ok(covered(&a, &b, tol_m).min(covered(&b, &a, tol_m)))
+}
+
+/// Fraction of `of` within `tol_m` of some point of `by`.
+fn covered(by: &[[f64; 2]], of: &[[f64; 2]], tol_m: f64) -> f64 {
+    if of.is_empty() {
+        return 0.0;
+    }
+    let cell = |p: &[f64; 2]| ((p[0] / tol_m).floor() as i64, (p[1] / tol_m).floor() as i64);
+    let mut grid: HashMap<(i64, i64), Vec<[f64; 2]>> = HashMap::new();
+    for p in by {
+        grid.entry(cell(p)).or_default().push(*p);
+    }
+    let near = |p: &[f64; 2]| {
+        let (cx, cy) = cell(p);
+        (-1..=1).any(|dx| {
+            (-1..=1).any(|dy| {
+                grid.get(&(cx + dx, cy + dy))
+                    .is_some_and(|qs| qs.iter().any(|q| (p[0] - q[0]).hypot(p[1] - q[1]) <= tol_m))
+            })
+        })
+    };
+    of.iter().filter(|p| near(p)).count() as f64 / of.len() as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use super::*;
+
+    /// Pairwise overlaps of a fixture plan at 0.10 m, printed (`cargo test fixture -- --nocapture`).
+    fn overlaps(file: &str) -> Vec<(String, String, f64)> {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("fixtures/plans")
+            .join(file);
+        let plan = Plan::load(&path).unwrap();
+        let mut out = Vec::new();
+        for (i, a) in plan.sensors.iter().enumerate() {
+            for b in &plan.sensors[i + 1..] {
+                let o = view_overlap(&plan, &a.id, &b.id, 0.10).unwrap();
+                println!("{file}: {} – {}: {:.0} %", a.id, b.id, o * 100.0);
+                out.push((a.id.clone(), b.id.clone(), o));
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn lab_pairs_overlap_30_to_70_percent() {
+        for (a, b, o) in overlaps("lab.toml") {
+            assert!((0.30..=0.70).contains(&o), "{a}–{b}: {o}");
+        }
+    }
+
+    #[test]
+    fn hall_has_one_pair_sharing_about_a_fifth_and_level_pairs_a_quarter_or_more() {
+        for (a, b, o) in overlaps("hall.toml") {
+            if (a.as_str(), b.as_str()) == ("gate", "tough") {
+                assert!((0.15..=0.25).contains(&o), "{a}–{b}: {o}");
+            } else if a != "tilt" && b != "tilt" {
+                assert!((0.25..=0.70).contains(&o), "{a}–{b}: {o}");
+            }
+        }
+    }
+
+    /// A plan without what locates it in its file, to compare plans across files.
+    fn placeless(mut plan: Plan) -> Plan {
+        plan.origin.clear();
+        plan.name.clear();
+        plan.moves.clear();
+        plan.walls.iter_mut().for_each(|x| x.line = None);
+        plan.boxes.iter_mut().for_each(|x| x.line = None);
+        plan.circles.iter_mut().for_each(|x| x.line = None);
+        plan.doors.iter_mut().for_each(|x| x.line = None);
+        plan.sensors.iter_mut().for_each(|x| x.line = None);
+        plan.people.iter_mut().for_each(|x| x.line = None);
+        plan
+    }
+
+    #[test]
+    fn moved_is_the_lab_with_bench_shifted_half_a_metre_and_turned_ten_degrees_at_one_second() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/plans");
+        let lab = Plan::load(&dir.join("lab.toml")).unwrap();
+        let moved = Plan::load(&dir.join("moved.toml")).unwrap();
+        assert_eq!(moved.name, "moved");
+        let moves = moved.moves.clone();
+        let [m] = moves.as_slice() else {
+            panic!("moved.toml should have exactly one move");
+        };
+        assert_eq!((m.sensor.as_str(), m.at_s), ("bench", 1.0));
+        assert!((m.dx.hypot(m.dy) - 0.5).abs() < 1e-9 && m.dyaw_deg == 10.0);
+        assert_eq!(placeless(lab), placeless(moved.clone()));
+        // After the move, bench still shares 30–70 % with every other sensor.
+        let mut after = moved;
+        if let Some(s) = after.sensors.iter_mut().find(|s| s.id == "bench") {
+            s.x += m.dx;
+            s.y += m.dy;
+            s.yaw_deg += m.dyaw_deg;
+        }
+        for other in ["entrance", "north", "east"] {
+            let o = view_overlap(&after, "bench", other, 0.10).unwrap();
+            println!(
+                "moved.toml after the move: bench – {other}: {:.0} %",
+                o * 100.0
+            );
+            assert!(
+                (0.30..=0.70).contains(&o),
+                "bench–{other} after the move: {o}"
+            );
+        }
+    }
+}

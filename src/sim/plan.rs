@@ -1,0 +1,822 @@
+//! Floor plans: the TOML a person writes, parsed and checked into a [`Plan`].
+//!
+//! A plan is a 2D floor plan whose shapes are extruded vertically, plus the sensors that look at
+//! it, the people who walk through it and the moves that happen to sensors during a recording.
+//! Coordinates are the site frame, metres, x/y on the floor, z up from the floor; angles in the
+//! file are degrees, counter-clockwise from +x.
+//!
+//! # Keys (every table rejects keys it does not know)
+//!
+//! Top level:
+//! - `name` (string, required): the plan's name; sensors report `connect = "sim:<name>"`.
+//! - `start_unix_s` (integer, default 1767225600 = 2026-01-01T00:00:00Z): recording start time,
+//!   fixed by default so that output is deterministic.
+//! - `ceiling_m` (number, optional): height of a flat ceiling; absent means open sky.
+//! - `floor_reflectivity` (default 0.3), `ceiling_reflectivity` (default 0.7).
+//!
+//! Shapes (all have `height_m`, the top above the floor, `z_min_m`, the bottom, default 0 —
+//! set it for a table top or a shelf board that a beam can pass under — and `reflectivity`,
+//! a diffuse albedo in (0, 1], up to 10 for retro-reflective tape):
+//! - `[[wall]]`: `points = [[x, y], …]` (at least 2), `closed` (default false: joins the last
+//!   point back to the first), `height_m` (default 3.0), `z_min_m`, `reflectivity` (0.7).
+//!   Walls have no thickness.
+//! - `[[box]]`: furniture, shelves, desks: `center = [x, y]`, `size = [length, width]` (along
+//!   the box's own x and y), `yaw_deg` (default 0), `height_m` (default 1.0), `z_min_m`,
+//!   `reflectivity` (0.5).
+//! - `[[circle]]`: pillars, bins: `center`, `radius_m`, `height_m` (default 3.0), `z_min_m`,
+//!   `reflectivity` (0.6).
+//! - `[[door]]`: an opening cut into the nearest wall segment: `at = [x, y]` (within
+//!   0.5 m of that segment), `width_m` (default 0.9). The gap is centred on the foot of `at`
+//!   on the segment and must fit inside it; beams pass through it to whatever lies beyond.
+//!
+//! Sensors, `[[sensor]]`: `id` (required, unique, letters, digits, `-`, `_`), `model`
+//! (`"UTM-30LX-EW"` or `"UXM-30LX-E"`), `x`, `y` (m), `yaw_deg` (default 0), `height_m`
+//! (optical centre above the floor, default 1.0), `pitch_deg` (scan plane tilt about the
+//! sensor's y axis, positive up, default 0, at most 60 either way), `intensities` (default true
+//! for the UTM, false for the UXM).
+//!
+//! People, `[[person]]`: discs that walk a closed loop through `waypoints = [[x, y], …]` (at least
+//! 2) at `speed_m_s` (default 1.2), `radius_m` (default 0.25), `height_m` (default 1.75),
+//! starting `phase` of the way round the loop (0 ≤ phase < 1, default 0).
+//!
+//! Moves, `[[move]]`: at `at_s` seconds after the start the sensor `sensor` is shifted by `dx`,
+//! `dy` (site frame, m) and turned by `dyaw_deg`. Several moves of one sensor add up.
+
+use std::collections::BTreeSet;
+use std::ops::Range;
+use std::path::Path;
+
+use serde::Deserialize;
+use toml::Spanned;
+
+use super::PlanError;
+
+/// Recording start when the plan does not say: 2026-01-01T00:00:00Z.
+pub const DEFAULT_START_UNIX_S: u64 = 1_767_225_600;
+/// How far a door's `at` may lie from the wall it cuts, m.
+pub const DOOR_SNAP_M: f64 = 0.5;
+/// Largest tilt a sensor may have, degrees.
+pub const MAX_PITCH_DEG: f64 = 60.0;
+/// Shortest segment a shape may have, m.
+const MIN_LENGTH_M: f64 = 0.001;
+
+/// Which sensor a plan places.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+pub enum Model {
+    #[serde(rename = "UTM-30LX-EW")]
+    Utm30lxEw,
+    #[serde(rename = "UXM-30LX-E")]
+    Uxm30lxE,
+}
+
+impl Model {
+    /// The model name as Hokuyo writes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Model::Utm30lxEw => "UTM-30LX-EW",
+            Model::Uxm30lxE => "UXM-30LX-E",
+        }
+    }
+}
+
+/// A checked floor plan. Build it with [`Plan::load`] or [`Plan::from_toml`]; a plan built by
+/// hand is checked again by [`Plan::validate`] (which `Simulation::new` calls).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Plan {
+    /// Where the plan came from (file name), for messages.
+    pub origin: String,
+    pub name: String,
+    /// Recording start, s since the Unix epoch.
+    pub start_unix_s: u64,
+    /// Height of a flat ceiling, m; `None` for open sky.
+    pub ceiling_m: Option<f64>,
+    pub floor_reflectivity: f64,
+    pub ceiling_reflectivity: f64,
+    pub walls: Vec<Wall>,
+    pub boxes: Vec<BoxShape>,
+    pub circles: Vec<Circle>,
+    pub doors: Vec<Door>,
+    pub sensors: Vec<SensorPlan>,
+    pub people: Vec<Person>,
+    pub moves: Vec<Move>,
+}
+
+/// A wall polyline, extruded from `z_min_m` to `height_m`.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Wall {
+    #[serde(skip)]
+    pub line: Option<usize>,
+    pub points: Vec<[f64; 2]>,
+    #[serde(default)]
+    pub closed: bool,
+    #[serde(default = "default_wall_height")]
+    pub height_m: f64,
+    #[serde(default)]
+    pub z_min_m: f64,
+    #[serde(default = "default_wall_reflectivity")]
+    pub reflectivity: f64,
+}
+
+/// A rectangular block: a desk, a shelf, a cabinet.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoxShape {
+    #[serde(skip)]
+    pub line: Option<usize>,
+    pub center: [f64; 2],
+    pub size: [f64; 2],
+    #[serde(default)]
+    pub yaw_deg: f64,
+    #[serde(default = "default_box_height")]
+    pub height_m: f64,
+    #[serde(default)]
+    pub z_min_m: f64,
+    #[serde(default = "default_box_reflectivity")]
+    pub reflectivity: f64,
+}
+
+/// A vertical cylinder: a pillar, a bin.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Circle {
+    #[serde(skip)]
+    pub line: Option<usize>,
+    pub center: [f64; 2],
+    pub radius_m: f64,
+    #[serde(default = "default_wall_height")]
+    pub height_m: f64,
+    #[serde(default)]
+    pub z_min_m: f64,
+    #[serde(default = "default_circle_reflectivity")]
+    pub reflectivity: f64,
+}
+
+/// An opening cut into the nearest wall segment.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Door {
+    #[serde(skip)]
+    pub line: Option<usize>,
+    pub at: [f64; 2],
+    #[serde(default = "default_door_width")]
+    pub width_m: f64,
+}
+
+/// A sensor placed in the plan.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SensorPlan {
+    #[serde(skip)]
+    pub line: Option<usize>,
+    pub id: String,
+    pub model: Model,
+    pub x: f64,
+    pub y: f64,
+    #[serde(default)]
+    pub yaw_deg: f64,
+    #[serde(default = "default_sensor_height")]
+    pub height_m: f64,
+    #[serde(default)]
+    pub pitch_deg: f64,
+    /// `None` means the model's default (on for the UTM, off for the UXM).
+    pub intensities: Option<bool>,
+}
+
+impl SensorPlan {
+    /// Whether scans carry intensities.
+    pub fn has_intensities(&self) -> bool {
+        self.intensities
+            .unwrap_or(matches!(self.model, Model::Utm30lxEw))
+    }
+}
+
+/// A person: a disc that walks a closed loop through its waypoints.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Person {
+    #[serde(skip)]
+    pub line: Option<usize>,
+    pub waypoints: Vec<[f64; 2]>,
+    #[serde(default = "default_speed")]
+    pub speed_m_s: f64,
+    #[serde(default = "default_person_radius")]
+    pub radius_m: f64,
+    #[serde(default = "default_person_height")]
+    pub height_m: f64,
+    #[serde(default)]
+    pub phase: f64,
+}
+
+/// A sensor being moved during the recording.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Move {
+    #[serde(skip)]
+    pub line: Option<usize>,
+    pub sensor: String,
+    pub at_s: f64,
+    #[serde(default)]
+    pub dx: f64,
+    #[serde(default)]
+    pub dy: f64,
+    #[serde(default)]
+    pub dyaw_deg: f64,
+}
+
+fn default_start() -> u64 {
+    DEFAULT_START_UNIX_S
+}
+fn default_floor_reflectivity() -> f64 {
+    0.3
+}
+fn default_ceiling_reflectivity() -> f64 {
+    0.7
+}
+fn default_wall_height() -> f64 {
+    3.0
+}
+fn default_wall_reflectivity() -> f64 {
+    0.7
+}
+fn default_box_height() -> f64 {
+    1.0
+}
+fn default_box_reflectivity() -> f64 {
+    0.5
+}
+fn default_circle_reflectivity() -> f64 {
+    0.6
+}
+fn default_door_width() -> f64 {
+    0.9
+}
+fn default_sensor_height() -> f64 {
+    1.0
+}
+fn default_speed() -> f64 {
+    1.2
+}
+fn default_person_radius() -> f64 {
+    0.25
+}
+fn default_person_height() -> f64 {
+    1.75
+}
+
+/// The file as written: the same tables, with where each one starts.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PlanFile {
+    name: String,
+    #[serde(default = "default_start")]
+    start_unix_s: u64,
+    ceiling_m: Option<f64>,
+    #[serde(default = "default_floor_reflectivity")]
+    floor_reflectivity: f64,
+    #[serde(default = "default_ceiling_reflectivity")]
+    ceiling_reflectivity: f64,
+    #[serde(default)]
+    wall: Vec<Spanned<Wall>>,
+    #[serde(default, rename = "box")]
+    boxes: Vec<Spanned<BoxShape>>,
+    #[serde(default)]
+    circle: Vec<Spanned<Circle>>,
+    #[serde(default)]
+    door: Vec<Spanned<Door>>,
+    #[serde(default)]
+    sensor: Vec<Spanned<SensorPlan>>,
+    #[serde(default)]
+    person: Vec<Spanned<Person>>,
+    #[serde(default, rename = "move")]
+    moves: Vec<Spanned<Move>>,
+}
+
+/// 1-based line of a byte offset.
+fn line_of(text: &str, offset: usize) -> usize {
+    let end = offset.min(text.len());
+    text.as_bytes()[..end]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count()
+        + 1
+}
+
+/// Unwraps spanned tables, remembering the line each starts on.
+fn located<T>(text: &str, items: Vec<Spanned<T>>, set: impl Fn(&mut T, usize)) -> Vec<T> {
+    items
+        .into_iter()
+        .map(|item| {
+            let line = line_of(text, item.span().start);
+            let mut value = item.into_inner();
+            set(&mut value, line);
+            value
+        })
+        .collect()
+}
+
+/// The key written on the line a parser error points at, if any.
+fn key_at(text: &str, span: &Range<usize>) -> Option<String> {
+    let start = text[..span.start.min(text.len())]
+        .rfind('\n')
+        .map_or(0, |i| i + 1);
+    let line = text[start..].lines().next()?;
+    let (key, _) = line.split_once('=')?;
+    let key = key.trim();
+    (!key.is_empty() && !key.starts_with('[')).then(|| key.to_string())
+}
+
+/// Moves an error from its table's header to the line that sets the key, when there is one.
+fn refine_line(text: &str, mut err: PlanError) -> PlanError {
+    let (Some(line), Some(key)) = (err.line, err.key.as_deref()) else {
+        return err;
+    };
+    let name = key.rsplit('.').next().unwrap_or(key);
+    let found = text
+        .lines()
+        .enumerate()
+        .skip(line)
+        .take_while(|(_, l)| !l.trim_start().starts_with('['))
+        .find(|(_, l)| {
+            l.split_once('=')
+                .is_some_and(|(k, _)| name.split('/').any(|n| k.trim() == n))
+        });
+    if let Some((i, _)) = found {
+        err.line = Some(i + 1);
+    }
+    err
+}
+
+impl Plan {
+    /// Reads and checks the plan in `path`.
+    pub fn load(path: &Path) -> Result<Plan, PlanError> {
+        let origin = path.display().to_string();
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| PlanError::new(&origin, None, None, format!("cannot read: {e}")))?;
+        Plan::from_toml(&text, &origin)
+    }
+
+    /// Parses and checks a plan; `origin` names it in messages (usually the file name).
+    pub fn from_toml(text: &str, origin: &str) -> Result<Plan, PlanError> {
+        let file: PlanFile = toml::from_str(text).map_err(|e| {
+            let span = e.span();
+            let line = span.as_ref().map(|s| line_of(text, s.start));
+            let key = span.as_ref().and_then(|s| key_at(text, s));
+            PlanError::new(origin, line, key.as_deref(), e.message().trim().to_string())
+        })?;
+        let plan = Plan {
+            origin: origin.to_string(),
+            name: file.name,
+            start_unix_s: file.start_unix_s,
+            ceiling_m: file.ceiling_m,
+            floor_reflectivity: file.floor_reflectivity,
+            ceiling_reflectivity: file.ceiling_reflectivity,
+            walls: located(text, file.wall, |w, l| w.line = Some(l)),
+            boxes: located(text, file.boxes, |b, l| b.line = Some(l)),
+            circles: located(text, file.circle, |c, l| c.line = Some(l)),
+            doors: located(text, file.door, |d, l| d.line = Some(l)),
+            sensors: located(text, file.sensor, |s, l| s.line = Some(l)),
+            people: located(text, file.person, |p, l| p.line = Some(l)),
+            moves: located(text, file.moves, |m, l| m.line = Some(l)),
+        };
+        plan.validate().map_err(|e| refine_line(text, e))?;
+        Ok(plan)
+    }
+
+    /// The sensor with this id.
+    pub fn sensor(&self, id: &str) -> Option<&SensorPlan> {
+        self.sensors.iter().find(|s| s.id == id)
+    }
+
+    /// Checks everything a simulation relies on; the error names the table, key and what is valid.
+    pub fn validate(&self) -> Result<(), PlanError> {
+        let err = |line: Option<usize>, key: &str, problem: String| {
+            Err(PlanError::new(&self.origin, line, Some(key), problem))
+        };
+        if self.name.trim().is_empty() {
+            return err(None, "name", "must not be empty".into());
+        }
+        check_reflectivity(self, None, "floor_reflectivity", self.floor_reflectivity)?;
+        check_reflectivity(
+            self,
+            None,
+            "ceiling_reflectivity",
+            self.ceiling_reflectivity,
+        )?;
+        if let Some(ceiling_m) = self.ceiling_m {
+            if !(ceiling_m.is_finite() && ceiling_m > 0.0) {
+                return err(
+                    None,
+                    "ceiling_m",
+                    format!("is {ceiling_m}; use a height > 0 m, or leave it out for no ceiling"),
+                );
+            }
+            if let Some(s) = self.sensors.iter().find(|s| s.height_m >= ceiling_m) {
+                return err(
+                    s.line,
+                    "height_m",
+                    format!(
+                        "sensor `{}` at {} m is not below the ceiling at {ceiling_m} m",
+                        s.id, s.height_m
+                    ),
+                );
+            }
+        }
+        for w in &self.walls {
+            check_points(self, w.line, "wall.points", &w.points, 2)?;
+            if w.closed && w.points.len() < 3 {
+                return err(
+                    w.line,
+                    "wall.closed",
+                    "a closed wall needs at least 3 points".into(),
+                );
+            }
+            check_extent(self, w.line, "wall", w.z_min_m, w.height_m)?;
+            check_reflectivity(self, w.line, "wall.reflectivity", w.reflectivity)?;
+        }
+        for b in &self.boxes {
+            check_points(self, b.line, "box.center", &[b.center], 1)?;
+            check_finite(self, b.line, "box.yaw_deg", b.yaw_deg)?;
+            if !b.size.iter().all(|s| s.is_finite() && *s >= MIN_LENGTH_M) {
+                return err(
+                    b.line,
+                    "box.size",
+                    format!(
+                        "is {:?}; both sides must be at least {MIN_LENGTH_M} m",
+                        b.size
+                    ),
+                );
+            }
+            check_extent(self, b.line, "box", b.z_min_m, b.height_m)?;
+            check_reflectivity(self, b.line, "box.reflectivity", b.reflectivity)?;
+        }
+        for c in &self.circles {
+            check_points(self, c.line, "circle.center", &[c.center], 1)?;
+            if !(c.radius_m.is_finite() && c.radius_m >= MIN_LENGTH_M) {
+                return err(
+                    c.line,
+                    "circle.radius_m",
+                    format!(
+                        "is {}; use a radius of at least {MIN_LENGTH_M} m",
+                        c.radius_m
+                    ),
+                );
+            }
+            check_extent(self, c.line, "circle", c.z_min_m, c.height_m)?;
+            check_reflectivity(self, c.line, "circle.reflectivity", c.reflectivity)?;
+        }
+        for d in &self.doors {
+            check_points(self, d.line, "door.at", &[d.at], 1)?;
+            if !(d.width_m.is_finite() && d.width_m >= MIN_LENGTH_M) {
+                return err(
+                    d.line,
+                    "door.width_m",
+                    format!("is {}; use a width > 0 m", d.width_m),
+                );
+            }
+        }
+        // Doors must find their wall; the scene builder reports which one failed.
+        super::scene::Scene::build(self)?;
+        let mut ids = BTreeSet::new();
+        for s in &self.sensors {
+            let valid_id = !s.id.is_empty()
+                && s.id
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_');
+            if !valid_id {
+                return err(
+                    s.line,
+                    "sensor.id",
+                    format!(
+                        "{:?} is not usable; use letters, digits, `-` and `_` only",
+                        s.id
+                    ),
+                );
+            }
+            if !ids.insert(s.id.as_str()) {
+                return err(
+                    s.line,
+                    "sensor.id",
+                    format!("`{}` is used twice; every sensor needs its own id", s.id),
+                );
+            }
+            check_points(self, s.line, "sensor.x/y", &[[s.x, s.y]], 1)?;
+            check_finite(self, s.line, "sensor.yaw_deg", s.yaw_deg)?;
+            if !(s.height_m.is_finite() && s.height_m > 0.0) {
+                return err(
+                    s.line,
+                    "sensor.height_m",
+                    format!("is {}; use a height above the floor, > 0 m", s.height_m),
+                );
+            }
+            if !(s.pitch_deg.is_finite() && s.pitch_deg.abs() <= MAX_PITCH_DEG) {
+                return err(
+                    s.line,
+                    "sensor.pitch_deg",
+                    format!(
+                        "is {}; use a tilt between -{MAX_PITCH_DEG} and {MAX_PITCH_DEG} degrees",
+                        s.pitch_deg
+                    ),
+                );
+            }
+        }
+        for p in &self.people {
+            check_points(self, p.line, "person.waypoints", &p.waypoints, 2)?;
+            for (key, value) in [
+                ("person.speed_m_s", p.speed_m_s),
+                ("person.radius_m", p.radius_m),
+                ("person.height_m", p.height_m),
+            ] {
+                if !(value.is_finite() && value > 0.0) {
+                    return err(p.line, key, format!("is {value}; use a number > 0"));
+                }
+            }
+            if !(p.phase.is_finite() && (0.0..1.0).contains(&p.phase)) {
+                return err(
+                    p.line,
+                    "person.phase",
+                    format!("is {}; use a fraction of the loop, 0 <= phase < 1", p.phase),
+                );
+            }
+        }
+        for m in &self.moves {
+            if self.sensor(&m.sensor).is_none() {
+                let known: Vec<&str> = self.sensors.iter().map(|s| s.id.as_str()).collect();
+                return err(
+                    m.line,
+                    "move.sensor",
+                    format!(
+                        "`{}` is not a sensor of this plan; known: {}",
+                        m.sensor,
+                        known.join(", ")
+                    ),
+                );
+            }
+            if !(m.at_s.is_finite() && m.at_s >= 0.0) {
+                return err(
+                    m.line,
+                    "move.at_s",
+                    format!("is {}; use seconds after the start, >= 0", m.at_s),
+                );
+            }
+            for (key, value) in [
+                ("move.dx", m.dx),
+                ("move.dy", m.dy),
+                ("move.dyaw_deg", m.dyaw_deg),
+            ] {
+                check_finite(self, m.line, key, value)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+fn check_finite(plan: &Plan, line: Option<usize>, key: &str, value: f64) -> Result<(), PlanError> {
+    if value.is_finite() {
+        Ok(())
+    } else {
+        Err(PlanError::new(
+            &plan.origin,
+            line,
+            Some(key),
+            format!("is {value}; use a finite number"),
+        ))
+    }
+}
+
+fn check_points(
+    plan: &Plan,
+    line: Option<usize>,
+    key: &str,
+    points: &[[f64; 2]],
+    min: usize,
+) -> Result<(), PlanError> {
+    if points.len() < min {
+        return Err(PlanError::new(
+            &plan.origin,
+            line,
+            Some(key),
+            format!("has {} point(s); give at least {min}", points.len()),
+        ));
+    }
+    if let Some(p) = points
+        .iter()
+        .find(|p| !(p[0].is_finite() && p[1].is_finite()))
+    {
+        return Err(PlanError::new(
+            &plan.origin,
+            line,
+            Some(key),
+            format!("point {p:?} is not finite; use finite numbers (m)"),
+        ));
+    }
+    if let Some(w) = points.windows(2).find(|w| {
+        let (a, b) = (w[0], w[1]);
+        (a[0] - b[0]).hypot(a[1] - b[1]) < MIN_LENGTH_M
+    }) {
+        return Err(PlanError::new(
+            &plan.origin,
+            line,
+            Some(key),
+            format!(
+                "points {:?} and {:?} coincide; consecutive points must be at least {MIN_LENGTH_M} m apart",
+                w[0], w[1]
+            ),
+        ));
+    }
+    Ok(())
+}
+
+fn check_extent(
+    plan: &Plan,
+    line: Option<usize>,
+    shape: &str,
+    z_min_m: f64,
+    height_m: f64,
+) -> Result<(), PlanError> {
+    if !(z_min_m.is_finite() && z_min_m >= 0.0) {
+        return Err(PlanError::new(
+            &plan.origin,
+            line,
+            Some(&format!("{shape}.z_min_m")),
+            format!("is {z_min_m}; use a height >= 0 m"),
+        ));
+    }
+    if !(height_m.is_finite() && height_m > z_min_m) {
+        return Err(PlanError::new(
+            &plan.origin,
+            line,
+            Some(&format!("{shape}.height_m")),
+            format!("is {height_m}; the top must be above z_min_m = {z_min_m} m"),
+        ));
+    }
+    Ok(())
+}
+
+fn check_reflectivity(
+    plan: &Plan,
+    line: Option<usize>,
+    key: &str,
+    value: f64,
+) -> Result<(), PlanError> {
+    if value.is_finite() && value > 0.0 && value <= 10.0 {
+        Ok(())
+    } else {
+        Err(PlanError::new(
+            &plan.origin,
+            line,
+            Some(key),
+            format!("is {value}; use an albedo in (0, 1], or up to 10 for retro-reflectors"),
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GOOD: &str = r#"
+name = "t"
+[[wall]]
+points = [[0, 0], [10, 0], [10, 6], [0, 6]]
+closed = true
+
+[[sensor]]
+id = "a"
+model = "UTM-30LX-EW"
+x = 2.0
+y = 3.0
+
+[[sensor]]
+id = "b"
+model = "UXM-30LX-E"
+x = 8.0
+y = 3.0
+yaw_deg = 180
+"#;
+
+    fn error_of(text: &str) -> PlanError {
+        match Plan::from_toml(text, "plan.toml") {
+            Ok(_) => panic!("accepted:\n{text}"),
+            Err(e) => e,
+        }
+    }
+
+    /// Line (1-based) of the first line of `text` that contains `needle`.
+    fn line_with(text: &str, needle: &str) -> usize {
+        text.lines()
+            .position(|l| l.contains(needle))
+            .map(|i| i + 1)
+            .unwrap_or(0)
+    }
+
+    #[test]
+    fn good_plan_parses_with_defaults_and_lines() {
+        let plan = Plan::from_toml(GOOD, "plan.toml").unwrap();
+        assert_eq!(plan.start_unix_s, DEFAULT_START_UNIX_S);
+        assert_eq!(plan.sensors.len(), 2);
+        assert_eq!(plan.sensors[0].line, Some(line_with(GOOD, "[[sensor]]")));
+        assert!(plan.sensors[0].has_intensities());
+        assert!(!plan.sensors[1].has_intensities());
+        assert_eq!(plan.sensors[1].height_m, 1.0);
+    }
+
+    #[test]
+    fn unknown_key_names_file_line_key_and_the_valid_keys() {
+        let text = GOOD.replace("yaw_deg = 180", "yaw_dg = 180");
+        let err = error_of(&text);
+        assert_eq!(err.file, "plan.toml");
+        assert_eq!(err.line, Some(line_with(&text, "yaw_dg")));
+        assert_eq!(err.key.as_deref(), Some("yaw_dg"));
+        let shown = err.to_string();
+        assert!(
+            shown.starts_with(&format!("plan.toml:{}: `yaw_dg`", err.line.unwrap())),
+            "{shown}"
+        );
+        assert!(shown.contains("yaw_deg"), "should list valid keys: {shown}");
+    }
+
+    #[test]
+    fn unknown_model_lists_the_models() {
+        let err = error_of(&GOOD.replace("\"UXM-30LX-E\"", "\"URG-04LX\""));
+        assert_eq!(err.key.as_deref(), Some("model"));
+        assert!(
+            err.problem.contains("UTM-30LX-EW") && err.problem.contains("UXM-30LX-E"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn move_of_an_unknown_sensor_is_refused_with_the_known_ones() {
+        let text = format!("{GOOD}\n[[move]]\nsensor = \"c\"\nat_s = 1.0\ndx = 0.5\n");
+        let err = error_of(&text);
+        assert_eq!(err.key.as_deref(), Some("move.sensor"));
+        assert_eq!(err.line, Some(line_with(&text, "sensor = \"c\"")));
+        assert!(err.problem.contains("known: a, b"), "{err}");
+    }
+
+    #[test]
+    fn duplicate_sensor_id_is_refused_at_the_second() {
+        let text = GOOD.replace("id = \"b\"", "id = \"a\"");
+        let err = error_of(&text);
+        assert_eq!(err.key.as_deref(), Some("sensor.id"));
+        let second = text
+            .lines()
+            .enumerate()
+            .filter(|(_, l)| l.contains("id = \"a\""))
+            .nth(1)
+            .unwrap()
+            .0
+            + 1;
+        assert_eq!(err.line, Some(second));
+    }
+
+    #[test]
+    fn degenerate_shapes_are_refused() {
+        let one_point = GOOD.replace("[[0, 0], [10, 0], [10, 6], [0, 6]]", "[[0, 0]]");
+        assert_eq!(error_of(&one_point).key.as_deref(), Some("wall.points"));
+        let repeated = GOOD.replace(
+            "[[0, 0], [10, 0], [10, 6], [0, 6]]",
+            "[[0, 0], [0, 0], [3, 3]]",
+        );
+        assert!(error_of(&repeated).problem.contains("coincide"));
+        let flat_box = format!("{GOOD}\n[[box]]\ncenter = [1, 1]\nsize = [0, 1]\n");
+        assert_eq!(error_of(&flat_box).key.as_deref(), Some("box.size"));
+        let low_top = format!(
+            "{GOOD}\n[[circle]]\ncenter = [1, 1]\nradius_m = 0.2\nz_min_m = 1.0\nheight_m = 0.5\n"
+        );
+        assert_eq!(error_of(&low_top).key.as_deref(), Some("circle.height_m"));
+        let still = format!("{GOOD}\n[[person]]\nwaypoints = [[1, 1], [2, 2]]\nspeed_m_s = 0\n");
+        assert_eq!(error_of(&still).key.as_deref(), Some("person.speed_m_s"));
+    }
+
+    #[test]
+    fn non_finite_numbers_are_refused() {
+        let err = error_of(&GOOD.replace("x = 2.0", "x = nan"));
+        assert_eq!(err.key.as_deref(), Some("sensor.x/y"));
+        assert_eq!(err.line, Some(line_with(GOOD, "x = 2.0")));
+        assert!(err.problem.contains("finite"));
+        let err = error_of(&GOOD.replace("yaw_deg = 180", "yaw_deg = inf"));
+        assert_eq!(err.key.as_deref(), Some("sensor.yaw_deg"));
+        assert_eq!(err.line, Some(line_with(GOOD, "yaw_deg = 180")));
+    }
+
+    #[test]
+    fn out_of_range_pitch_and_bad_ids_are_refused() {
+        let err = error_of(&GOOD.replace("yaw_deg = 180", "pitch_deg = 80"));
+        assert_eq!(err.key.as_deref(), Some("sensor.pitch_deg"));
+        assert!(err.problem.contains("between -60 and 60"));
+        let err = error_of(&GOOD.replace("id = \"b\"", "id = \"b/2\""));
+        assert_eq!(err.key.as_deref(), Some("sensor.id"));
+    }
+
+    #[test]
+    fn missing_file_names_the_file() {
+        let err = Plan::load(Path::new("/nonexistent/plan.toml")).unwrap_err();
+        assert!(
+            err.to_string()
+                .starts_with("/nonexistent/plan.toml: cannot read"),
+            "{err}"
+        );
+    }
+}

@@ -1,0 +1,128 @@
+//! `scanfuse simulate` and `scanfuse info` as a user runs them: the built binary, real files.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn scanfuse(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_scanfuse"))
+        .args(args)
+        .output()
+        .expect("the scanfuse binary runs")
+}
+
+fn text(out: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    )
+}
+
+fn simulate(plan: &str, seconds: &str, seed: &str, out: &Path) -> Output {
+    let plan = common::repo().join("fixtures/plans").join(plan);
+    scanfuse(&[
+        "simulate",
+        "--plan",
+        plan.to_str().unwrap(),
+        "--seconds",
+        seconds,
+        "--seed",
+        seed,
+        "--out",
+        out.to_str().unwrap(),
+    ])
+}
+
+#[test]
+fn the_same_seed_gives_the_same_file_and_another_seed_does_not() {
+    let dir = tempfile::tempdir().unwrap();
+    let [a, b, c]: [PathBuf; 3] = ["a", "b", "c"].map(|n| dir.path().join(format!("{n}.mcap")));
+    for (path, seed) in [(&a, "3"), (&b, "3"), (&c, "4")] {
+        let out = simulate("lab.toml", "0.3", seed, path);
+        assert!(out.status.success(), "{}", text(&out));
+    }
+    let bytes = |p: &Path| std::fs::read(p).unwrap();
+    assert_eq!(bytes(&a), bytes(&b));
+    assert_ne!(bytes(&a), bytes(&c));
+}
+
+#[test]
+fn info_describes_a_simulated_recording() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("lab.mcap");
+    assert!(simulate("lab.toml", "0.5", "1", &path).status.success());
+    let out = scanfuse(&["info", path.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", text(&out));
+    let report = text(&out);
+    let rec = scanfuse::record::read(&path).unwrap();
+    assert!(report.contains(&format!("{} sensors", rec.sensors.len())), "{report}");
+    for s in &rec.sensors {
+        let t = s.truth.expect("simulated sensors carry truth");
+        assert!(report.contains(&s.id), "{report}");
+        assert!(report.contains(&format!("{:.3}, {:.3}, {:.2}°", t.x_m, t.y_m, t.yaw_deg)), "{report}");
+        // 0.5 s at 40 Hz: 20 scans, give or take one at the edges.
+        let n = rec.scans_of(&s.id).len();
+        assert!((19..=21).contains(&n), "{} has {n} scans", s.id);
+    }
+    assert!(report.contains("40.0 Hz (40)"), "{report}");
+}
+
+#[test]
+fn info_on_a_cut_recording_shows_what_was_read_and_exits_2() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("lab.mcap");
+    assert!(simulate("lab.toml", "1", "1", &path).status.success());
+    let bytes = std::fs::read(&path).unwrap();
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let out = scanfuse(&["info", cut.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out));
+    let report = text(&out);
+    assert!(report.contains("cut.mcap"), "{report}");
+    assert!(report.contains("damaged"), "{report}");
+    assert!(report.contains("sensor "), "the table is still printed: {report}");
+}
+
+#[test]
+fn bad_input_exits_2_with_the_file_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let plan = dir.path().join("broken.toml");
+    std::fs::write(&plan, "name = \"x\"\n[[sensor]]\nid = \"a\"\nmodle = \"UTM-30LX-EW\"\n").unwrap();
+    let out_path = dir.path().join("x.mcap");
+    let out = scanfuse(&[
+        "simulate",
+        "--plan",
+        plan.to_str().unwrap(),
+        "--out",
+        out_path.to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out));
+    assert!(text(&out).contains("broken.toml"), "{}", text(&out));
+    assert!(!out_path.exists());
+
+    let out = scanfuse(&["info", plan.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(text(&out).contains("not an MCAP"), "{}", text(&out));
+
+    let out = simulate("lab.toml", "-1", "1", &out_path);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(text(&out).contains("--seconds"), "{}", text(&out));
+}
+
+#[test]
+fn every_committed_fixture_reads_whole_and_carries_truth() {
+    for name in ["lab", "hall", "moved"] {
+        let path = common::repo().join(format!("fixtures/{name}.mcap"));
+        let rec = scanfuse::record::read(&path).unwrap();
+        assert!(!rec.sensors.is_empty(), "{name}");
+        for s in &rec.sensors {
+            assert!(s.truth.is_some() && s.geometry.is_some(), "{name}/{}", s.id);
+            assert!(!rec.scans_of(&s.id).is_empty(), "{name}/{}", s.id);
+        }
+        let size = std::fs::metadata(&path).unwrap().len();
+        assert!(size <= 2_000_000, "{name}.mcap is {size} bytes, over the 2 MB budget");
+        assert_eq!(rec.moves.is_empty(), name != "moved", "{name}");
+    }
+}
