@@ -57,11 +57,17 @@ fn info_describes_a_simulated_recording() {
     assert!(out.status.success(), "{}", text(&out));
     let report = text(&out);
     let rec = scanfuse::record::read(&path).unwrap();
-    assert!(report.contains(&format!("{} sensors", rec.sensors.len())), "{report}");
+    assert!(
+        report.contains(&format!("{} sensors", rec.sensors.len())),
+        "{report}"
+    );
     for s in &rec.sensors {
         let t = s.truth.expect("simulated sensors carry truth");
         assert!(report.contains(&s.id), "{report}");
-        assert!(report.contains(&format!("{:.3}, {:.3}, {:.2}°", t.x_m, t.y_m, t.yaw_deg)), "{report}");
+        assert!(
+            report.contains(&format!("{:.3}, {:.3}, {:.2}°", t.x_m, t.y_m, t.yaw_deg)),
+            "{report}"
+        );
         // 0.5 s at 40 Hz: 20 scans, give or take one at the edges.
         let n = rec.scans_of(&s.id).len();
         assert!((19..=21).contains(&n), "{} has {n} scans", s.id);
@@ -82,14 +88,21 @@ fn info_on_a_cut_recording_shows_what_was_read_and_exits_2() {
     let report = text(&out);
     assert!(report.contains("cut.mcap"), "{report}");
     assert!(report.contains("damaged"), "{report}");
-    assert!(report.contains("sensor "), "the table is still printed: {report}");
+    assert!(
+        report.contains("sensor "),
+        "the table is still printed: {report}"
+    );
 }
 
 #[test]
 fn bad_input_exits_2_with_the_file_named() {
     let dir = tempfile::tempdir().unwrap();
     let plan = dir.path().join("broken.toml");
-    std::fs::write(&plan, "name = \"x\"\n[[sensor]]\nid = \"a\"\nmodle = \"UTM-30LX-EW\"\n").unwrap();
+    std::fs::write(
+        &plan,
+        "name = \"x\"\n[[sensor]]\nid = \"a\"\nmodle = \"UTM-30LX-EW\"\n",
+    )
+    .unwrap();
     let out_path = dir.path().join("x.mcap");
     let out = scanfuse(&[
         "simulate",
@@ -122,7 +135,10 @@ fn every_committed_fixture_reads_whole_and_carries_truth() {
             assert!(!rec.scans_of(&s.id).is_empty(), "{name}/{}", s.id);
         }
         let size = std::fs::metadata(&path).unwrap().len();
-        assert!(size <= 2_000_000, "{name}.mcap is {size} bytes, over the 2 MB budget");
+        assert!(
+            size <= 2_000_000,
+            "{name}.mcap is {size} bytes, over the 2 MB budget"
+        );
         assert_eq!(rec.moves.is_empty(), name != "moved", "{name}");
     }
 }

@@ -1,10 +1,10 @@
 //! An independent client: hokuyolx (PyPI, a Python SCIP client nobody here wrote) reads scans
 //! from the emulator and gets the recorded ranges.
 //!
-//! Needs a Python with hokuyolx and numpy at `$HOKUYOLX_PYTHON`, or at
-//! `target/hokuyolx-venv/bin/python` (`.ci/run` makes it:
-//! `python3 -m venv target/hokuyolx-venv && target/hokuyolx-venv/bin/pip install hokuyolx==0.9.0 numpy`).
-//! Without one the test says it skipped and passes.
+//! Needs a Python with hokuyolx and numpy: `$SCANFUSE_TEST_PYTHON` (the venv `.ci/run` builds
+//! from tests/python/requirements.txt, which needs the lines `hokuyolx==0.9.0` and `numpy`),
+//! `$HOKUYOLX_PYTHON`, or `target/hokuyolx-venv/bin/python`. Without one that can
+//! `import hokuyolx` the test says it skipped and passes.
 
 mod driver_support;
 
@@ -16,12 +16,18 @@ use driver_support::{emulator, mm, recording};
 use scanfuse::emulator::EmulatorConfig;
 
 fn python() -> Option<PathBuf> {
-    let path = std::env::var_os("HOKUYOLX_PYTHON")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| {
-            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/hokuyolx-venv/bin/python")
-        });
-    path.exists().then_some(path)
+    let candidates = [
+        std::env::var_os("SCANFUSE_TEST_PYTHON").map(PathBuf::from),
+        std::env::var_os("HOKUYOLX_PYTHON").map(PathBuf::from),
+        Some(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/hokuyolx-venv/bin/python")),
+    ];
+    candidates.into_iter().flatten().find(|python| {
+        std::process::Command::new(python)
+            .args(["-c", "import hokuyolx, numpy"])
+            .stderr(Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success())
+    })
 }
 
 #[tokio::test]

@@ -9,7 +9,8 @@ use scanfuse::scan::{Scan, ScanGeometry, SensorInfo, TruthPose};
 
 #[test]
 fn python_mcap_reader_decodes_our_laserscans_and_metadata() {
-    let Some(python) = common::test_python("python_mcap_reader_decodes_our_laserscans_and_metadata")
+    let Some(python) =
+        common::test_python("python_mcap_reader_decodes_our_laserscans_and_metadata")
     else {
         return;
     };
@@ -19,7 +20,11 @@ fn python_mcap_reader_decodes_our_laserscans_and_metadata() {
     let mut sensor = SensorInfo::new("door", "UTM-30LX-EW");
     sensor.geometry = Some(g);
     sensor.fields = g.to_fields();
-    sensor.truth = Some(TruthPose { x_m: 1.0, y_m: -2.0, yaw_deg: 45.0 });
+    sensor.truth = Some(TruthPose {
+        x_m: 1.0,
+        y_m: -2.0,
+        yaw_deg: 45.0,
+    });
     let mut w = RecordingWriter::create(&path).unwrap();
     w.add_sensor(&sensor).unwrap();
     for k in 0..3u64 {
@@ -40,7 +45,11 @@ fn python_mcap_reader_decodes_our_laserscans_and_metadata() {
         .arg(&path)
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let t = &v["topics"]["/door/scan"];
     assert_eq!(t["count"], 3);

@@ -22,14 +22,18 @@ fn frames(chunks: impl Iterator<Item = Vec<u8>>) -> Vec<Frame> {
 }
 
 fuzz_target!(|data: &[u8]| {
-    let Some((&split, bytes)) = data.split_first() else { return };
+    let Some((&split, bytes)) = data.split_first() else {
+        return;
+    };
     let whole = frames(std::iter::once(bytes.to_vec()));
     let step = split as usize % 17 + 1;
     let pieces = frames(bytes.chunks(step).map(<[u8]>::to_vec));
     assert_eq!(whole, pieces, "framing depends on read boundaries");
     let mut scratch = Vec::new();
     for frame in &whole {
-        let Ok(reply) = Reply::parse(frame) else { continue };
+        let Ok(reply) = Reply::parse(frame) else {
+            continue;
+        };
         let _ = VersionInfo::parse(&reply);
         let _ = Parameters::parse(&reply);
         let _ = StateInfo::parse(&reply);

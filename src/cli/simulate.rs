@@ -53,9 +53,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut next_report_s = 10.0;
     let mut first_ns = None;
     sim.run(args.seconds, |index, scan| {
-        let sensor = sensors
-            .get(index)
-            .with_context(|| format!("the simulator produced a scan for unknown sensor #{index}"))?;
+        let sensor = sensors.get(index).with_context(|| {
+            format!("the simulator produced a scan for unknown sensor #{index}")
+        })?;
         let t0 = *first_ns.get_or_insert(scan.stamp_ns);
         let t = scan.stamp_ns.saturating_sub(t0) as f64 * 1e-9;
         if t >= next_report_s {
