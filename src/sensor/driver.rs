@@ -6,6 +6,8 @@
 //! ends time-adjust mode (used as the fallback when TM2 fails), II says `Measuring` after QT
 //! (II is read for the record, never trusted for state).
 
+use std::future::Future;
+use std::pin::Pin;
 use std::sync::Arc;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
@@ -23,6 +25,9 @@ use crate::scip::info::{Parameters, StateInfo, VersionInfo, parse_tm1};
 use crate::scip::scan::{Echo, ScanError, ScipScan};
 use crate::scip::status::StatusError;
 use crate::scip::{Frame, Framer, Reply};
+
+/// Shortest no-data watchdog, whatever the scan rate.
+const MIN_WATCHDOG: Duration = Duration::from_millis(50);
 
 /// Which stream to run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -174,7 +179,13 @@ pub struct Driver {
     config: DriverConfig,
     counters: Arc<Counters>,
     host: HostClock,
+    connector: Option<Connector>,
 }
+
+/// Opens a link; replaces [`connect`] for in-process tests.
+pub type Connector = Arc<
+    dyn Fn() -> Pin<Box<dyn Future<Output = Result<Link, TransportError>> + Send>> + Send + Sync,
+>;
 
 impl Driver {
     pub fn new(config: DriverConfig) -> Self {
@@ -182,6 +193,15 @@ impl Driver {
             config,
             counters: Arc::new(Counters::default()),
             host: HostClock::new(),
+            connector: None,
+        }
+    }
+
+    /// A driver that opens its links with `connector` instead of `config.connect`.
+    pub fn with_connector(config: DriverConfig, connector: Connector) -> Self {
+        Driver {
+            connector: Some(connector),
+            ..Driver::new(config)
         }
     }
 
@@ -259,7 +279,10 @@ impl<'a> Session<'a> {
 
     async fn run(&mut self) -> Result<(), DriverError> {
         let config = &self.driver.config;
-        self.link = Some(connect(&config.connect, config.connect_timeout).await?);
+        self.link = Some(match &self.driver.connector {
+            Some(connector) => connector().await?,
+            None => connect(&config.connect, config.connect_timeout).await?,
+        });
         let (info, geometry) = self.handshake().await?;
         let clock = self.time_sync().await?;
         Counters::add(&self.driver.counters.connects, 1);
@@ -454,8 +477,9 @@ impl<'a> Session<'a> {
         };
         let symbol = request.kind.symbol(true);
         self.checked(Command::Scan(request)).await?;
-        let watchdog = Duration::from_secs_f64(geometry.period_s() * config.watchdog_periods)
-            .max(Duration::from_millis(50));
+        let watchdog = Duration::try_from_secs_f64(geometry.period_s() * config.watchdog_periods)
+            .unwrap_or(Duration::ZERO)
+            .max(MIN_WATCHDOG);
         let mut unwrapper = Unwrapper::default();
         let mut last_stamp_ns = 0u64;
         loop {

@@ -84,6 +84,8 @@ impl Endpoint {
 pub enum Link {
     Tcp(TcpStream),
     Serial(DuplexStream),
+    /// In-process (tests under tokio's paused clock, an emulator in the same process).
+    Memory(DuplexStream),
 }
 
 impl AsyncRead for Link {
@@ -94,7 +96,7 @@ impl AsyncRead for Link {
     ) -> Poll<std::io::Result<()>> {
         match self.get_mut() {
             Link::Tcp(s) => Pin::new(s).poll_read(cx, buf),
-            Link::Serial(s) => Pin::new(s).poll_read(cx, buf),
+            Link::Serial(s) | Link::Memory(s) => Pin::new(s).poll_read(cx, buf),
         }
     }
 }
@@ -107,19 +109,19 @@ impl AsyncWrite for Link {
     ) -> Poll<std::io::Result<usize>> {
         match self.get_mut() {
             Link::Tcp(s) => Pin::new(s).poll_write(cx, buf),
-            Link::Serial(s) => Pin::new(s).poll_write(cx, buf),
+            Link::Serial(s) | Link::Memory(s) => Pin::new(s).poll_write(cx, buf),
         }
     }
     fn poll_flush(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
         match self.get_mut() {
             Link::Tcp(s) => Pin::new(s).poll_flush(cx),
-            Link::Serial(s) => Pin::new(s).poll_flush(cx),
+            Link::Serial(s) | Link::Memory(s) => Pin::new(s).poll_flush(cx),
         }
     }
     fn poll_shutdown(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
         match self.get_mut() {
             Link::Tcp(s) => Pin::new(s).poll_shutdown(cx),
-            Link::Serial(s) => Pin::new(s).poll_shutdown(cx),
+            Link::Serial(s) | Link::Memory(s) => Pin::new(s).poll_shutdown(cx),
         }
     }
 }
