@@ -138,3 +138,36 @@ async fn watchdog_fires_three_periods_after_the_last_scan_and_sync_is_exact() {
     stop.send(true).unwrap();
     task.await.unwrap();
 }
+
+#[tokio::test(start_paused = true)]
+async fn tm0_refused_while_the_unit_boots_is_retried() {
+    let (info, scans) = recording(20);
+    let faults = Faults {
+        booting_for: Some(Duration::from_millis(250)),
+        ..Faults::default()
+    };
+    let emulator = Emulator::new(
+        &info,
+        &scans,
+        EmulatorConfig {
+            looping: true,
+            faults,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let driver = Driver::with_connector(config(), connector(emulator, 0, Arc::default()));
+    let counters = driver.counters();
+    let (tx, mut rx) = mpsc::channel(1024);
+    let (stop, stop_rx) = watch::channel(false);
+    let task = tokio::spawn(driver.run(tx, stop_rx));
+    let started = Instant::now();
+    while !matches!(rx.recv().await, Some(DriverEvent::Scan(_))) {}
+    // TM0 at 0 ms and 100 ms is refused; the third, at 300 ms, gets through on the same link.
+    assert_eq!(started.elapsed(), Duration::from_millis(300));
+    let c = counters.snapshot();
+    assert_eq!((c.connects, c.reconnects, c.time_syncs), (1, 0, 1));
+    assert!(c.last_error.unwrap().contains("0M"));
+    stop.send(true).unwrap();
+    task.await.unwrap();
+}

@@ -47,6 +47,9 @@ pub struct Args {
     /// Fault: close every connection for the first MS ms.
     #[arg(long, value_name = "MS")]
     refuse_ms: Option<u64>,
+    /// Fault: refuse TM0 and scans (status 0M) for the first MS ms, like a booting unit.
+    #[arg(long, value_name = "MS")]
+    booting_ms: Option<u64>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -86,6 +89,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .zip(args.stall_ms.map(Duration::from_millis)),
             garbage_every: args.garbage_every,
             refuse_for: args.refuse_ms.map(Duration::from_millis),
+            booting_for: args.booting_ms.map(Duration::from_millis),
         },
     };
     let scans = recording.scans_of(&sensor.id);

@@ -16,6 +16,9 @@ pub struct Faults {
     pub garbage_every: Option<u64>,
     /// Close every connection at once for this long after the emulator starts.
     pub refuse_for: Option<Duration>,
+    /// Refuse TM0 and scan commands (status `0M`) for this long after the emulator starts,
+    /// like a unit still booting.
+    pub booting_for: Option<Duration>,
 }
 
 /// Junk of the kind a half-read reply or line noise leaves behind.

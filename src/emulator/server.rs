@@ -106,7 +106,12 @@ impl Emulator {
         let (finished, _) = watch::channel(false);
         Ok(Emulator {
             shared: Arc::new(Shared {
-                unit: Unit::new(info, geometry),
+                unit: Unit::new(info, geometry).booting_until(
+                    config
+                        .faults
+                        .booting_for
+                        .map_or(0, |d| d.as_millis() as u64),
+                ),
                 sources,
                 playback,
                 faults: config.faults,

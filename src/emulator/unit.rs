@@ -100,6 +100,8 @@ pub struct Unit {
     motor_code: u8,
     /// Sensor clock = `now_ms - clock_zero_ms` (RS/RT/RB zero it).
     clock_zero_ms: u64,
+    /// Until this host time the unit is booting: TM0 and scans are refused (status `0M`).
+    booting_until_ms: u64,
     reboot_armed_at_ms: Option<u64>,
     streams_started: u64,
 }
@@ -142,8 +144,16 @@ impl Unit {
             motor_code: 0,
             clock_zero_ms: 0,
             reboot_armed_at_ms: None,
+            booting_until_ms: 0,
             streams_started: 0,
         }
+    }
+
+    /// Makes the unit refuse TM0 and scans until host time `until_ms`, as a UTM-30LX-EW does
+    /// while it boots.
+    pub fn booting_until(mut self, until_ms: u64) -> Self {
+        self.booting_until_ms = until_ms;
+        self
     }
 
     pub fn geometry(&self) -> &ScanGeometry {
@@ -269,6 +279,11 @@ impl Unit {
                     encode_status(line, *b"01")
                 }
             },
+            Command::Time(TimeControl::Enter) | Command::Scan(_)
+                if now_ms < self.booting_until_ms =>
+            {
+                encode_status(line, *b"0M")
+            }
             Command::Time(control) => self.time_reply(line, control, now_ms),
             Command::BitRate(bps) => {
                 if BIT_RATES.contains(&bps) {
@@ -556,5 +571,66 @@ mod tests {
         let frame = reply_of(&u.handle(b"GD0000000903", 0, Some(&src)));
         let scan = ScipScan::decode(&Reply::parse(&frame).unwrap(), &mut Vec::new()).unwrap();
         assert_eq!(scan.ranges_mm, vec![1000, 1003, 1006, 1009]);
+    }
+
+    /// The host side of the real UXM-30LX-E capture, replayed against a unit made from that
+    /// capture's VV/PP answers: the same echoes, the same statuses (CR aside, whose refusal
+    /// code differs between firmwares) and the same VV/PP fields.
+    #[test]
+    fn replaying_a_real_session_gets_the_real_units_answers() {
+        use crate::scip::capture::unpack;
+        use crate::scip::info::fields;
+        const SENT: &[u8] = include_bytes!("../../fixtures/scip/example_uxm_30lx_e.logw");
+        const READ: &[u8] = include_bytes!("../../fixtures/scip/example_uxm_30lx_e.logr");
+        let frames_of = |bytes: &[u8]| {
+            let mut framer = Framer::new();
+            framer.push(bytes);
+            std::iter::from_fn(|| framer.next_frame()).collect::<Vec<_>>()
+        };
+        let real = frames_of(&unpack(READ).unwrap());
+        let field_map = |echo: &[u8]| {
+            let frame = real.iter().find(|f| f.echo() == echo).unwrap();
+            fields(&Reply::parse(frame).unwrap()).unwrap()
+        };
+        let mut info = SensorInfo::new("uxm", "UXM-30LX-E");
+        info.fields = field_map(b"VV");
+        info.fields.extend(field_map(b"PP"));
+        let geometry = ScanGeometry::from_fields(&info.fields).unwrap();
+        let mut unit = Unit::new(&info, geometry);
+        let src = SourceScan {
+            first_step: 0,
+            ranges_mm: vec![1234; 761],
+            intensities: vec![],
+        };
+        let sent = unpack(SENT).unwrap();
+        let mut ours = Vec::new();
+        for (i, line) in sent
+            .split(|&b| b == b'\n')
+            .filter(|l| !l.is_empty())
+            .enumerate()
+        {
+            ours.extend(unit.handle(line, 1000 + 10 * i as u64, Some(&src)));
+        }
+        let ours = frames_of(&ours);
+        assert_eq!(ours.len(), real.len());
+        for (a, b) in ours.iter().zip(&real) {
+            assert_eq!(a.echo(), b.echo());
+            let (ra, rb) = (Reply::parse(a).unwrap(), Reply::parse(b).unwrap());
+            if !a.echo().starts_with(b"CR") {
+                assert_eq!(
+                    ra.status,
+                    rb.status,
+                    "{}",
+                    String::from_utf8_lossy(a.echo())
+                );
+            }
+            if a.echo() == b"VV" || a.echo() == b"PP" {
+                assert_eq!(fields(&ra).unwrap(), fields(&rb).unwrap());
+            }
+            if a.echo().starts_with(b"GD") {
+                let scan = ScipScan::decode(&ra, &mut Vec::new()).unwrap();
+                assert_eq!(scan.ranges_mm, vec![1234; 761]);
+            }
+        }
     }
 }
