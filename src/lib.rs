@@ -3,7 +3,10 @@
 //!
 //! Every stage is usable alone; see `DESIGN.md` in the repository for the data flow.
 
+pub mod emulator;
 pub mod fuse;
 pub mod record;
 pub mod scan;
+pub mod scip;
+pub mod sensor;
 pub mod sim;

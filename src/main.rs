@@ -20,8 +20,12 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Serve one sensor of a recording over TCP as a live SCIP 2.0 unit (tests, demos).
+    Emulate(cli::emulate::Args),
     /// Describe a recording: sensors, models, PP fields, scan counts, rate, gaps, truth.
     Info(cli::info::Args),
+    /// Record a live sensor (or `scanfuse emulate`) into an MCAP recording, raw SCIP included.
+    Record(cli::record::Args),
     /// Simulate a floor plan with sensors and people into a recording with ground truth.
     Simulate(cli::simulate::Args),
 }
@@ -30,7 +34,9 @@ fn main() -> ExitCode {
     cli::init_logging();
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Emulate(args) => cli::emulate::run(args),
         Command::Info(args) => cli::info::run(args),
+        Command::Record(args) => cli::record::run(args),
         Command::Simulate(args) => cli::simulate::run(args),
     };
     cli::exit_code(result)

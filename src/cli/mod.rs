@@ -1,7 +1,9 @@
 //! Subcommand implementations. Errors reach `main` as `anyhow` errors; an error that wraps
 //! [`BadInput`] means the user gave something unusable and exits 2.
 
+pub mod emulate;
 pub mod info;
+pub mod record;
 pub mod simulate;
 
 use std::process::ExitCode;
