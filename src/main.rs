@@ -28,6 +28,10 @@ enum Command {
     Record(cli::record::Args),
     /// Simulate a floor plan with sensors and people into a recording with ground truth.
     Simulate(cli::simulate::Args),
+    /// Work out every sensor's pose from the scans in the given recordings.
+    Register(cli::register::Args),
+    /// Measure registration: success per overlap bin, errors, time, baselines, real data.
+    Eval(cli::eval::Args),
 }
 
 fn main() -> ExitCode {
@@ -38,6 +42,8 @@ fn main() -> ExitCode {
         Command::Info(args) => cli::info::run(args),
         Command::Record(args) => cli::record::run(args),
         Command::Simulate(args) => cli::simulate::run(args),
+        Command::Eval(args) => cli::eval::run(args),
+        Command::Register(args) => cli::register::run(args),
     };
     cli::exit_code(result)
 }

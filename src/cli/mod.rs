@@ -2,8 +2,10 @@
 //! [`BadInput`] means the user gave something unusable and exits 2.
 
 pub mod emulate;
+pub mod eval;
 pub mod info;
 pub mod record;
+pub mod register;
 pub mod simulate;
 
 use std::process::ExitCode;

@@ -1,0 +1,576 @@
+//! `scanfuse eval`: measures registration as issue 5 asks and prints the tables: success per
+//! overlap bin, errors, confident-wrong and abstentions with reasons, time per pair, plain
+//! point-to-point ICP baselines side by side, real-data pairs from the CARMEN logs, and ICP
+//! iterations with point classes on vs. off.
+
+use anyhow::{Context, Result, bail};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use scanfuse::geometry::{Mount, Pose2, pose_error, pose2};
+use scanfuse::register::model::NearestGrid;
+use scanfuse::register::{RegisterParams, ScanModel, register_pair};
+use scanfuse::scan::Scan;
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::time::Instant;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Simulated pairs to draw.
+    #[arg(long, default_value_t = 300)]
+    pub pairs: usize,
+    /// Real-data pairs to draw.
+    #[arg(long, default_value_t = 300)]
+    pub real_pairs: usize,
+    /// Folder of the CARMEN `*-corrected.log.gz` logs (skipped with a message when absent).
+    #[arg(long, default_value = "../shared/datasets/radish-carmen-corrected")]
+    pub real_data: PathBuf,
+    /// Seed of every random draw.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Parts to run: sim, site, real, classes (comma separated; default all).
+    #[arg(long, value_delimiter = ',')]
+    pub only: Vec<String>,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let wants = |part: &str| args.only.is_empty() || args.only.iter().any(|o| o == part);
+    let params = RegisterParams::default();
+    if wants("real") || wants("classes") {
+        if args.real_data.is_dir() {
+            let cases = real_cases(&args, &params)?;
+            if wants("real") {
+                println!("\n== Real data: CARMEN 180° scans, success ≤ 15 cm and ≤ 1.5° ==");
+                evaluate(&cases, 0.15, 1.5f64.to_radians(), &params, args.seed);
+            }
+            if wants("classes") {
+                println!(
+                    "\n== ICP with point classes on vs. off (real pairs ≥ 30 % overlap, start 0.3 m / 3° off) =="
+                );
+                classes_on_off(&cases, &params, args.seed);
+            }
+        } else {
+            println!(
+                "\nreal data: {} is absent, skipping (it ships beside the repository, not in it)",
+                args.real_data.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// One pair to register, with the truth.
+pub struct Case {
+    pub label: String,
+    pub a: ScanModel,
+    pub b: ScanModel,
+    pub a_from_b: Pose2,
+    /// Share of B's points within 10 cm of A's under the true pose.
+    pub overlap: f64,
+}
+
+const BINS: [(f64, f64, &str); 5] = [
+    (0.0, 0.1, "0–10 %"),
+    (0.1, 0.2, "10–20 %"),
+    (0.2, 0.3, "20–30 %"),
+    (0.3, 0.5, "30–50 %"),
+    (0.5, 1.01, "50–100 %"),
+];
+
+/// Share of `b`'s points within 10 cm of `a`'s under `a_from_b`.
+pub fn true_overlap(a: &ScanModel, b: &ScanModel, a_from_b: &Pose2) -> f64 {
+    let grid = NearestGrid::new(a.points(), 0.05, 0.1);
+    let pts = b.points();
+    if pts.is_empty() {
+        return 0.0;
+    }
+    let near = pts
+        .iter()
+        .filter(|p| {
+            let q = a_from_b * **p;
+            grid.nearest(&q)
+                .and_then(|j| a.points().get(j))
+                .is_some_and(|r| (q - r).norm() <= 0.1)
+        })
+        .count();
+    near as f64 / pts.len() as f64
+}
+
+#[derive(Default, Clone)]
+struct Tally {
+    n: usize,
+    ok: usize,
+    abstained: usize,
+    wrong: usize,
+    err_m: Vec<f64>,
+    err_deg: Vec<f64>,
+}
+
+impl Tally {
+    fn add(&mut self, estimate: Option<&Pose2>, truth: &Pose2, tol_m: f64, tol_rad: f64) {
+        self.n += 1;
+        match estimate {
+            None => self.abstained += 1,
+            Some(e) => {
+                let (dt, dyaw) = pose_error(e, truth);
+                self.err_m.push(dt);
+                self.err_deg.push(dyaw.to_degrees());
+                if dt <= tol_m && dyaw <= tol_rad {
+                    self.ok += 1;
+                } else {
+                    self.wrong += 1;
+                }
+            }
+        }
+    }
+    fn merge(&mut self, o: &Tally) {
+        self.n += o.n;
+        self.ok += o.ok;
+        self.abstained += o.abstained;
+        self.wrong += o.wrong;
+        self.err_m.extend(&o.err_m);
+        self.err_deg.extend(&o.err_deg);
+    }
+    fn pct(&self, k: usize) -> f64 {
+        if self.n == 0 {
+            0.0
+        } else {
+            100.0 * k as f64 / self.n as f64
+        }
+    }
+}
+
+fn quantile(values: &[f64], q: f64) -> f64 {
+    if values.is_empty() {
+        return f64::NAN;
+    }
+    let mut v = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    v[((v.len() - 1) as f64 * q).round() as usize]
+}
+
+fn bin_of(overlap: f64) -> usize {
+    BINS.iter()
+        .position(|(lo, hi, _)| overlap >= *lo && overlap < *hi)
+        .unwrap_or(BINS.len() - 1)
+}
+
+/// Registers every case with scanfuse and the two ICP baselines and prints the tables.
+pub fn evaluate(cases: &[Case], tol_m: f64, tol_rad: f64, params: &RegisterParams, seed: u64) {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x1c9);
+    let methods = ["scanfuse", "ICP from identity", "ICP from 1 m / 10° off"];
+    let mut tallies = vec![vec![Tally::default(); BINS.len()]; methods.len()];
+    let mut times_ms = vec![Vec::new(); methods.len()];
+    let mut reasons: BTreeMap<String, usize> = BTreeMap::new();
+    let mut wrong_examples = Vec::new();
+    let (mut recall_hits, mut recall_n) = (0usize, 0usize);
+    for case in cases {
+        let bin = bin_of(case.overlap);
+        let t0 = Instant::now();
+        let r = register_pair(&case.a, &case.b, params);
+        times_ms[0].push(t0.elapsed().as_secs_f64() * 1e3);
+        let estimate = r.registered().then_some(r.a_from_b);
+        if case.overlap >= 0.3 {
+            recall_n += 1;
+            let near = |c: &scanfuse::register::Candidate| {
+                let (dt, dyaw) = pose_error(&c.a_from_b, &case.a_from_b);
+                dt <= tol_m && dyaw <= tol_rad
+            };
+            if r.candidates.iter().any(near) {
+                recall_hits += 1;
+            } else if std::env::var_os("SCANFUSE_DEBUG").is_some() {
+                let truth_yaw = scanfuse::geometry::yaw_rad(&case.a_from_b);
+                let thetas =
+                    scanfuse::register::hypotheses::rotation_candidates(&case.a, &case.b, params);
+                let dtheta = thetas
+                    .iter()
+                    .map(|t| {
+                        scanfuse::geometry::wrap_angle_rad(t - truth_yaw)
+                            .abs()
+                            .to_degrees()
+                    })
+                    .fold(f64::INFINITY, f64::min);
+                let hyps = scanfuse::register::hypotheses::hypotheses(&case.a, &case.b, params);
+                let (best_h, rank) = hyps
+                    .iter()
+                    .enumerate()
+                    .map(|(k, (_, h))| (pose_error(h, &case.a_from_b), k))
+                    .min_by(|x, y| (x.0.0 + x.0.1 * 5.0).total_cmp(&(y.0.0 + y.0.1 * 5.0)))
+                    .unwrap_or(((f64::NAN, f64::NAN), 0));
+                eprintln!(
+                    "recall miss {}: ov {:.2}, segs {}/{}, edges {}/{}, thetas {}, nearest theta {:.1}°, hyps {}, nearest hyp {:.2} m {:.1}° (#{rank})",
+                    case.label,
+                    case.overlap,
+                    case.a.features.segments.len(),
+                    case.b.features.segments.len(),
+                    case.a.features.edges.len(),
+                    case.b.features.edges.len(),
+                    thetas.len(),
+                    dtheta,
+                    hyps.len(),
+                    best_h.0,
+                    best_h.1.to_degrees()
+                );
+            }
+        }
+        tallies[0][bin].add(estimate.as_ref(), &case.a_from_b, tol_m, tol_rad);
+        if let Err(why) = &r.verdict {
+            let key = format!("{why}");
+            let key = key.split([':', '(']).next().unwrap_or("");
+            let key = key.split(" along").next().unwrap_or("").trim().to_string();
+            *reasons.entry(key).or_default() += 1;
+        } else if let Some(e) = estimate {
+            let (dt, dyaw) = pose_error(&e, &case.a_from_b);
+            if (dt > tol_m || dyaw > tol_rad) && wrong_examples.len() < 12 {
+                // Would the truth have won? The score of the refined true pose tells recall
+                // failures (truth scores higher) from scoring failures (it scores lower).
+                let at_truth = scanfuse::register::icp::refine(
+                    &case.a,
+                    &case.b,
+                    &case.a_from_b,
+                    params,
+                    params.class_aware,
+                );
+                let s_truth =
+                    scanfuse::register::score::score(&case.a, &case.b, &at_truth.a_from_b, params);
+                wrong_examples.push(format!(
+                    "{}: overlap {:.0} %, error {:.2} m {:.1}°, ambiguity {:.2}, est. overlap {:.2}, violation {:.3}, score {:.3} vs {:.3} at truth (violation {:.3})",
+                    case.label,
+                    case.overlap * 100.0,
+                    dt,
+                    dyaw.to_degrees(),
+                    r.ambiguity,
+                    r.overlap,
+                    r.score.violation(),
+                    r.score.value,
+                    s_truth.value,
+                    s_truth.violation()
+                ));
+            }
+        }
+        let t0 = Instant::now();
+        let icp = point_to_point_icp(&case.a, &case.b, &Pose2::identity());
+        times_ms[1].push(t0.elapsed().as_secs_f64() * 1e3);
+        tallies[1][bin].add(Some(&icp), &case.a_from_b, tol_m, tol_rad);
+        let direction = rng.random_range(0.0..std::f64::consts::TAU);
+        let sign = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+        let start =
+            case.a_from_b * pose2(direction.cos(), direction.sin(), sign * 10f64.to_radians());
+        let t0 = Instant::now();
+        let icp = point_to_point_icp(&case.a, &case.b, &start);
+        times_ms[2].push(t0.elapsed().as_secs_f64() * 1e3);
+        tallies[2][bin].add(Some(&icp), &case.a_from_b, tol_m, tol_rad);
+    }
+    for (m, name) in methods.iter().enumerate() {
+        println!("\n{name} ({} pairs)", cases.len());
+        println!(
+            "{:<10} {:>5} {:>7} {:>9} {:>7} {:>8} {:>8} {:>8} {:>8}",
+            "overlap",
+            "pairs",
+            "success",
+            "abstained",
+            "wrong",
+            "med cm",
+            "med °",
+            "p95 cm",
+            "p95 °"
+        );
+        let mut at30 = Tally::default();
+        let mut all = Tally::default();
+        for (b, (lo, _, label)) in BINS.iter().enumerate() {
+            let t = &tallies[m][b];
+            print_row(label, t);
+            if *lo >= 0.3 {
+                at30.merge(t);
+            }
+            all.merge(t);
+        }
+        print_row("≥ 30 %", &at30);
+        print_row("all", &all);
+        println!(
+            "time per pair: median {:.1} ms, p95 {:.1} ms",
+            quantile(&times_ms[m], 0.5),
+            quantile(&times_ms[m], 0.95)
+        );
+    }
+    println!(
+        "\nscanfuse hypothesis recall at ≥ 30 % overlap (a refined candidate within tolerance): {recall_hits}/{recall_n}"
+    );
+    println!("scanfuse abstentions by reason:");
+    for (why, n) in &reasons {
+        println!("  {n:>4}  {why}");
+    }
+    if !wrong_examples.is_empty() {
+        println!("scanfuse confident-wrong examples:");
+        for w in wrong_examples {
+            println!("  {w}");
+        }
+    }
+}
+
+fn print_row(label: &str, t: &Tally) {
+    println!(
+        "{:<10} {:>5} {:>6.1}% {:>8.1}% {:>6.1}% {:>8.1} {:>8.2} {:>8.1} {:>8.2}",
+        label,
+        t.n,
+        t.pct(t.ok),
+        t.pct(t.abstained),
+        t.pct(t.wrong),
+        quantile(&t.err_m, 0.5) * 100.0,
+        quantile(&t.err_deg, 0.5),
+        quantile(&t.err_m, 0.95) * 100.0,
+        quantile(&t.err_deg, 0.95)
+    );
+}
+
+/// The baseline: plain point-to-point ICP (closed-form 2D alignment), nearest neighbours
+/// within 1 m, 50 iterations, no rejection beyond that; it never abstains.
+pub fn point_to_point_icp(a: &ScanModel, b: &ScanModel, start: &Pose2) -> Pose2 {
+    let grid = NearestGrid::new(a.points(), 0.1, 1.0);
+    let mut pose = *start;
+    for _ in 0..50 {
+        let pairs: Vec<(nalgebra::Point2<f64>, nalgebra::Point2<f64>)> = b
+            .icp_sample
+            .iter()
+            .filter_map(|&i| {
+                let q = pose * b.points()[i];
+                let j = grid.nearest(&q)?;
+                let p = *a.points().get(j)?;
+                ((p - q).norm() <= 1.0).then_some((q, p))
+            })
+            .collect();
+        if pairs.len() < 3 {
+            break;
+        }
+        let n = pairs.len() as f64;
+        let cq = pairs
+            .iter()
+            .fold(nalgebra::Vector2::zeros(), |s, (q, _)| s + q.coords)
+            / n;
+        let cp = pairs
+            .iter()
+            .fold(nalgebra::Vector2::zeros(), |s, (_, p)| s + p.coords)
+            / n;
+        let (mut sxx, mut sxy) = (0.0, 0.0);
+        for (q, p) in &pairs {
+            let (u, v) = (q.coords - cq, p.coords - cp);
+            sxx += u.dot(&v);
+            sxy += u.perp(&v);
+        }
+        let dtheta = sxy.atan2(sxx);
+        let rot = nalgebra::Rotation2::new(dtheta);
+        let dt = cp - rot * cq;
+        pose = pose2(dt.x, dt.y, dtheta) * pose;
+        if dt.norm() < 1e-5 && dtheta.abs() < 1e-6 {
+            break;
+        }
+    }
+    pose
+}
+
+/// Seed 002's measurement: ICP from the truth perturbed by 0.3 m / 3°, classes on vs. off.
+fn classes_on_off(cases: &[Case], params: &RegisterParams, seed: u64) {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0xc1a55);
+    let mut rows = Vec::new();
+    let chosen: Vec<&Case> = cases.iter().filter(|c| c.overlap >= 0.3).collect();
+    let starts: Vec<Pose2> = chosen
+        .iter()
+        .map(|c| {
+            let d = rng.random_range(0.0..std::f64::consts::TAU);
+            let s = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+            c.a_from_b * pose2(0.3 * d.cos(), 0.3 * d.sin(), s * 3f64.to_radians())
+        })
+        .collect();
+    if std::env::var_os("SCANFUSE_DEBUG").is_some() {
+        for c in &chosen {
+            let r = scanfuse::register::icp::refine(&c.a, &c.b, &c.a_from_b, params, false);
+            let (dt, dyaw) = pose_error(&r.a_from_b, &c.a_from_b);
+            let s_t = scanfuse::register::score::score(&c.a, &c.b, &c.a_from_b, params);
+            let s_r = scanfuse::register::score::score(&c.a, &c.b, &r.a_from_b, params);
+            eprintln!(
+                "from truth {}: ov {:.2} -> {:.1} cm {:.2}°, iters {}, rms {:.3}, n {}, score truth {:.3} refined {:.3}",
+                c.label,
+                c.overlap,
+                dt * 100.0,
+                dyaw.to_degrees(),
+                r.iterations,
+                r.rms_m,
+                r.correspondences,
+                s_t.value,
+                s_r.value
+            );
+        }
+    }
+    for on in [false, true] {
+        let (mut iters, mut times, mut errs) = (Vec::new(), Vec::new(), Vec::new());
+        let mut within = 0usize;
+        for (c, start) in chosen.iter().zip(&starts) {
+            let t0 = Instant::now();
+            let r = scanfuse::register::icp::refine(&c.a, &c.b, start, params, on);
+            times.push(t0.elapsed().as_secs_f64() * 1e3);
+            iters.push(r.iterations as f64);
+            let (dt, dyaw) = pose_error(&r.a_from_b, &c.a_from_b);
+            errs.push(dt * 100.0);
+            if dt <= 0.15 && dyaw <= 1.5f64.to_radians() {
+                within += 1;
+            }
+        }
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+        rows.push((
+            on,
+            mean(&iters),
+            mean(&times),
+            quantile(&errs, 0.5),
+            chosen.len(),
+            within,
+        ));
+    }
+    println!(
+        "{:<12} {:>6} {:>11} {:>10} {:>12} {:>16}",
+        "classes", "pairs", "mean iters", "mean ms", "median cm", "≤15 cm & ≤1.5°"
+    );
+    for (on, it, ms, err, n, within) in rows {
+        println!(
+            "{:<12} {:>6} {:>11.1} {:>10.2} {:>12.1} {:>16}",
+            if on { "on" } else { "off" },
+            n,
+            it,
+            ms,
+            err,
+            within
+        );
+    }
+}
+
+/// Draws real pairs from the CARMEN logs, spread over the overlap bins.
+fn real_cases(args: &Args, params: &RegisterParams) -> Result<Vec<Case>> {
+    let logs = ["intel", "aces", "freiburg-079", "csail"];
+    let mut rng = ChaCha8Rng::seed_from_u64(args.seed ^ 0x5ea1);
+    let mut per_log = Vec::new();
+    for name in logs {
+        let path = args.real_data.join(format!("{name}-corrected.log.gz"));
+        if !path.is_file() {
+            continue;
+        }
+        let scans = carmen::load(&path)?;
+        eprintln!("real data: {} scans from {}", scans.len(), path.display());
+        per_log.push((name, scans));
+    }
+    if per_log.is_empty() {
+        bail!("no CARMEN logs found in {}", args.real_data.display());
+    }
+    let quota = args.real_pairs.div_ceil(BINS.len());
+    let mut filled = [0usize; BINS.len()];
+    let mut cases = Vec::new();
+    let mut models: BTreeMap<(usize, usize), std::sync::Arc<ScanModel>> = BTreeMap::new();
+    let mut attempts = 0;
+    while cases.len() < args.real_pairs && attempts < args.real_pairs * 200 {
+        attempts += 1;
+        let l = rng.random_range(0..per_log.len());
+        let (name, scans) = &per_log[l];
+        let i = rng.random_range(0..scans.len());
+        let j = rng.random_range(0..scans.len());
+        let (si, sj) = (&scans[i], &scans[j]);
+        let a_from_b = si.site_from_laser.inverse() * sj.site_from_laser;
+        let dist = a_from_b.translation.vector.norm();
+        if !(1.0..=10.0).contains(&dist) {
+            continue;
+        }
+        let mut model = |k: usize, s: &carmen::LogScan| {
+            models
+                .entry((l, k))
+                .or_insert_with(|| {
+                    std::sync::Arc::new(ScanModel::from_scan(
+                        &s.scan,
+                        None,
+                        &Mount::default(),
+                        params,
+                    ))
+                })
+                .clone()
+        };
+        let (a, b) = (model(i, si), model(j, sj));
+        let overlap = true_overlap(&a, &b, &a_from_b);
+        let bin = bin_of(overlap);
+        if filled[bin] >= quota {
+            continue;
+        }
+        filled[bin] += 1;
+        cases.push(Case {
+            label: format!("{name} {i}→{j}"),
+            a: (*a).clone(),
+            b: (*b).clone(),
+            a_from_b,
+            overlap,
+        });
+    }
+    Ok(cases)
+}
+
+/// CARMEN text logs (gzip): `FLASER n r_1 … r_n x y theta …` with SLAM-corrected poses.
+mod carmen {
+    use super::*;
+    use std::io::{BufRead, BufReader};
+
+    pub struct LogScan {
+        pub scan: Scan,
+        pub site_from_laser: Pose2,
+    }
+
+    pub fn load(path: &std::path::Path) -> Result<Vec<LogScan>> {
+        let file = std::fs::File::open(path)
+            .with_context(|| format!("{}: cannot open", path.display()))?;
+        let reader = BufReader::new(flate2::read::GzDecoder::new(file));
+        let mut offset_m = 0.0;
+        let mut out = Vec::new();
+        for (n, line) in reader.lines().enumerate() {
+            let line =
+                line.with_context(|| format!("{}: unreadable at line {}", path.display(), n + 1))?;
+            let mut words = line.split_whitespace();
+            match words.next() {
+                Some("PARAM") if words.next() == Some("robot_frontlaser_offset") => {
+                    offset_m = words.next().and_then(|w| w.parse().ok()).unwrap_or(0.0);
+                }
+                Some("FLASER") => {
+                    let bad = || format!("{}: line {}: malformed FLASER", path.display(), n + 1);
+                    let count: usize = words
+                        .next()
+                        .and_then(|w| w.parse().ok())
+                        .with_context(bad)?;
+                    // Ranges and the corrected pose; the host name and stamps after them are not needed.
+                    let values: Vec<f64> = words
+                        .take(count + 3)
+                        .map(|w| w.parse::<f64>())
+                        .collect::<Result<_, _>>()
+                        .with_context(bad)?;
+                    let (Some(ranges), Some(pose)) =
+                        (values.get(..count), values.get(count..count + 3))
+                    else {
+                        bail!(bad());
+                    };
+                    let half = std::f64::consts::FRAC_PI_2;
+                    let step = if count % 2 == 1 {
+                        2.0 * half / (count - 1) as f64
+                    } else {
+                        2.0 * half / count as f64
+                    };
+                    let scan = Scan {
+                        stamp_ns: 0,
+                        sensor_stamp_ms: None,
+                        start_angle_rad: -half,
+                        end_angle_rad: -half + step * (count - 1) as f64,
+                        ranges_m: ranges.iter().map(|&r| r as f32).collect(),
+                        intensities: Vec::new(),
+                    };
+                    let site_from_robot = pose2(pose[0], pose[1], pose[2]);
+                    out.push(LogScan {
+                        scan,
+                        site_from_laser: site_from_robot * pose2(offset_m, 0.0, 0.0),
+                    });
+                }
+                _ => {}
+            }
+        }
+        Ok(out)
+    }
+}

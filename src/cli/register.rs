@@ -1,0 +1,295 @@
+//! `scanfuse register FILE.mcap... [--anchor ID] [--json]`: every sensor's pose from the scans
+//! alone. With `--json`, stdout is one object in the contract of issue 5 (DESIGN.md's pose
+//! vocabulary); without, a table for a person and progress on stderr.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::Result;
+use rayon::prelude::*;
+use scanfuse::features::static_view;
+use scanfuse::geometry::Mount;
+use scanfuse::record;
+use scanfuse::register::site::{SensorInput, SiteParams, SiteResult, register_site};
+use scanfuse::register::{RegisterParams, ScanModel};
+use scanfuse::scan::{Scan, SensorInfo};
+use serde::Serialize;
+
+use super::BadInput;
+
+/// Scans of this first stretch of each recording make the static view (people removed).
+const STATIC_WINDOW_S: f64 = 1.0;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Recordings holding the sensors to register.
+    #[arg(required = true)]
+    pub files: Vec<PathBuf>,
+    /// The sensor whose frame is the site frame (default: the first sensor found).
+    #[arg(long)]
+    pub anchor: Option<String>,
+    /// Print one JSON object instead of a table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Serialize)]
+struct SensorOut {
+    id: String,
+    registered: bool,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    x_m: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    y_m: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    yaw_deg: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    z_m: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pitch_deg: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    sigma_x_m: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    sigma_y_m: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    sigma_yaw_deg: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    reason: Option<String>,
+}
+
+#[derive(Serialize)]
+struct PairOut {
+    a: String,
+    b: String,
+    #[serde(rename = "match")]
+    match_score: f64,
+    ambiguity: f64,
+    overlap: f64,
+    used: bool,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    reason: Option<String>,
+}
+
+#[derive(Serialize)]
+struct Output {
+    anchor: String,
+    elapsed_ms: u64,
+    sensors: Vec<SensorOut>,
+    pairs: Vec<PairOut>,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let started = Instant::now();
+    // (sensor, its scans, the file it came from)
+    let mut found: Vec<(SensorInfo, Vec<Scan>, PathBuf)> = Vec::new();
+    for path in &args.files {
+        let mut recording = record::read(path)?;
+        if recording.sensors.is_empty() {
+            return Err(BadInput(format!(
+                "{}: holds no sensors (no scanfuse.sensor metadata or scan channels)",
+                path.display()
+            ))
+            .into());
+        }
+        for sensor in recording.sensors.drain(..) {
+            if let Some((_, _, other)) = found.iter().find(|(s, _, _)| s.id == sensor.id) {
+                return Err(BadInput(format!(
+                    "{}: sensor id {:?} is also in {}; ids must be unique across the recordings",
+                    path.display(),
+                    sensor.id,
+                    other.display()
+                ))
+                .into());
+            }
+            let scans = recording.scans.remove(&sensor.id).unwrap_or_default();
+            found.push((sensor, scans, path.clone()));
+        }
+    }
+    let anchor_id = match &args.anchor {
+        Some(id) => id.clone(),
+        None => found
+            .first()
+            .map(|(s, _, _)| s.id.clone())
+            .unwrap_or_default(),
+    };
+    if !found.iter().any(|(s, _, _)| s.id == anchor_id) {
+        let known: Vec<&str> = found.iter().map(|(s, _, _)| s.id.as_str()).collect();
+        return Err(BadInput(format!(
+            "anchor {anchor_id:?} is not among the sensors found: {}",
+            known.join(", ")
+        ))
+        .into());
+    }
+
+    let params = RegisterParams::default();
+    let progress = !args.json;
+    if progress {
+        eprintln!("preparing {} sensors…", found.len());
+    }
+    // Sensors with no usable scan cannot take part; they are reported, not fatal.
+    let prepared: Vec<(SensorInfo, Option<SensorInput>)> = found
+        .into_par_iter()
+        .map(|(info, scans, _)| {
+            let input = static_view(&scans, STATIC_WINDOW_S).map(|view| {
+                let mount = Mount {
+                    height_m: info.height_m,
+                    pitch_rad: info.pitch_deg.unwrap_or(0.0).to_radians(),
+                };
+                SensorInput {
+                    id: info.id.clone(),
+                    model: ScanModel::from_scan(&view, info.geometry.as_ref(), &mount, &params),
+                    mount,
+                    prior: None,
+                }
+            });
+            (info, input)
+        })
+        .collect();
+    let inputs: Vec<SensorInput> = prepared.iter().filter_map(|(_, s)| s.clone()).collect();
+    let anchor = inputs.iter().position(|s| s.id == anchor_id);
+    let Some(anchor) = anchor else {
+        return Err(BadInput(format!(
+            "anchor {anchor_id:?} has no scans to register with"
+        ))
+        .into());
+    };
+    if progress {
+        let n = inputs.len();
+        eprintln!("registering {} pairs…", n * n.saturating_sub(1) / 2);
+    }
+    let site = register_site(&inputs, anchor, &params, &SiteParams::default());
+    let output = to_output(
+        &anchor_id,
+        &prepared,
+        &site,
+        started.elapsed().as_millis() as u64,
+    );
+    if args.json {
+        println!("{}", serde_json::to_string(&output)?);
+    } else {
+        print_table(&output);
+    }
+    Ok(())
+}
+
+fn to_output(
+    anchor_id: &str,
+    prepared: &[(SensorInfo, Option<SensorInput>)],
+    site: &SiteResult,
+    elapsed_ms: u64,
+) -> Output {
+    let sensors = prepared
+        .iter()
+        .map(|(info, input)| {
+            let unregistered = |reason: String| SensorOut {
+                id: info.id.clone(),
+                registered: false,
+                x_m: None,
+                y_m: None,
+                yaw_deg: None,
+                z_m: None,
+                pitch_deg: None,
+                sigma_x_m: None,
+                sigma_y_m: None,
+                sigma_yaw_deg: None,
+                reason: Some(reason),
+            };
+            if input.is_none() {
+                return unregistered("no scans in the recording".into());
+            }
+            match site
+                .sensors
+                .iter()
+                .find(|p| p.id == info.id)
+                .map(|p| &p.pose)
+            {
+                Some(Ok(placed)) => SensorOut {
+                    id: info.id.clone(),
+                    registered: true,
+                    x_m: Some(placed.pose.x_m),
+                    y_m: Some(placed.pose.y_m),
+                    yaw_deg: Some(placed.pose.yaw_rad.to_degrees()),
+                    z_m: Some(placed.pose.z_m),
+                    pitch_deg: Some(placed.pose.pitch_rad.to_degrees()),
+                    sigma_x_m: Some(placed.sigma_x_m),
+                    sigma_y_m: Some(placed.sigma_y_m),
+                    sigma_yaw_deg: Some(placed.sigma_yaw_rad.to_degrees()),
+                    reason: None,
+                },
+                Some(Err(reason)) => unregistered(reason.clone()),
+                None => unregistered("not registered".into()),
+            }
+        })
+        .collect();
+    let id = |i: usize| {
+        site.sensors
+            .get(i)
+            .map(|s| s.id.clone())
+            .unwrap_or_default()
+    };
+    let pairs = site
+        .pairs
+        .iter()
+        .map(|p| PairOut {
+            a: id(p.a),
+            b: id(p.b),
+            match_score: p.result.match_score,
+            ambiguity: p.result.ambiguity,
+            overlap: p.result.overlap,
+            used: p.used,
+            reason: p.result.verdict.as_ref().err().map(|why| why.to_string()),
+        })
+        .collect();
+    Output {
+        anchor: anchor_id.to_string(),
+        elapsed_ms,
+        sensors,
+        pairs,
+    }
+}
+
+fn print_table(o: &Output) {
+    println!("site frame: sensor {:?}   ({} ms)", o.anchor, o.elapsed_ms);
+    println!(
+        "{:<12} {:>9} {:>9} {:>8} {:>6} {:>7} {:>8} {:>8} {:>8}  note",
+        "sensor", "x m", "y m", "yaw °", "z m", "pitch °", "σx cm", "σy cm", "σyaw °"
+    );
+    for s in &o.sensors {
+        match (s.x_m, s.y_m, s.yaw_deg) {
+            (Some(x), Some(y), Some(yaw)) => println!(
+                "{:<12} {:>9.3} {:>9.3} {:>8.2} {:>6.2} {:>7.1} {:>8.1} {:>8.1} {:>8.2}",
+                s.id,
+                x,
+                y,
+                yaw,
+                s.z_m.unwrap_or(0.0),
+                s.pitch_deg.unwrap_or(0.0),
+                s.sigma_x_m.unwrap_or(0.0) * 100.0,
+                s.sigma_y_m.unwrap_or(0.0) * 100.0,
+                s.sigma_yaw_deg.unwrap_or(0.0)
+            ),
+            _ => println!(
+                "{:<12} {:>9}  not registered: {}",
+                s.id,
+                "—",
+                s.reason.as_deref().unwrap_or("")
+            ),
+        }
+    }
+    println!(
+        "\n{:<12} {:<12} {:>6} {:>9} {:>8} {:>5}  note",
+        "a", "b", "match", "ambiguity", "overlap", "used"
+    );
+    for p in &o.pairs {
+        println!(
+            "{:<12} {:<12} {:>6.2} {:>9.2} {:>7.0}% {:>5}  {}",
+            p.a,
+            p.b,
+            p.match_score,
+            p.ambiguity,
+            p.overlap * 100.0,
+            if p.used { "yes" } else { "no" },
+            p.reason.as_deref().unwrap_or("")
+        );
+    }
+}

@@ -1,0 +1,244 @@
+//! Pose hypotheses (METHOD §3, 3.4.1–3.4.2), pruned by the dominant wall directions: the
+//! headings come from segment pairs (both orientations), and for each heading the translation
+//! is voted by segment pairs slid along their line and by corner pairs of the same kind. The
+//! peaks of the vote are the hypotheses; everything else is never scored.
+
+use super::{RegisterParams, ScanModel};
+use crate::features::EdgeKind;
+use crate::geometry::{Pose2, pose2, wrap_angle_rad};
+use nalgebra::{Point2, Rotation2, Vector2};
+use rayon::prelude::*;
+use std::f64::consts::{PI, TAU};
+
+/// Segments used per scan for hypotheses (the longest).
+const MAX_SEGMENTS: usize = 40;
+
+/// Headings θ (B's heading in A's frame) worth trying, strongest first.
+pub fn rotation_candidates(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> Vec<f64> {
+    let sa = &a.features.segments[..a.features.segments.len().min(MAX_SEGMENTS)];
+    let sb = &b.features.segments[..b.features.segments.len().min(MAX_SEGMENTS)];
+    if sa.len() < 2 || sb.len() < 2 {
+        // Too few walls to prune by: sweep like the paper's edge-point rotation search.
+        return (0..180)
+            .map(|k| wrap_angle_rad(k as f64 * 2f64.to_radians()))
+            .collect();
+    }
+    const BINS: usize = 720;
+    let bin = TAU / BINS as f64;
+    let mut hist = vec![0.0f64; BINS];
+    let mut sum_sin = vec![0.0f64; BINS];
+    let mut sum_cos = vec![0.0f64; BINS];
+    for s in sa {
+        for t in sb {
+            let da = s.direction();
+            let db = t.direction();
+            let base = da.y.atan2(da.x) - db.y.atan2(db.x);
+            let w = s.length_m().min(t.length_m()).min(5.0);
+            for theta in [base, base + PI] {
+                let k = ((theta.rem_euclid(TAU)) / bin) as usize % BINS;
+                hist[k] += w;
+                sum_sin[k] += w * theta.sin();
+                sum_cos[k] += w * theta.cos();
+            }
+        }
+    }
+    // Smooth over ±2 bins (±1°) and take local maxima.
+    let smooth: Vec<f64> = (0..BINS)
+        .map(|k| (0..5).map(|d| hist[(k + BINS + d - 2) % BINS]).sum())
+        .collect();
+    let mut peaks: Vec<(f64, usize)> = (0..BINS)
+        .filter(|&k| {
+            let v = smooth[k];
+            v > 0.0
+                && (1..=4).all(|d| v >= smooth[(k + d) % BINS] && v > smooth[(k + BINS - d) % BINS])
+        })
+        .map(|k| (smooth[k], k))
+        .collect();
+    peaks.sort_by(|x, y| y.0.total_cmp(&x.0));
+    let top = peaks.first().map_or(0.0, |x| x.0);
+    peaks
+        .into_iter()
+        .filter(|(v, _)| *v >= 0.1 * top)
+        .take(p.max_rotations)
+        .map(|(_, k)| {
+            let (s, c) = (-2..=2).fold((0.0, 0.0), |(s, c), d| {
+                let j = (k as i64 + d).rem_euclid(BINS as i64) as usize;
+                (s + sum_sin[j], c + sum_cos[j])
+            });
+            s.atan2(c)
+        })
+        .collect()
+}
+
+/// A translation vote over B's possible positions in A's frame.
+struct Accumulator {
+    min: Point2<f64>,
+    res: f64,
+    width: usize,
+    height: usize,
+    votes: Vec<f32>,
+}
+
+impl Accumulator {
+    fn new(a: &ScanModel, res: f64) -> Self {
+        let (mut lo, mut hi) = (Point2::new(0.0, 0.0), Point2::new(0.0, 0.0));
+        for q in a.points() {
+            lo = lo.inf(q);
+            hi = hi.sup(q);
+        }
+        let min = lo - Vector2::repeat(2.0);
+        let width = ((hi.x - min.x + 2.0) / res).ceil() as usize + 1;
+        let height = ((hi.y - min.y + 2.0) / res).ceil() as usize + 1;
+        Accumulator {
+            min,
+            res,
+            width,
+            height,
+            votes: vec![0.0; width * height],
+        }
+    }
+
+    fn cell(&self, t: &Point2<f64>) -> Option<usize> {
+        let x = (t.x - self.min.x) / self.res;
+        let y = (t.y - self.min.y) / self.res;
+        (x >= 0.0 && y >= 0.0 && (x as usize) < self.width && (y as usize) < self.height)
+            .then(|| y as usize * self.width + x as usize)
+    }
+
+    fn point(&mut self, t: &Point2<f64>, w: f32) {
+        if let Some(k) = self.cell(t) {
+            self.votes[k] += w;
+        }
+    }
+
+    /// Votes once per cell along the segment from `from` to `to`.
+    fn line(&mut self, from: &Point2<f64>, to: &Point2<f64>, w: f32) {
+        let len = (to - from).norm();
+        let steps = (len / (0.5 * self.res)).ceil().max(1.0) as usize;
+        let mut last = usize::MAX;
+        for s in 0..=steps {
+            let t = from + (to - from) * (s as f64 / steps as f64);
+            if let Some(k) = self.cell(&t)
+                && k != last
+            {
+                self.votes[k] += w;
+                last = k;
+            }
+        }
+    }
+
+    fn centre(&self, k: usize) -> Point2<f64> {
+        let (x, y) = (k % self.width, k / self.width);
+        Point2::new(
+            self.min.x + (x as f64 + 0.5) * self.res,
+            self.min.y + (y as f64 + 0.5) * self.res,
+        )
+    }
+
+    /// The strongest local maxima of the 3×3-summed vote, at least `min_gap` cells apart.
+    fn peaks(&self, count: usize, min_gap: usize) -> Vec<(f32, Point2<f64>)> {
+        let (w, h) = (self.width, self.height);
+        let mut summed = vec![0.0f32; w * h];
+        for y in 1..h.saturating_sub(1) {
+            for x in 1..w - 1 {
+                let mut s = 0.0;
+                for dy in 0..3 {
+                    let row = (y + dy - 1) * w;
+                    s += self.votes[row + x - 1] + self.votes[row + x] + self.votes[row + x + 1];
+                }
+                summed[y * w + x] = s;
+            }
+        }
+        let mut order: Vec<usize> = (0..w * h).filter(|&k| summed[k] > 0.0).collect();
+        order.sort_unstable_by(|&i, &j| summed[j].total_cmp(&summed[i]));
+        let mut out: Vec<(f32, usize)> = Vec::with_capacity(count);
+        for k in order {
+            if out.len() >= count {
+                break;
+            }
+            let (x, y) = ((k % w) as i64, (k / w) as i64);
+            let far = out.iter().all(|&(_, j)| {
+                let (jx, jy) = ((j % w) as i64, (j / w) as i64);
+                (jx - x).abs().max((jy - y).abs()) >= min_gap as i64
+            });
+            if far {
+                out.push((summed[k], k));
+            }
+        }
+        // Sub-cell position: vote-weighted centre of the 3×3 block.
+        out.into_iter()
+            .map(|(v, k)| {
+                let (x, y) = (k % w, k / w);
+                let mut c = Vector2::zeros();
+                let mut total = 0.0;
+                for yy in y.saturating_sub(1)..=(y + 1).min(h - 1) {
+                    for xx in x.saturating_sub(1)..=(x + 1).min(w - 1) {
+                        let kk = yy * w + xx;
+                        let vv = self.votes[kk] as f64;
+                        c += self.centre(kk).coords * vv;
+                        total += vv;
+                    }
+                }
+                let centre = if total > 0.0 {
+                    Point2::from(c / total)
+                } else {
+                    self.centre(k)
+                };
+                (v, centre)
+            })
+            .collect()
+    }
+}
+
+/// Hypotheses for one heading: translation peaks voted by segment and corner pairs.
+fn hypotheses_for(
+    a: &ScanModel,
+    b: &ScanModel,
+    theta: f64,
+    p: &RegisterParams,
+) -> Vec<(f32, Pose2)> {
+    let rot = Rotation2::new(theta);
+    let mut acc = Accumulator::new(a, p.vote_res_m);
+    let parallel = 2f64.to_radians().sin();
+    let sa = &a.features.segments[..a.features.segments.len().min(MAX_SEGMENTS)];
+    let sb = &b.features.segments[..b.features.segments.len().min(MAX_SEGMENTS)];
+    for s in sa {
+        let da = s.direction();
+        for t in sb {
+            let db = rot * t.direction();
+            // Parallel, and seen from the same side (the other side would contradict free space).
+            if da.perp(&db).abs() > parallel || s.normal.dot(&(rot * t.normal)) < 0.9 {
+                continue;
+            }
+            let (la, lb) = (s.length_m(), t.length_m());
+            let centre = s.midpoint() - rot * t.midpoint().coords;
+            let slide = 0.5 * (la + lb) - 0.25 * la.min(lb);
+            let w = la.min(lb).min(4.0) as f32;
+            acc.line(&(centre - da * slide), &(centre + da * slide), w);
+        }
+    }
+    for ea in &a.features.edges {
+        if ea.kind == EdgeKind::End {
+            continue;
+        }
+        for eb in &b.features.edges {
+            if eb.kind == ea.kind {
+                acc.point(&(ea.p - rot * eb.p.coords), 1.0);
+            }
+        }
+    }
+    let gap = (p.same_pose_m / p.vote_res_m).round().max(1.0) as usize;
+    acc.peaks(p.peaks_per_rotation, gap)
+        .into_iter()
+        .map(|(v, t)| (v, pose2(t.x, t.y, theta)))
+        .collect()
+}
+
+/// All hypotheses `a_from_b` with their vote strength.
+pub fn hypotheses(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> Vec<(f32, Pose2)> {
+    let thetas = rotation_candidates(a, b, p);
+    thetas
+        .par_iter()
+        .flat_map_iter(|&theta| hypotheses_for(a, b, theta, p))
+        .collect()
+}

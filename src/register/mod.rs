@@ -1,0 +1,15 @@
+//! Registration: each sensor's pose from the scans alone. `pair` registers two scans (global
+//! search, free-space check, refinement, verdict); `site` solves all sensors jointly.
+
+pub mod hypotheses;
+pub mod icp;
+pub mod matching;
+pub mod model;
+pub mod pair;
+pub mod params;
+pub mod score;
+pub mod site;
+
+pub use model::ScanModel;
+pub use pair::{Abstain, Candidate, PairResult, register_pair};
+pub use params::RegisterParams;

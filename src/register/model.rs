@@ -1,0 +1,255 @@
+//! A scan prepared for registration, once per sensor: features, normals, samples and the
+//! lookup tables every hypothesis is scored against (nearest-point grid, polar free space).
+
+use super::RegisterParams;
+use crate::features::{self, Features, PointClass};
+use crate::geometry::{Mount, ScanPoint, beam_angles_rad, project_scan};
+use crate::scan::{Scan, ScanGeometry};
+use nalgebra::{Point2, Vector2};
+use std::f64::consts::{PI, TAU};
+
+/// Nearest point per cell of a regular grid, for points within `radius` of a cell.
+#[derive(Debug, Clone)]
+pub struct NearestGrid {
+    min: Point2<f64>,
+    res_m: f64,
+    width: usize,
+    height: usize,
+    cells: Vec<u32>,
+}
+
+impl NearestGrid {
+    const EMPTY: u32 = u32::MAX;
+
+    pub fn new(points: &[Point2<f64>], res_m: f64, radius_m: f64) -> Self {
+        let (mut lo, mut hi) = (Point2::new(0.0, 0.0), Point2::new(0.0, 0.0));
+        for p in points {
+            lo = lo.inf(p);
+            hi = hi.sup(p);
+        }
+        let min = lo - Vector2::repeat(radius_m + res_m);
+        let width = ((hi.x - min.x + radius_m) / res_m).ceil() as usize + 2;
+        let height = ((hi.y - min.y + radius_m) / res_m).ceil() as usize + 2;
+        let mut cells = vec![Self::EMPTY; width * height];
+        let mut dist = vec![f32::INFINITY; width * height];
+        let reach = (radius_m / res_m).ceil() as i64;
+        for (i, p) in points.iter().enumerate() {
+            let cx = ((p.x - min.x) / res_m) as i64;
+            let cy = ((p.y - min.y) / res_m) as i64;
+            for y in (cy - reach).max(0)..=(cy + reach).min(height as i64 - 1) {
+                for x in (cx - reach).max(0)..=(cx + reach).min(width as i64 - 1) {
+                    let centre = Point2::new(
+                        min.x + (x as f64 + 0.5) * res_m,
+                        min.y + (y as f64 + 0.5) * res_m,
+                    );
+                    let d = (centre - p).norm() as f32;
+                    let k = y as usize * width + x as usize;
+                    if d < dist[k] {
+                        dist[k] = d;
+                        cells[k] = i as u32;
+                    }
+                }
+            }
+        }
+        NearestGrid {
+            min,
+            res_m,
+            width,
+            height,
+            cells,
+        }
+    }
+
+    /// Index of the point nearest to the cell holding `q`, if one is within the radius.
+    #[inline]
+    pub fn nearest(&self, q: &Point2<f64>) -> Option<usize> {
+        let x = (q.x - self.min.x) / self.res_m;
+        let y = (q.y - self.min.y) / self.res_m;
+        if x < 0.0 || y < 0.0 || x >= self.width as f64 || y >= self.height as f64 {
+            return None;
+        }
+        match self.cells.get(y as usize * self.width + x as usize) {
+            Some(&i) if i != Self::EMPTY => Some(i as usize),
+            _ => None,
+        }
+    }
+}
+
+/// What the sensor saw in each direction: nearest return per bearing bin, for free space.
+#[derive(Debug, Clone)]
+pub struct PolarRanges {
+    bin_rad: f64,
+    /// Range per bin; infinity = no return (unknown, never free).
+    ranges_m: Vec<f32>,
+}
+
+impl PolarRanges {
+    pub fn new(points: &[Point2<f64>], bin_rad: f64) -> Self {
+        let bins = (TAU / bin_rad).ceil() as usize;
+        let mut ranges_m = vec![f32::INFINITY; bins];
+        for p in points {
+            let b = Self::bin_of(bin_rad, bins, p.y.atan2(p.x));
+            let r = p.coords.norm() as f32;
+            if let Some(slot) = ranges_m.get_mut(b) {
+                *slot = slot.min(r);
+            }
+        }
+        PolarRanges { bin_rad, ranges_m }
+    }
+
+    fn bin_of(bin_rad: f64, bins: usize, bearing_rad: f64) -> usize {
+        (((bearing_rad + PI) / bin_rad) as usize).min(bins - 1)
+    }
+
+    /// True when `q` (sensor frame) lies in space the sensor saw empty: short of the returns
+    /// in its bin and both neighbours by more than the margin.
+    #[inline]
+    pub fn violates(&self, q: &Point2<f64>, margin_m: f64, margin_frac: f64) -> bool {
+        let r = q.coords.norm();
+        if r < 0.2 {
+            return false;
+        }
+        let bins = self.ranges_m.len();
+        let b = Self::bin_of(self.bin_rad, bins, q.y.atan2(q.x));
+        let seen = [(b + bins - 1) % bins, b, (b + 1) % bins]
+            .iter()
+            .map(|&k| self.ranges_m.get(k).copied().unwrap_or(f32::INFINITY))
+            .fold(f32::INFINITY, f32::min) as f64;
+        seen.is_finite() && r < seen - margin_m - margin_frac * r
+    }
+}
+
+/// One sensor's scan, ready to be registered against others.
+#[derive(Debug, Clone)]
+pub struct ScanModel {
+    pub features: Features,
+    /// Unit normal per point, pointing towards the sensor.
+    pub normals: Vec<Vector2<f64>>,
+    /// Points used for scoring, evenly spread along the outline.
+    pub score_sample: Vec<usize>,
+    /// Points used by ICP.
+    pub icp_sample: Vec<usize>,
+    pub grid: NearestGrid,
+    pub polar: PolarRanges,
+}
+
+impl ScanModel {
+    /// Prepares a scan; `step_rad` is its beam spacing.
+    pub fn new(points: &[ScanPoint], step_rad: f64, params: &RegisterParams) -> Self {
+        let features = features::extract(points, step_rad, &params.features);
+        let normals = normals_of(&features, params.normal_radius_m);
+        let grouped: Vec<usize> = features.groups.iter().flat_map(|g| g.clone()).collect();
+        let score_sample = spread(&features.points, &grouped, params.score_points);
+        let icp_sample = spread(&features.points, &grouped, params.icp_points);
+        let grid = NearestGrid::new(&features.points, params.grid_res_m, params.grid_radius_m);
+        let polar = PolarRanges::new(&features.points, step_rad.abs().max(0.25f64.to_radians()));
+        ScanModel {
+            features,
+            normals,
+            score_sample,
+            icp_sample,
+            grid,
+            polar,
+        }
+    }
+
+    /// Projects a scan (exact PP angles when `geometry` fits it, tilted mount, floor hits
+    /// removed) and prepares it.
+    pub fn from_scan(
+        scan: &Scan,
+        geometry: Option<&ScanGeometry>,
+        mount: &Mount,
+        params: &RegisterParams,
+    ) -> Self {
+        let points = project_scan(scan, geometry, mount, &params.project);
+        let angles = beam_angles_rad(scan, geometry);
+        let step_rad = match (angles.first(), angles.last()) {
+            (Some(a), Some(b)) if angles.len() > 1 => ((b - a) / (angles.len() - 1) as f64).abs(),
+            _ => 0.25f64.to_radians(),
+        };
+        Self::new(&points, step_rad, params)
+    }
+
+    pub fn points(&self) -> &[Point2<f64>] {
+        &self.features.points
+    }
+
+    pub fn class(&self, i: usize) -> PointClass {
+        self.features
+            .classes
+            .get(i)
+            .copied()
+            .unwrap_or(PointClass::Other)
+    }
+}
+
+/// At most `count` of `idx`, evenly spaced by arc length along the outline.
+fn spread(points: &[Point2<f64>], idx: &[usize], count: usize) -> Vec<usize> {
+    let arc: f64 = idx
+        .windows(2)
+        .map(|w| (points[w[1]] - points[w[0]]).norm().min(0.5))
+        .sum();
+    let spacing = (arc / count.max(1) as f64).max(0.02);
+    let mut out = Vec::with_capacity(count + 1);
+    let mut last: Option<Point2<f64>> = None;
+    let mut travelled = 0.0;
+    for &i in idx {
+        let p = points[i];
+        if let Some(l) = last {
+            travelled += (p - l).norm().min(0.5);
+        }
+        if last.is_none() || travelled >= spacing {
+            out.push(i);
+            travelled = 0.0;
+        }
+        last = Some(p);
+    }
+    out
+}
+
+/// Normals: the segment's for wall points, else a local fit over scan neighbours.
+fn normals_of(f: &Features, neighbour_m: f64) -> Vec<Vector2<f64>> {
+    let pts = &f.points;
+    let mut normals: Vec<Vector2<f64>> = pts
+        .iter()
+        .map(|p| {
+            let n = -p.coords;
+            if n.norm() > 1e-9 {
+                n.normalize()
+            } else {
+                Vector2::x()
+            }
+        })
+        .collect();
+    for g in &f.groups {
+        for i in g.clone() {
+            let near = |j: &usize| (pts[*j] - pts[i]).norm() <= neighbour_m;
+            let lo = (g.start..i).rev().take_while(near).last().unwrap_or(i);
+            let hi = (i + 1..g.end).take_while(near).last().unwrap_or(i);
+            if hi - lo < 2 {
+                continue;
+            }
+            let n = (hi - lo + 1) as f64;
+            let c = (lo..=hi).fold(Vector2::zeros(), |s, j| s + pts[j].coords) / n;
+            let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
+            for q in &pts[lo..=hi] {
+                let d = q.coords - c;
+                sxx += d.x * d.x;
+                sxy += d.x * d.y;
+                syy += d.y * d.y;
+            }
+            let angle = 0.5 * (2.0 * sxy).atan2(sxx - syy);
+            let mut normal = Vector2::new(-angle.sin(), angle.cos());
+            if normal.dot(&pts[i].coords) > 0.0 {
+                normal = -normal;
+            }
+            normals[i] = normal;
+        }
+    }
+    for s in &f.segments {
+        for &i in &s.points {
+            normals[i] = s.normal;
+        }
+    }
+    normals
+}

@@ -1,0 +1,249 @@
+//! Pairwise global registration (METHOD §3): hypotheses from segment and corner pairs, scored
+//! against lookup grids with free-space violations in both directions, the best few refined by
+//! ICP, then a verdict: registered with a covariance, or not registered with the reason.
+
+use super::hypotheses::hypotheses;
+use super::icp::{IcpResult, refine_guarded};
+use super::matching::match_score;
+use super::score::{PoseScore, score, score_coarse};
+use super::{RegisterParams, ScanModel};
+use crate::geometry::{Pose2, pose_error};
+use nalgebra::Matrix3;
+use rayon::prelude::*;
+use std::fmt;
+
+/// Why a pair was not registered.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Abstain {
+    /// One scan has too few features to form a hypothesis.
+    NoHypotheses,
+    /// The best pose shares too little of the view.
+    TooLittleOverlap { overlap: f64 },
+    /// The best pose puts too many points in space the other sensor saw empty.
+    ContradictsFreeSpace { violation: f64 },
+    /// A clearly different pose scores nearly as well (a symmetric corridor, a repeated room).
+    Ambiguous { ratio: f64, other: Pose2 },
+    /// The geometry does not fix the position along one direction (a corridor seen lengthwise).
+    Degenerate { weak_axis_deg: f64 },
+}
+
+impl fmt::Display for Abstain {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Abstain::NoHypotheses => write!(f, "too few walls or corners to form a hypothesis"),
+            Abstain::TooLittleOverlap { overlap } => {
+                write!(f, "too little shared view ({:.0} %)", overlap * 100.0)
+            }
+            Abstain::ContradictsFreeSpace { violation } => {
+                write!(
+                    f,
+                    "best pose contradicts free space ({:.0} % of points)",
+                    violation * 100.0
+                )
+            }
+            Abstain::Ambiguous { ratio, other } => write!(
+                f,
+                "ambiguous: a pose {:.2} m / {:.1}° away scores {:.0} % as well",
+                other.translation.vector.norm(),
+                other.rotation.angle().to_degrees(),
+                ratio * 100.0
+            ),
+            Abstain::Degenerate { weak_axis_deg } => {
+                write!(
+                    f,
+                    "position unconstrained along {weak_axis_deg:.0}° (corridor-like view)"
+                )
+            }
+        }
+    }
+}
+
+/// A refined candidate pose with its score.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Candidate {
+    pub a_from_b: Pose2,
+    pub score: PoseScore,
+}
+
+/// The outcome for one pair. The best candidate is always reported (for diagnosis and for the
+/// site solve, which may resolve an ambiguous pair through third sensors); `verdict` says
+/// whether it may be used alone.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PairResult {
+    pub verdict: Result<(), Abstain>,
+    /// Best pose of B in A's frame.
+    pub a_from_b: Pose2,
+    /// Covariance of (x, y, yaw) of `a_from_b`, A's frame (m², rad²).
+    pub covariance: Matrix3<f64>,
+    /// The paper's MATCH in [0, 1].
+    pub match_score: f64,
+    /// Runner-up score / best score, runner-up being a clearly different pose (0 = none).
+    pub ambiguity: f64,
+    /// Estimated share of the view seen by both.
+    pub overlap: f64,
+    pub score: PoseScore,
+    /// Distinct refined candidates, best first.
+    pub candidates: Vec<Candidate>,
+    pub hypotheses: usize,
+    pub icp_iterations: usize,
+}
+
+impl PairResult {
+    pub fn registered(&self) -> bool {
+        self.verdict.is_ok()
+    }
+}
+
+fn same_pose(x: &Pose2, y: &Pose2, p: &RegisterParams) -> bool {
+    let (dt, dyaw) = pose_error(x, y);
+    dt < p.same_pose_m && dyaw < p.same_pose_rad
+}
+
+/// Registers B against A: the pose `a_from_b` of B's scan in A's frame.
+pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairResult {
+    let mut coarse: Vec<(PoseScore, Pose2)> = hypotheses(a, b, p)
+        .into_par_iter()
+        .map(|(_, pose)| (score_coarse(a, b, &pose, p), pose))
+        .collect();
+    coarse.sort_by(|x, y| y.0.value.total_cmp(&x.0.value));
+    let hypotheses_count = coarse.len();
+    // Keep the best few distinct hypotheses for refinement.
+    let mut seeds: Vec<Pose2> = Vec::new();
+    for (_, pose) in &coarse {
+        if seeds.len() >= p.refine_best {
+            break;
+        }
+        let apart = |s: &Pose2| {
+            let (dt, dyaw) = pose_error(s, pose);
+            dt >= p.seed_gap_m || dyaw >= p.seed_gap_rad
+        };
+        if seeds.iter().all(apart) {
+            seeds.push(*pose);
+        }
+    }
+    let mut refined: Vec<(Candidate, IcpResult)> = seeds
+        .par_iter()
+        .map(|seed| {
+            let guard = |pose: &Pose2| score(a, b, pose, p).value;
+            let icp = refine_guarded(a, b, seed, p, p.class_aware, Some(&guard));
+            (
+                Candidate {
+                    a_from_b: icp.a_from_b,
+                    score: score(a, b, &icp.a_from_b, p),
+                },
+                icp,
+            )
+        })
+        .collect();
+    refined.sort_by(|x, y| y.0.score.value.total_cmp(&x.0.score.value));
+    let mut distinct: Vec<(Candidate, IcpResult)> = Vec::new();
+    for r in refined {
+        if distinct
+            .iter()
+            .all(|d| !same_pose(&d.0.a_from_b, &r.0.a_from_b, p))
+        {
+            distinct.push(r);
+        }
+    }
+    let Some((best, icp)) = distinct.first().cloned() else {
+        return PairResult {
+            verdict: Err(Abstain::NoHypotheses),
+            a_from_b: Pose2::identity(),
+            covariance: Matrix3::identity() * 1e6,
+            match_score: 0.0,
+            ambiguity: 0.0,
+            overlap: 0.0,
+            score: PoseScore::default(),
+            candidates: Vec::new(),
+            hypotheses: hypotheses_count,
+            icp_iterations: 0,
+        };
+    };
+    let runner_up = distinct.get(1).map(|r| r.0.clone());
+    let ambiguity = match &runner_up {
+        Some(r) if best.score.value > 0.0 => (r.score.value / best.score.value).max(0.0),
+        _ => 0.0,
+    };
+    // Linearise once more at the chosen pose with the narrow gate: that is the information
+    // the scans carry about it (the guarded ICP may have stopped at an early, wide-gate iterate).
+    let narrow = RegisterParams {
+        icp_max_iterations: 1,
+        max_correspondence_m: 0.2,
+        ..p.clone()
+    };
+    let at_best = super::icp::refine(a, b, &best.a_from_b, &narrow, p.class_aware);
+    let (covariance, weak) = covariance_of(&at_best, p);
+    let overlap = best.score.overlap();
+    let verdict = if best.score.value <= 0.0 || overlap < p.min_overlap {
+        Err(Abstain::TooLittleOverlap { overlap })
+    } else if best.score.violation() > p.max_violation {
+        Err(Abstain::ContradictsFreeSpace {
+            violation: best.score.violation(),
+        })
+    } else if let Some(weak_axis_deg) = weak.filter(|deg| slides_freely(a, b, &best, *deg, p)) {
+        Err(Abstain::Degenerate { weak_axis_deg })
+    } else if ambiguity > p.max_ambiguity {
+        let other = runner_up.map_or(Pose2::identity(), |r| best.a_from_b.inverse() * r.a_from_b);
+        Err(Abstain::Ambiguous {
+            ratio: ambiguity,
+            other,
+        })
+    } else {
+        Ok(())
+    };
+    PairResult {
+        verdict,
+        a_from_b: best.a_from_b,
+        covariance,
+        match_score: match_score(a, b, &best.a_from_b, p),
+        ambiguity,
+        overlap,
+        score: best.score,
+        candidates: distinct.into_iter().map(|d| d.0).collect(),
+        hypotheses: hypotheses_count,
+        icp_iterations: icp.iterations,
+    }
+}
+
+/// ICP cannot see along `axis_deg` (every matched surface is parallel to it); the free-space
+/// score may still pin the pose there (a door recess, a corridor's end). True when poses slid
+/// ±0.25 m and ±0.5 m along the axis score nearly as well as the best.
+fn slides_freely(
+    a: &ScanModel,
+    b: &ScanModel,
+    best: &Candidate,
+    axis_deg: f64,
+    p: &RegisterParams,
+) -> bool {
+    let axis = nalgebra::Vector2::new(axis_deg.to_radians().cos(), axis_deg.to_radians().sin());
+    let best_value = best.score.value;
+    [-0.5, -0.25, 0.25, 0.5].iter().any(|&d| {
+        let shift = axis * d;
+        let moved = crate::geometry::pose2(shift.x, shift.y, 0.0) * best.a_from_b;
+        score(a, b, &moved, p).value > p.max_ambiguity * best_value
+    })
+}
+
+/// Covariance σ²·(JᵀWJ)⁻¹, inflated for correlated residuals, and the direction (deg) of a
+/// translation the scans do not constrain, if any.
+fn covariance_of(icp: &IcpResult, p: &RegisterParams) -> (Matrix3<f64>, Option<f64>) {
+    let h = icp.hessian;
+    let sigma = icp.rms_m.clamp(0.01, 1.0);
+    let covariance = h.try_inverse().map_or(Matrix3::identity() * 1e6, |inv| {
+        inv * sigma * sigma * p.covariance_inflation
+    });
+    let tt = h.fixed_view::<2, 2>(0, 0).into_owned();
+    let eig = tt.symmetric_eigen();
+    let (k_min, k_max) = if eig.eigenvalues[0] <= eig.eigenvalues[1] {
+        (0, 1)
+    } else {
+        (1, 0)
+    };
+    let share =
+        eig.eigenvalues[k_min] / (eig.eigenvalues[k_min] + eig.eigenvalues[k_max]).max(1e-12);
+    let weak = (share < p.min_constraint_share).then(|| {
+        let v = eig.eigenvectors.column(k_min);
+        v[1].atan2(v[0]).to_degrees().rem_euclid(180.0)
+    });
+    (covariance, weak)
+}

@@ -1,0 +1,116 @@
+//! Every registration threshold in one place, with the reasoning behind each default.
+
+use crate::features::FeatureParams;
+use crate::geometry::ProjectParams;
+
+/// Parameters of pairwise registration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RegisterParams {
+    pub project: ProjectParams,
+    pub features: FeatureParams,
+    /// Cell size of the nearest-point lookup grid (m).
+    pub grid_res_m: f64,
+    /// How far from a point the lookup grid still knows it (m); bounds ICP's capture range.
+    pub grid_radius_m: f64,
+    /// Normals of points off segments are fitted over scan neighbours this close (m); sparse
+    /// 1° scans need a wide window for a stable direction.
+    pub normal_radius_m: f64,
+    /// Points used for scoring, spread evenly along the outline (at most).
+    pub score_points: usize,
+    /// Points used by ICP (at most).
+    pub icp_points: usize,
+    /// A transformed point within this of the other scan is a hit (m).
+    pub hit_m: f64,
+    /// A point counts as violating the other sensor's free space when it lies at least this
+    /// much (plus `free_margin_frac` of its range) short of what that sensor saw (m).
+    pub free_margin_m: f64,
+    pub free_margin_frac: f64,
+    /// Weight of the violation fraction against the hit fraction in the score: free space
+    /// decides, since hits alone favour the pose with the most overlap.
+    pub violation_weight: f64,
+    /// Extra hit distance and free-space margin when scoring unrefined hypotheses (m).
+    pub coarse_slack_m: f64,
+    /// Hypotheses closer than this are one seed for refinement (m, rad).
+    pub seed_gap_m: f64,
+    pub seed_gap_rad: f64,
+    /// Rotation candidates kept from the segment-direction histogram.
+    pub max_rotations: usize,
+    /// Translation peaks kept per rotation.
+    pub peaks_per_rotation: usize,
+    /// Cell size of the translation vote (m).
+    pub vote_res_m: f64,
+    /// Candidates refined by ICP after coarse scoring.
+    pub refine_best: usize,
+    /// Two poses closer than this are the same answer (m, rad).
+    pub same_pose_m: f64,
+    pub same_pose_rad: f64,
+    /// Class-aware correspondences (seed 002) in ICP.
+    pub class_aware: bool,
+    /// Cost of a class mismatch, in units of (`class_scale_m`)² squared distance.
+    pub class_weight: f64,
+    pub class_scale_m: f64,
+    pub icp_max_iterations: usize,
+    /// Cauchy kernel width on point-to-line residuals (m).
+    pub huber_m: f64,
+    /// Correspondences farther than this are ignored (m); the gate shrinks each iteration
+    /// from the first value to the second.
+    pub max_correspondence_m: f64,
+    pub min_correspondence_m: f64,
+    /// Matched points' normals must agree at least this much (cosine).
+    pub min_normal_agreement: f64,
+    /// Residual errors of neighbouring points are correlated; the ICP covariance is
+    /// multiplied by this to stay honest.
+    pub covariance_inflation: f64,
+    /// β of MATCH = β·SIM + (1−β)·CON (eq. 14).
+    pub match_beta: f64,
+    /// Abstain below this overlap estimate.
+    pub min_overlap: f64,
+    /// Abstain above this violation fraction at the best pose.
+    pub max_violation: f64,
+    /// Abstain when the runner-up (a different pose) scores at least this fraction of the best.
+    pub max_ambiguity: f64,
+    /// Abstain when the weakest translation direction carries less than this share of the
+    /// constraint (a corridor seen lengthwise).
+    pub min_constraint_share: f64,
+}
+
+impl Default for RegisterParams {
+    fn default() -> Self {
+        RegisterParams {
+            project: ProjectParams::default(),
+            features: FeatureParams::default(),
+            grid_res_m: 0.05,
+            grid_radius_m: 0.4,
+            normal_radius_m: 0.3,
+            score_points: 300,
+            icp_points: 600,
+            hit_m: 0.12,
+            free_margin_m: 0.15,
+            free_margin_frac: 0.02,
+            violation_weight: 3.0,
+            coarse_slack_m: 0.12,
+            seed_gap_m: 0.25,
+            seed_gap_rad: 2f64.to_radians(),
+            max_rotations: 24,
+            peaks_per_rotation: 6,
+            vote_res_m: 0.1,
+            refine_best: 16,
+            same_pose_m: 0.5,
+            same_pose_rad: 5f64.to_radians(),
+            class_aware: true,
+            class_weight: 1.0,
+            class_scale_m: 0.1,
+            icp_max_iterations: 40,
+            huber_m: 0.05,
+            max_correspondence_m: 0.4,
+            min_correspondence_m: 0.12,
+            min_normal_agreement: 0.8,
+            covariance_inflation: 4.0,
+            match_beta: 0.5,
+            min_overlap: 0.15,
+            max_violation: 0.15,
+            max_ambiguity: 0.8,
+            min_constraint_share: 0.005,
+        }
+    }
+}

@@ -1,0 +1,617 @@
+//! The site solve (METHOD §4, seed 004): register every pair, drop edges that disagree around
+//! cycles, let third sensors decide pairs that are ambiguous alone, and solve all kept edges
+//! jointly by weighted least squares with the anchor fixed (and surveyed priors, if any).
+
+use super::{PairResult, RegisterParams, ScanModel, register_pair};
+use crate::geometry::{Mount, Pose2, Pose3, pose_error, pose2, wrap_angle_rad, yaw_rad};
+use nalgebra::{DMatrix, DVector, Matrix3};
+use rayon::prelude::*;
+
+/// One sensor to place.
+#[derive(Debug, Clone)]
+pub struct SensorInput {
+    pub id: String,
+    pub model: ScanModel,
+    pub mount: Mount,
+    /// A surveyed pose in the anchor's frame, with its σ, if the installer has one.
+    pub prior: Option<Prior>,
+}
+
+/// A surveyed pose and its uncertainty.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Prior {
+    pub anchor_from_sensor: Pose2,
+    pub sigma_xy_m: f64,
+    pub sigma_yaw_rad: f64,
+}
+
+/// A measured relative pose between two sensors.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Edge {
+    pub a: usize,
+    pub b: usize,
+    pub a_from_b: Pose2,
+    /// Covariance of (x, y, yaw) of `a_from_b`.
+    pub covariance: Matrix3<f64>,
+    /// Preference when building the first spanning tree (higher is stronger).
+    pub strength: f64,
+}
+
+/// Thresholds of the graph stage.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SiteParams {
+    /// An edge disagreeing with a cycle or with the tree by more than this is inconsistent.
+    pub cycle_m: f64,
+    pub cycle_rad: f64,
+    /// Two candidate poses from different neighbours agreeing this well confirm each other.
+    pub confirm_m: f64,
+    pub confirm_rad: f64,
+    /// Floor on edge σ, so no single edge is trusted absolutely.
+    pub min_sigma_m: f64,
+    pub min_sigma_rad: f64,
+}
+
+impl Default for SiteParams {
+    fn default() -> Self {
+        SiteParams {
+            cycle_m: 0.25,
+            cycle_rad: 2.5f64.to_radians(),
+            confirm_m: 0.15,
+            confirm_rad: 1.5f64.to_radians(),
+            min_sigma_m: 0.01,
+            min_sigma_rad: 0.1f64.to_radians(),
+        }
+    }
+}
+
+/// A sensor's place in the anchor's frame, or why it has none.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Placement {
+    pub id: String,
+    pub pose: Result<PlacedPose, String>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PlacedPose {
+    /// x, y, yaw in the anchor's frame; z = mount height above the floor; pitch relative to
+    /// the anchor's (METHOD §1).
+    pub pose: Pose3,
+    pub sigma_x_m: f64,
+    pub sigma_y_m: f64,
+    pub sigma_yaw_rad: f64,
+}
+
+/// What happened to one pair.
+#[derive(Debug, Clone)]
+pub struct PairReport {
+    pub a: usize,
+    pub b: usize,
+    pub result: PairResult,
+    /// The pair's pose entered the joint solve.
+    pub used: bool,
+}
+
+#[derive(Debug, Clone)]
+pub struct SiteResult {
+    pub anchor: usize,
+    pub sensors: Vec<Placement>,
+    pub pairs: Vec<PairReport>,
+}
+
+/// Registers every pair of `sensors` and places all of them in the frame of `anchor`.
+pub fn register_site(
+    sensors: &[SensorInput],
+    anchor: usize,
+    p: &RegisterParams,
+    sp: &SiteParams,
+) -> SiteResult {
+    let n = sensors.len();
+    let pairs: Vec<(usize, usize)> = (0..n)
+        .flat_map(|a| (a + 1..n).map(move |b| (a, b)))
+        .collect();
+    let results: Vec<PairResult> = pairs
+        .par_iter()
+        .map(|&(a, b)| register_pair(&sensors[a].model, &sensors[b].model, p))
+        .collect();
+
+    let mut edges = Vec::new();
+    let mut origin = Vec::new(); // (pair index, candidate index) per edge
+    for (k, (&(a, b), r)) in pairs.iter().zip(&results).enumerate() {
+        if r.registered() {
+            edges.push(Edge {
+                a,
+                b,
+                a_from_b: r.a_from_b,
+                covariance: r.covariance,
+                strength: strength(r),
+            });
+            origin.push((k, 0));
+        }
+    }
+    let kept = consistent_edges(n, anchor, &edges, sp);
+    let mut edges: Vec<Edge> = kept.iter().map(|&e| edges[e].clone()).collect();
+    let mut origin: Vec<(usize, usize)> = kept.iter().map(|&e| origin[e]).collect();
+
+    // Pairs that were not registered alone: a candidate confirmed by a second path wins.
+    loop {
+        let poses = spanning_poses(n, anchor, &edges);
+        let mut added = false;
+        for (k, (&(a, b), r)) in pairs.iter().zip(&results).enumerate() {
+            if r.registered() || origin.iter().any(|o| o.0 == k) {
+                continue;
+            }
+            let (Some(pa), Some(pb)) = (poses[a], poses[b]) else {
+                continue;
+            };
+            let predicted = pa.inverse() * pb;
+            let confirmed = r.candidates.iter().enumerate().find(|(_, c)| {
+                let (dt, dyaw) = pose_error(&c.a_from_b, &predicted);
+                c.score.overlap() >= p.min_overlap
+                    && c.score.violation() <= p.max_violation
+                    && dt <= sp.confirm_m
+                    && dyaw <= sp.confirm_rad
+            });
+            if let Some((ci, c)) = confirmed {
+                edges.push(Edge {
+                    a,
+                    b,
+                    a_from_b: c.a_from_b,
+                    covariance: r.covariance,
+                    strength: strength(r),
+                });
+                origin.push((k, ci));
+                added = true;
+            }
+        }
+        // A sensor hanging on no edge yet: two of its ambiguous pairs' candidates that agree
+        // about where it stands place it.
+        for u in 0..n {
+            if poses[u].is_some() {
+                continue;
+            }
+            if let Some((e1, e2)) = confirm_through_two(u, &pairs, &results, &poses, p, sp) {
+                for e in [e1, e2] {
+                    let (k, ci) = e;
+                    let (a, b) = pairs[k];
+                    let r = &results[k];
+                    if let Some(c) = r.candidates.get(ci) {
+                        edges.push(Edge {
+                            a,
+                            b,
+                            a_from_b: c.a_from_b,
+                            covariance: r.covariance,
+                            strength: strength(r),
+                        });
+                        origin.push((k, ci));
+                    }
+                }
+                added = true;
+                break;
+            }
+        }
+        if !added {
+            break;
+        }
+    }
+
+    let solution = solve(n, anchor, &edges, sensors, sp);
+    let anchor_pitch = sensors.get(anchor).map_or(0.0, |s| s.mount.pitch_rad);
+    let placements = sensors
+        .iter()
+        .enumerate()
+        .map(|(i, s)| Placement {
+            id: s.id.clone(),
+            pose: match solution.get(i).copied().flatten() {
+                Some((pose, sigma)) => Ok(PlacedPose {
+                    pose: Pose3::from_planar(
+                        &pose,
+                        s.mount.height_m.unwrap_or(0.0),
+                        s.mount.pitch_rad - anchor_pitch,
+                    ),
+                    sigma_x_m: sigma[0],
+                    sigma_y_m: sigma[1],
+                    sigma_yaw_rad: sigma[2],
+                }),
+                None => Err(unplaced_reason(i, &pairs, &results)),
+            },
+        })
+        .collect();
+    let reports = pairs
+        .iter()
+        .zip(results)
+        .enumerate()
+        .map(|(k, (&(a, b), result))| PairReport {
+            a,
+            b,
+            result,
+            used: origin.iter().any(|o| o.0 == k),
+        })
+        .collect();
+    SiteResult {
+        anchor,
+        sensors: placements,
+        pairs: reports,
+    }
+}
+
+fn strength(r: &PairResult) -> f64 {
+    r.overlap * (1.0 - r.ambiguity).max(0.05)
+}
+
+/// Finds two candidates placing sensor `u` from two different placed sensors that agree.
+fn confirm_through_two(
+    u: usize,
+    pairs: &[(usize, usize)],
+    results: &[PairResult],
+    poses: &[Option<Pose2>],
+    p: &RegisterParams,
+    sp: &SiteParams,
+) -> Option<((usize, usize), (usize, usize))> {
+    // (pair, candidate, placed neighbour, u's pose in the anchor frame)
+    let mut options = Vec::new();
+    for (k, (&(a, b), r)) in pairs.iter().zip(results).enumerate() {
+        let (other, u_is_b) = if a == u {
+            (b, false)
+        } else if b == u {
+            (a, true)
+        } else {
+            continue;
+        };
+        let Some(po) = poses[other] else { continue };
+        for (ci, c) in r.candidates.iter().enumerate() {
+            if c.score.overlap() < p.min_overlap || c.score.violation() > p.max_violation {
+                continue;
+            }
+            let pu = if u_is_b {
+                po * c.a_from_b
+            } else {
+                po * c.a_from_b.inverse()
+            };
+            options.push((k, ci, other, pu));
+        }
+    }
+    for (i, x) in options.iter().enumerate() {
+        for y in &options[i + 1..] {
+            if x.2 == y.2 {
+                continue;
+            }
+            let (dt, dyaw) = pose_error(&x.3, &y.3);
+            if dt <= sp.confirm_m && dyaw <= sp.confirm_rad {
+                return Some(((x.0, x.1), (y.0, y.1)));
+            }
+        }
+    }
+    None
+}
+
+fn unplaced_reason(i: usize, pairs: &[(usize, usize)], results: &[PairResult]) -> String {
+    let best = pairs
+        .iter()
+        .zip(results)
+        .filter(|((a, b), _)| *a == i || *b == i)
+        .max_by(|x, y| x.1.score.value.total_cmp(&y.1.score.value));
+    match best {
+        None => "no other sensor to register against".to_string(),
+        Some((_, r)) => match &r.verdict {
+            Err(why) => format!("no consistent pair; best pair: {why}"),
+            Ok(()) => "its registered pairs disagree with the rest of the site".to_string(),
+        },
+    }
+}
+
+/// Drops edges that disagree around triangles (more failed than passed cycles), then edges
+/// that disagree with a spanning tree of the rest. Returns indices of kept edges.
+pub fn consistent_edges(n: usize, anchor: usize, edges: &[Edge], sp: &SiteParams) -> Vec<usize> {
+    let find = |a: usize, b: usize| -> Option<(usize, Pose2)> {
+        edges.iter().enumerate().find_map(|(k, e)| {
+            if e.a == a && e.b == b {
+                Some((k, e.a_from_b))
+            } else if e.a == b && e.b == a {
+                Some((k, e.a_from_b.inverse()))
+            } else {
+                None
+            }
+        })
+    };
+    let mut good = vec![0usize; edges.len()];
+    let mut bad = vec![0usize; edges.len()];
+    for i in 0..n {
+        for j in i + 1..n {
+            for k in j + 1..n {
+                let (Some((e1, ij)), Some((e2, jk)), Some((e3, ik))) =
+                    (find(i, j), find(j, k), find(i, k))
+                else {
+                    continue;
+                };
+                let (dt, dyaw) = pose_error(&(ij * jk), &ik);
+                let counts = if dt <= sp.cycle_m && dyaw <= sp.cycle_rad {
+                    &mut good
+                } else {
+                    &mut bad
+                };
+                for e in [e1, e2, e3] {
+                    counts[e] += 1;
+                }
+            }
+        }
+    }
+    let mut kept: Vec<usize> = (0..edges.len()).filter(|&e| bad[e] <= good[e]).collect();
+    // Check the survivors against the tree they build; drop disagreeing ones once.
+    let subset: Vec<Edge> = kept.iter().map(|&e| edges[e].clone()).collect();
+    let poses = spanning_poses(n, anchor, &subset);
+    kept.retain(|&e| {
+        let edge = &edges[e];
+        match (poses[edge.a], poses[edge.b]) {
+            (Some(pa), Some(pb)) => {
+                let (dt, dyaw) = pose_error(&(pa.inverse() * pb), &edge.a_from_b);
+                dt <= sp.cycle_m * 2.0 && dyaw <= sp.cycle_rad * 2.0
+            }
+            _ => true,
+        }
+    });
+    kept
+}
+
+/// Anchor-frame poses by a maximum-strength spanning tree from the anchor (Prim).
+pub fn spanning_poses(n: usize, anchor: usize, edges: &[Edge]) -> Vec<Option<Pose2>> {
+    let mut poses: Vec<Option<Pose2>> = vec![None; n];
+    if anchor >= n {
+        return poses;
+    }
+    poses[anchor] = Some(Pose2::identity());
+    loop {
+        let next = edges
+            .iter()
+            .filter_map(|e| match (poses[e.a], poses[e.b]) {
+                (Some(pa), None) => Some((e.strength, e.b, pa * e.a_from_b)),
+                (None, Some(pb)) => Some((e.strength, e.a, pb * e.a_from_b.inverse())),
+                _ => None,
+            })
+            .max_by(|x, y| x.0.total_cmp(&y.0));
+        match next {
+            Some((_, i, pose)) => poses[i] = Some(pose),
+            None => return poses,
+        }
+    }
+}
+
+/// Residual of an edge: the measured pose's error, expressed like the pair covariance
+/// (a left perturbation in A's frame).
+fn edge_residual(pa: &Pose2, pb: &Pose2, z: &Pose2) -> [f64; 3] {
+    let d = (pa.inverse() * pb) * z.inverse();
+    [d.translation.x, d.translation.y, yaw_rad(&d)]
+}
+
+fn information(cov: &Matrix3<f64>, sp: &SiteParams) -> Matrix3<f64> {
+    let mut c = *cov;
+    for k in 0..2 {
+        c[(k, k)] += sp.min_sigma_m * sp.min_sigma_m;
+    }
+    c[(2, 2)] += sp.min_sigma_rad * sp.min_sigma_rad;
+    c.try_inverse().unwrap_or_else(Matrix3::zeros)
+}
+
+/// Joint weighted least squares (Gauss–Newton, numeric Jacobians) over all sensors reachable
+/// from the anchor; returns pose and σ (x, y, yaw) per sensor.
+#[allow(clippy::type_complexity)]
+pub fn solve(
+    n: usize,
+    anchor: usize,
+    edges: &[Edge],
+    sensors: &[SensorInput],
+    sp: &SiteParams,
+) -> Vec<Option<(Pose2, [f64; 3])>> {
+    let mut poses = spanning_poses(n, anchor, edges);
+    // Surveyed sensors not reached by any edge are placed by their prior.
+    for (i, s) in sensors.iter().enumerate() {
+        if poses[i].is_none()
+            && let Some(prior) = s.prior
+        {
+            poses[i] = Some(prior.anchor_from_sensor);
+        }
+    }
+    let free: Vec<usize> = (0..n)
+        .filter(|&i| i != anchor && poses[i].is_some())
+        .collect();
+    let slot = |i: usize| free.iter().position(|&f| f == i);
+    let dim = 3 * free.len();
+    let mut h = DMatrix::<f64>::zeros(dim, dim);
+    for _ in 0..10 {
+        h = DMatrix::<f64>::zeros(dim, dim);
+        let mut g = DVector::<f64>::zeros(dim);
+        let current = |i: usize, poses: &[Option<Pose2>]| poses[i].unwrap_or_else(Pose2::identity);
+        // Each factor: residual r(x), information W, and the variables it touches.
+        let mut add = |vars: &[usize],
+                       r: &dyn Fn(&[Pose2]) -> [f64; 3],
+                       w: &Matrix3<f64>,
+                       poses: &[Option<Pose2>]| {
+            let base: Vec<Pose2> = vars.iter().map(|&v| current(v, poses)).collect();
+            let r0 = r(&base);
+            let mut jac: Vec<(usize, [[f64; 3]; 3])> = Vec::new();
+            for (vi, &v) in vars.iter().enumerate() {
+                let Some(s) = slot(v) else { continue };
+                let mut cols = [[0.0; 3]; 3];
+                for (k, col) in cols.iter_mut().enumerate() {
+                    let eps = 1e-6;
+                    let mut moved = base.clone();
+                    let mut delta = [0.0; 3];
+                    delta[k] = eps;
+                    moved[vi] = pose2(delta[0], delta[1], delta[2]) * moved[vi];
+                    let r1 = r(&moved);
+                    for m in 0..3 {
+                        let diff = if m == 2 {
+                            wrap_angle_rad(r1[m] - r0[m])
+                        } else {
+                            r1[m] - r0[m]
+                        };
+                        col[m] = diff / eps;
+                    }
+                }
+                jac.push((s, cols));
+            }
+            let rv = nalgebra::Vector3::from(r0);
+            for (s1, c1) in &jac {
+                let j1 = Matrix3::from_fn(|m, k| c1[k][m]);
+                let gi = j1.transpose() * w * rv;
+                for m in 0..3 {
+                    g[3 * s1 + m] += gi[m];
+                }
+                for (s2, c2) in &jac {
+                    let j2 = Matrix3::from_fn(|m, k| c2[k][m]);
+                    let block = j1.transpose() * w * j2;
+                    for m in 0..3 {
+                        for k in 0..3 {
+                            h[(3 * s1 + m, 3 * s2 + k)] += block[(m, k)];
+                        }
+                    }
+                }
+            }
+        };
+        for e in edges {
+            if poses[e.a].is_none() || poses[e.b].is_none() {
+                continue;
+            }
+            let w = information(&e.covariance, sp);
+            let z = e.a_from_b;
+            add(
+                &[e.a, e.b],
+                &|x: &[Pose2]| edge_residual(&x[0], &x[1], &z),
+                &w,
+                &poses,
+            );
+        }
+        for (i, s) in sensors.iter().enumerate() {
+            let Some(prior) = s.prior else { continue };
+            if i == anchor || poses[i].is_none() {
+                continue;
+            }
+            let w = Matrix3::from_diagonal(&nalgebra::Vector3::new(
+                prior.sigma_xy_m.powi(-2),
+                prior.sigma_xy_m.powi(-2),
+                prior.sigma_yaw_rad.powi(-2),
+            ));
+            let z = prior.anchor_from_sensor;
+            add(
+                &[i],
+                &|x: &[Pose2]| edge_residual(&Pose2::identity(), &x[0], &z),
+                &w,
+                &poses,
+            );
+        }
+        if dim == 0 {
+            break;
+        }
+        let Some(step) = (&h + DMatrix::<f64>::identity(dim, dim) * 1e-9)
+            .lu()
+            .solve(&(-&g))
+        else {
+            break;
+        };
+        for (s, &i) in free.iter().enumerate() {
+            if let Some(pose) = poses[i] {
+                poses[i] = Some(pose2(step[3 * s], step[3 * s + 1], step[3 * s + 2]) * pose);
+            }
+        }
+        if step.norm() < 1e-9 {
+            break;
+        }
+    }
+    let cov = (&h + DMatrix::<f64>::identity(dim, dim) * 1e-12).try_inverse();
+    (0..n)
+        .map(|i| {
+            let pose = poses[i]?;
+            let sigma = match (slot(i), &cov) {
+                (Some(s), Some(c)) => {
+                    // The perturbation rotates about the anchor's origin, so the position moves by
+                    // δt + δθ·perp(t): propagate through that Jacobian.
+                    let block = c.fixed_view::<3, 3>(3 * s, 3 * s).into_owned();
+                    let t = pose.translation.vector;
+                    let j = nalgebra::Matrix2x3::new(1.0, 0.0, -t.y, 0.0, 1.0, t.x);
+                    let pos = j * block * j.transpose();
+                    [
+                        pos[(0, 0)].max(0.0).sqrt(),
+                        pos[(1, 1)].max(0.0).sqrt(),
+                        block[(2, 2)].max(0.0).sqrt(),
+                    ]
+                }
+                _ => [0.0; 3],
+            };
+            Some((pose, sigma))
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn edge(a: usize, b: usize, truth: &[Pose2], bias: Pose2) -> Edge {
+        Edge {
+            a,
+            b,
+            a_from_b: bias * truth[a].inverse() * truth[b],
+            covariance: Matrix3::from_diagonal(&nalgebra::Vector3::new(1e-4, 1e-4, 1e-5)),
+            strength: 1.0,
+        }
+    }
+
+    #[test]
+    fn one_wrong_edge_is_dropped_and_the_rest_solve_to_truth() {
+        let truth = [
+            pose2(0.0, 0.0, 0.0),
+            pose2(5.0, 1.0, 0.5),
+            pose2(3.0, 6.0, -1.0),
+            pose2(-4.0, 2.0, 2.0),
+            pose2(1.0, -5.0, 3.0),
+        ];
+        let mut edges = Vec::new();
+        for a in 0..5 {
+            for b in a + 1..5 {
+                // Small, different errors on every good edge; one edge is a metre and 20° off.
+                let bias = if (a, b) == (1, 3) {
+                    pose2(1.0, -0.5, 0.35)
+                } else {
+                    pose2(
+                        0.004 * (a as f64 - b as f64),
+                        0.003 * a as f64,
+                        0.001 * b as f64,
+                    )
+                };
+                edges.push(edge(a, b, &truth, bias));
+            }
+        }
+        let sp = SiteParams::default();
+        let kept = consistent_edges(5, 0, &edges, &sp);
+        assert_eq!(kept.len(), 9);
+        assert!(kept.iter().all(|&k| (edges[k].a, edges[k].b) != (1, 3)));
+        let kept_edges: Vec<Edge> = kept.iter().map(|&k| edges[k].clone()).collect();
+        let sensors: Vec<SensorInput> = Vec::new();
+        let solution = solve(5, 0, &kept_edges, &sensors, &sp);
+        for (i, t) in truth.iter().enumerate() {
+            let Some((pose, sigma)) = solution[i] else {
+                panic!("sensor {i} unplaced")
+            };
+            let (dt, dyaw) = pose_error(&pose, t);
+            assert!(dt < 0.03 && dyaw < 0.005, "sensor {i}: {dt} m {dyaw} rad");
+            if i != 0 {
+                assert!(
+                    sigma[0] > 0.0 && sigma[0] < 0.05 && sigma[2] > 0.0,
+                    "sigma {sigma:?}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_sensor_reached_by_no_edge_stays_unplaced() {
+        let truth = [
+            pose2(0.0, 0.0, 0.0),
+            pose2(5.0, 1.0, 0.5),
+            pose2(3.0, 6.0, -1.0),
+        ];
+        let edges = vec![edge(0, 1, &truth, Pose2::identity())];
+        let solution = solve(3, 0, &edges, &[], &SiteParams::default());
+        assert!(solution[1].is_some());
+        assert!(solution[2].is_none());
+    }
+}

@@ -1,0 +1,118 @@
+//! `scanfuse register` end to end on the fixtures: JSON contract parsed and every sensor checked
+//! against the truth the simulator wrote; bad input exits 2 naming the file.
+
+use scanfuse::geometry::{pose_error, pose2};
+use scanfuse::record;
+use std::path::Path;
+use std::process::Command;
+
+fn scanfuse() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_scanfuse"))
+}
+
+fn check_fixture(name: &str, anchor: &str) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("fixtures")
+        .join(format!("{name}.mcap"));
+    let out = scanfuse()
+        .arg("register")
+        .arg(&path)
+        .args(["--anchor", anchor, "--json"])
+        .output()
+        .unwrap();
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(json["anchor"], anchor);
+    assert!(json["elapsed_ms"].as_u64().is_some());
+    let recording = record::read(&path).unwrap();
+    let truth_of = |id: &str| {
+        let t = recording
+            .sensors
+            .iter()
+            .find(|s| s.id == id)
+            .and_then(|s| s.truth)
+            .unwrap();
+        pose2(t.x_m, t.y_m, t.yaw_deg.to_radians())
+    };
+    let site_from_anchor = truth_of(anchor);
+    let sensors = json["sensors"].as_array().unwrap();
+    assert_eq!(sensors.len(), recording.sensors.len());
+    for s in sensors {
+        let id = s["id"].as_str().unwrap();
+        assert_eq!(
+            s["registered"], true,
+            "{name}: {id} not registered: {}",
+            s["reason"]
+        );
+        let est = pose2(
+            s["x_m"].as_f64().unwrap(),
+            s["y_m"].as_f64().unwrap(),
+            s["yaw_deg"].as_f64().unwrap().to_radians(),
+        );
+        let truth = site_from_anchor.inverse() * truth_of(id);
+        let (dt, dyaw) = pose_error(&est, &truth);
+        assert!(
+            dt <= 0.10 && dyaw <= 1f64.to_radians(),
+            "{name}: {id} off by {dt:.3} m {:.2}°",
+            dyaw.to_degrees()
+        );
+        for key in [
+            "z_m",
+            "pitch_deg",
+            "sigma_x_m",
+            "sigma_y_m",
+            "sigma_yaw_deg",
+        ] {
+            assert!(s[key].as_f64().is_some(), "{id} lacks {key}");
+        }
+        assert!(s.get("reason").is_none());
+    }
+    let pairs = json["pairs"].as_array().unwrap();
+    let n = sensors.len();
+    assert_eq!(pairs.len(), n * (n - 1) / 2);
+    for p in pairs {
+        for key in ["match", "ambiguity", "overlap"] {
+            assert!(p[key].as_f64().is_some(), "pair lacks {key}: {p}");
+        }
+        assert!(p["used"].is_boolean() && p["a"].is_string() && p["b"].is_string());
+    }
+}
+
+#[test]
+fn lab_fixture_registers_every_sensor_within_10_cm_and_1_degree() {
+    check_fixture("lab", "entrance");
+}
+
+#[test]
+fn hall_fixture_with_tilted_and_uxm_units_registers_within_tolerance() {
+    check_fixture("hall", "gate");
+}
+
+#[test]
+fn unreadable_input_exits_2_and_names_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("garbage.mcap");
+    std::fs::write(&bad, b"this is not an mcap file").unwrap();
+    let out = scanfuse()
+        .arg("register")
+        .arg(&bad)
+        .arg("--json")
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("garbage.mcap"));
+    let lab = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/lab.mcap");
+    let out = scanfuse()
+        .arg("register")
+        .arg(&lab)
+        .args(["--anchor", "nobody"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("nobody"));
+}
