@@ -3,6 +3,7 @@
 //!
 //! Every stage is usable alone; see `DESIGN.md` in the repository for the data flow.
 
+pub mod daemon;
 pub mod record;
 pub mod scan;
 pub mod sim;
