@@ -24,6 +24,10 @@ enum Command {
     Info(cli::info::Args),
     /// Simulate a floor plan with sensors and people into a recording with ground truth.
     Simulate(cli::simulate::Args),
+    /// Validate a site config without starting anything (exit 2 on a bad config).
+    Check(cli::check::Args),
+    /// Ask the running daemon how its sensors and poses are (table, --json or --watch).
+    Status(cli::status::Args),
 }
 
 fn main() -> ExitCode {
@@ -32,6 +36,8 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Info(args) => cli::info::run(args),
         Command::Simulate(args) => cli::simulate::run(args),
+        Command::Check(args) => cli::check::run(args),
+        Command::Status(args) => cli::status::run(args),
     };
     cli::exit_code(result)
 }

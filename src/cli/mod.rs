@@ -1,8 +1,10 @@
 //! Subcommand implementations. Errors reach `main` as `anyhow` errors; an error that wraps
 //! [`BadInput`] means the user gave something unusable and exits 2.
 
+pub mod check;
 pub mod info;
 pub mod simulate;
+pub mod status;
 
 use std::process::ExitCode;
 

@@ -522,28 +522,21 @@ impl Config {
             path: path.to_path_buf(),
             source,
         })?;
-        let config = Config::parse(&text, path)?;
-        for sensor in &config.sensors {
-            if let Connect::Replay { file, .. } = &sensor.connect
-                && !file.is_file()
-            {
-                return Err(ConfigError::Invalid {
-                    path: path.to_path_buf(),
-                    line: sensor.line,
-                    key: "sensor.connect".into(),
-                    message: format!(
-                        "the recording {} does not exist (relative paths are taken from the config's folder)",
-                        file.display()
-                    ),
-                });
-            }
-        }
-        Ok(config)
+        Config::parse_with(&text, path, &|file: &Path| file.is_file())
     }
 
     /// Validates `text` as the contents of `path` (used for messages and to resolve relative
-    /// paths). No I/O.
+    /// paths). No I/O: replay recordings are not looked for.
     pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
+        Config::parse_with(text, path, &|_: &Path| true)
+    }
+
+    /// [`Config::parse`], asking `exists` whether each replay recording is there.
+    fn parse_with(
+        text: &str,
+        path: &Path,
+        exists: &dyn Fn(&Path) -> bool,
+    ) -> Result<Config, ConfigError> {
         let loc = Locator { path, text };
         let raw: RawConfig = toml::from_str(text).map_err(|e| loc.toml_error(&e))?;
         let base_dir = path.parent().unwrap_or(Path::new(""));
@@ -622,6 +615,14 @@ impl Config {
             }
             let connect = Connect::parse(s.connect.get_ref(), base_dir)
                 .map_err(|m| loc.at(s.connect.span(), "sensor.connect", m))?;
+            if let Connect::Replay { file, .. } = &connect
+                && !exists(file)
+            {
+                return Err(loc.at(s.connect.span(), "sensor.connect", format!(
+                    "the recording {} does not exist (relative paths are taken from the config's folder)",
+                    file.display()
+                )));
+            }
             let endpoint = match &connect {
                 Connect::Tcp { .. } => Some(connect.to_string()),
                 Connect::Serial { device, .. } => Some(device.display().to_string()),
