@@ -178,6 +178,26 @@ async fn status_prints_a_table_or_the_raw_objects() {
     );
     assert_eq!(lines[4], "dock: not registered: no static view yet");
 
+    // --config takes the socket from the site config.
+    let config = dir.path().join("site.toml");
+    let text = GOOD
+        .replace("run/s.sock", &socket_arg)
+        .replace("replay:rec.mcap#b", "tcp://127.0.0.1:10941");
+    std::fs::write(&config, text).unwrap();
+    let args = vec![
+        "status".into(),
+        "--config".into(),
+        config.to_str().unwrap().into(),
+    ];
+    let out = run_blocking(args).await;
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(String::from_utf8_lossy(&out.stdout).starts_with("site test-hall"));
+
     let out = run_blocking(vec![
         "status".into(),
         "--json".into(),

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use scanfuse::daemon::config::Config;
-use scanfuse::daemon::state::{POSES_FILE, PosesFile};
+use scanfuse::daemon::state::PosesFile;
 
 use super::BadInput;
 
@@ -18,13 +18,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let config = Config::load(&args.config).map_err(|e| BadInput(e.to_string()))?;
     print!("{}", config.summary());
     // Saved poses are informational here: the daemon registers afresh when they do not fit.
-    let dir = &config.site.state_dir;
-    match PosesFile::load(dir) {
-        Ok(None) => println!("  no saved poses yet in {}", dir.display()),
-        Ok(Some(poses)) => match poses.matches(&config, &dir.join(POSES_FILE)) {
-            Ok(()) => println!("  saved poses in {} match the config", dir.display()),
-            Err(e) => println!("  note: {e}"),
-        },
+    let dir = config.site.state_dir.display();
+    match PosesFile::load_matching(&config) {
+        Ok(None) => println!("  no saved poses yet in {dir}"),
+        Ok(Some(_)) => println!("  saved poses in {dir} match the config"),
         Err(e) => println!("  note: {e}"),
     }
     println!("config OK");

@@ -862,6 +862,41 @@ fn positive(key: &'static str, v: f64, max: f64) -> Result<(), (&'static str, St
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// Connections print as URIs that parse back to themselves.
+        #[test]
+        fn connect_uris_round_trip(
+            host in "[a-z][a-z0-9.-]{0,20}",
+            v6 in "[0-9a-f]{1,4}(:[0-9a-f]{1,4}){1,3}",
+            port in 1u16..,
+            device in "/dev/tty[A-Z]{3}[0-9]",
+            baud in proptest::sample::select(BAUD_RATES.to_vec()),
+            file in "/[a-z]{1,8}/[a-z#]{1,8}\\.mcap",
+            id in "[A-Za-z0-9_.-]{1,64}",
+        ) {
+            let base = Path::new("/cfg");
+            for connect in [
+                Connect::Tcp { host: host.clone(), port },
+                Connect::Tcp { host: v6.clone(), port },
+                Connect::Serial { device: device.clone().into(), baud },
+                Connect::Replay { file: file.clone().into(), sensor: id.clone() },
+            ] {
+                prop_assert_eq!(Connect::parse(&connect.to_string(), base), Ok(connect));
+            }
+        }
+
+        /// Any text gets a config or an error with a line inside the file, never a panic.
+        #[test]
+        fn any_text_gets_a_located_answer(text in "(\\PC|\n|\\[|\\]|=|\"){0,300}") {
+            let lines = text.lines().count().max(1);
+            match Config::parse(&text, Path::new("x.toml")) {
+                Ok(_) | Err(ConfigError::Read { .. }) => {}
+                Err(ConfigError::Invalid { line, .. }) => prop_assert!(line >= 1 && line <= lines + 1),
+            }
+        }
+    }
 
     const GOOD: &str = r#"
 [site]

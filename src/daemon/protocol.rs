@@ -11,7 +11,7 @@ pub const PROTO_MAJOR: u32 = 1;
 /// Minor protocol version: bumped when fields or classes are added.
 pub const PROTO_MINOR: u32 = 0;
 
-/// Lines longer than this (either way) are rejected.
+/// Request lines longer than this are rejected (and discarded up to their newline).
 pub const MAX_LINE_BYTES: usize = 64 * 1024;
 
 /// What a client may ask.
@@ -390,6 +390,33 @@ fn kind_of(value: &serde_json::Value) -> &'static str {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// Whatever a client sends, the parser answers (a request or a sentence), never panics.
+        #[test]
+        fn any_bytes_get_an_answer(bytes in proptest::collection::vec(any::<u8>(), 0..200)) {
+            if let Err(message) = parse_request(&bytes) {
+                prop_assert!(message.contains(COMMANDS));
+            }
+        }
+
+        /// Requests survive encoding and parsing.
+        #[test]
+        fn requests_round_trip(sensor in "[a-z0-9_.-]{1,12}", status in any::<Option<bool>>(), map in any::<Option<bool>>()) {
+            for request in [
+                Request::Status {},
+                Request::Poses {},
+                Request::Watch { status, map },
+                Request::Reregister { sensor: sensor.clone() },
+                Request::Save {},
+            ] {
+                let line = serde_json::to_string(&request).unwrap();
+                prop_assert!(!line.contains("null"));
+                prop_assert_eq!(parse_request(line.as_bytes()), Ok(request));
+            }
+        }
+    }
 
     #[test]
     fn requests_parse_with_defaults() {

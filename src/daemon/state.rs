@@ -6,6 +6,7 @@ use std::collections::BTreeSet;
 use std::fs::File;
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::SystemTime;
 
 use serde::{Deserialize, Serialize};
@@ -60,9 +61,8 @@ pub fn write_atomic_with(
         )));
     };
     // Hidden, and unique per process and call, so concurrent writers never share a temp file.
-    let unique = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.subsec_nanos());
+    static CALLS: AtomicU64 = AtomicU64::new(0);
+    let unique = CALLS.fetch_add(1, Ordering::Relaxed);
     let tmp = dir.join(format!(
         ".{}.tmp-{}-{unique}",
         name.to_string_lossy(),
@@ -248,6 +248,18 @@ impl PosesFile {
             Err(e) if e.kind() == io::ErrorKind::NotFound => Ok(None),
             Err(source) => Err(StateError::Read { path, source }),
         }
+    }
+
+    /// Reads `poses.toml` from the config's state directory if it is there and fits the
+    /// config. `Ok(None)`: nothing saved yet. `Err`: unreadable, invalid or for other sensors;
+    /// the daemon logs it and registers afresh.
+    pub fn load_matching(config: &Config) -> Result<Option<PosesFile>, StateError> {
+        let dir = &config.site.state_dir;
+        let Some(file) = PosesFile::load(dir)? else {
+            return Ok(None);
+        };
+        file.matches(config, &dir.join(POSES_FILE))?;
+        Ok(Some(file))
     }
 
     /// Checks that these poses are for the configured site: same anchor, same sensors.
