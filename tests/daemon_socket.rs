@@ -374,3 +374,31 @@ async fn stale_sockets_are_replaced_live_ones_and_other_files_refused() {
     }
     assert_eq!(std::fs::read(&sock).unwrap(), b"precious");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_watcher_that_closes_its_sending_side_keeps_receiving() {
+    use tokio::io::AsyncWriteExt;
+    let dir = tempfile::tempdir().unwrap();
+    let sock = dir.path().join("s.sock");
+    let server = start(&sock, dir.path(), options(), 64);
+    let mut w = LineClient::connect_past_banner(&sock).await;
+    assert!(matches!(
+        w.ask(r#"{"cmd":"watch"}"#).await,
+        Message::Watch(_)
+    ));
+    w.writer.shutdown().await.unwrap();
+    // A plain client that closes its side is done and is closed in turn.
+    let mut plain = LineClient::connect_past_banner(&sock).await;
+    plain.writer.shutdown().await.unwrap();
+    assert_eq!(plain.line().await, None);
+    // The watcher's task has seen its EOF by now too (same server, earlier); events still flow.
+    server
+        .publisher
+        .announce(EventKind::Registered, Some("dock"), "dock registered");
+    match w.message().await {
+        Some(Message::Event(e)) => assert_eq!(e.kind, EventKind::Registered),
+        other => panic!("{other:?}"),
+    }
+    server.shutdown().await;
+    assert_eq!(w.line().await, None);
+}

@@ -769,6 +769,84 @@ fn rename(err: ConfigError, table: &str) -> ConfigError {
     }
 }
 
+/// What a reloaded config (SIGHUP) changes relative to the running one.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct ConfigChanges {
+    /// Sensors to start.
+    pub added: Vec<String>,
+    /// Sensors to stop.
+    pub removed: Vec<String>,
+    /// Sensors whose connection, mode, mount or survey changed: restart their driver, and
+    /// re-register them if the mount or survey changed.
+    pub changed: Vec<String>,
+    /// Keys a reload cannot apply (the socket and state files stay where they are until a
+    /// restart), e.g. `site.socket`.
+    pub need_restart: Vec<&'static str>,
+    /// The anchor changed: every pose is relative to it, so all sensors re-register.
+    pub anchor_changed: bool,
+}
+
+impl ConfigChanges {
+    /// True when the reload changes nothing.
+    pub fn is_empty(&self) -> bool {
+        *self == ConfigChanges::default()
+    }
+}
+
+impl Config {
+    /// What replacing `self` by `new` changes, sensors in `new`'s order.
+    pub fn changes_to(&self, new: &Config) -> ConfigChanges {
+        let old_by_id: BTreeMap<&str, &SensorConfig> =
+            self.sensors.iter().map(|s| (s.id.as_str(), s)).collect();
+        let new_ids: std::collections::BTreeSet<&str> =
+            new.sensors.iter().map(|s| s.id.as_str()).collect();
+        let mut changes = ConfigChanges::default();
+        for s in &new.sensors {
+            match old_by_id.get(s.id.as_str()) {
+                None => changes.added.push(s.id.clone()),
+                Some(old) if !same_sensor(old, s) => changes.changed.push(s.id.clone()),
+                Some(_) => {}
+            }
+        }
+        changes.removed = self
+            .sensors
+            .iter()
+            .filter(|s| !new_ids.contains(s.id.as_str()))
+            .map(|s| s.id.clone())
+            .collect();
+        let (a, b) = (&self.site, &new.site);
+        for (key, differs) in [
+            ("site.state_dir", a.state_dir != b.state_dir),
+            ("site.socket", a.socket != b.socket),
+            ("site.socket_mode", a.socket_mode != b.socket_mode),
+            ("site.max_clients", a.max_clients != b.max_clients),
+            (
+                "publish.watch_backlog",
+                self.publish.watch_backlog != new.publish.watch_backlog,
+            ),
+            (
+                "registration.queue_scans",
+                self.registration.queue_scans != new.registration.queue_scans,
+            ),
+        ] {
+            if differs {
+                changes.need_restart.push(key);
+            }
+        }
+        changes.anchor_changed = a.anchor != b.anchor;
+        changes
+    }
+}
+
+/// Same sensor, ignoring where in the file it is written.
+fn same_sensor(a: &SensorConfig, b: &SensorConfig) -> bool {
+    a.connect == b.connect
+        && a.mode == b.mode
+        && a.height_m == b.height_m
+        && a.pitch_rad == b.pitch_rad
+        && a.survey == b.survey
+}
+
 /// `socket_mode` is a string of octal digits, like `chmod`'s.
 fn parse_mode(text: &str) -> Result<u32, String> {
     let valid = "write it as octal digits in a string, e.g. \"0660\" (owner and group) or \"0600\" (owner only)";
@@ -1166,6 +1244,36 @@ map_cell_m = 0.1
             text.starts_with("/etc/scanfuse/site.toml:11: sensor.mode: "),
             "{text}"
         );
+    }
+
+    #[test]
+    fn a_reload_reports_what_changed() {
+        let old = parse(GOOD).unwrap();
+        assert!(old.changes_to(&old).is_empty());
+        let moved_down = GOOD.replace("id = \"entrance\"\nconnect", "\nid = \"entrance\"\nconnect");
+        assert!(
+            old.changes_to(&parse(&moved_down).unwrap()).is_empty(),
+            "line numbers are not changes"
+        );
+        let new_text = GOOD
+            .replace(
+                "id = \"replayed\"\nconnect = \"replay:../fixtures/hall.mcap#east\"",
+                "id = \"roof\"\nconnect = \"tcp://10.0.0.9:10940\"",
+            )
+            .replace("height_m = 1.0", "height_m = 1.2")
+            .replace(
+                "socket = \"/run/scanfuse/scanfuse.sock\"",
+                "socket = \"/tmp/s.sock\"",
+            );
+        let changes = old.changes_to(&parse(&new_text).unwrap());
+        assert_eq!(changes.added, vec!["roof"]);
+        assert_eq!(changes.removed, vec!["replayed"]);
+        assert_eq!(changes.changed, vec!["entrance"]);
+        assert_eq!(changes.need_restart, vec!["site.socket"]);
+        assert!(!changes.anchor_changed);
+        let re_anchored =
+            parse(&GOOD.replace("anchor = \"entrance\"", "anchor = \"dock\"")).unwrap();
+        assert!(old.changes_to(&re_anchored).anchor_changed);
     }
 
     #[test]

@@ -8,5 +8,6 @@ pub mod config;
 pub mod lines;
 pub mod notify;
 pub mod protocol;
+pub mod signals;
 pub mod socket;
 pub mod state;

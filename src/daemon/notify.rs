@@ -6,6 +6,25 @@ use std::time::Duration;
 
 use sd_notify::NotifyState;
 
+use super::protocol::{Poses, SensorState, Status};
+
+/// The one-line summary systemd shows (`systemctl status`), e.g.
+/// "4/4 sensors streaming, registered" or "3/4 sensors streaming, 2/4 registered".
+pub fn status_line(status: &Status, poses: &Poses) -> String {
+    let total = status.sensors.len();
+    let streaming = status
+        .sensors
+        .iter()
+        .filter(|s| s.state == SensorState::Streaming)
+        .count();
+    let registered = poses.sensors.iter().filter(|p| p.registered).count();
+    if registered == total {
+        format!("{streaming}/{total} sensors streaming, registered")
+    } else {
+        format!("{streaming}/{total} sensors streaming, {registered}/{total} registered")
+    }
+}
+
 /// A notification could not be delivered.
 #[derive(Debug, thiserror::Error)]
 #[error("cannot notify systemd: {0}")]
@@ -86,5 +105,43 @@ impl Notifier {
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::daemon::protocol::{SensorPose, SensorStatus};
+
+    #[test]
+    fn the_status_line_counts_streaming_and_registered_sensors() {
+        let mut status = Status {
+            site: "s".into(),
+            uptime_s: 0.0,
+            queue_drops: 0,
+            sensors: vec![
+                SensorStatus::new("a", SensorState::Streaming),
+                SensorStatus::new("b", SensorState::Disconnected),
+            ],
+        };
+        let mut a = SensorPose::unregistered("a", "");
+        a.registered = true;
+        let mut poses = Poses {
+            anchor: "a".into(),
+            sensors: vec![a.clone(), SensorPose::unregistered("b", "no view")],
+        };
+        assert_eq!(
+            status_line(&status, &poses),
+            "1/2 sensors streaming, 1/2 registered"
+        );
+        status.sensors[1].state = SensorState::Streaming;
+        poses.sensors[1] = SensorPose {
+            id: "b".into(),
+            ..a
+        };
+        assert_eq!(
+            status_line(&status, &poses),
+            "2/2 sensors streaming, registered"
+        );
     }
 }

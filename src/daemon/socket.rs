@@ -351,13 +351,20 @@ impl<S: StatusSource> Connection<S> {
         let mut buf = vec![0u8; READ_CHUNK];
         let mut events: Option<broadcast::Receiver<Arc<str>>> = None;
         let mut frames: Option<broadcast::Receiver<Arc<str>>> = None;
+        // False once the client has shut its sending side: a watcher may still be listening
+        // (`echo '{"cmd":"watch"}' | socat - UNIX:…`), so the stream goes on until a write fails.
+        let mut reading = true;
         loop {
             let item = tokio::select! {
                 _ = self.shutdown.recv() => return Ok(()),
-                read = reader.read(&mut buf) => {
+                read = reader.read(&mut buf), if reading => {
                     let n = read?;
                     if n == 0 {
-                        return Ok(());
+                        if events.is_none() && frames.is_none() {
+                            return Ok(());
+                        }
+                        reading = false;
+                        continue;
                     }
                     for frame in framer.push(buf.get(..n).unwrap_or_default()) {
                         let reply = match frame {
