@@ -1,4 +1,4 @@
-//! The status socket: a Unix stream socket speaking [`protocol`](super::protocol), one JSON
+//! The status socket: a Unix stream socket speaking the [status protocol](super::protocol), one JSON
 //! object per line each way.
 //!
 //! The pipeline plugs in through [`StatusSource`] (answers to requests) and [`Publisher`]
