@@ -8,6 +8,8 @@ pub mod config;
 pub mod lines;
 pub mod notify;
 pub mod protocol;
+pub mod queue;
+pub mod rate;
 pub mod signals;
 pub mod socket;
 pub mod state;
