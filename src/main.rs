@@ -32,6 +32,10 @@ enum Command {
     Register(cli::register::Args),
     /// Measure registration: success per overlap bin, errors, time, baselines, real data.
     Eval(cli::eval::Args),
+    /// Validate a site config without starting anything (exit 2 on a bad config).
+    Check(cli::check::Args),
+    /// Ask the running daemon how its sensors and poses are (table, --json or --watch).
+    Status(cli::status::Args),
 }
 
 fn main() -> ExitCode {
@@ -44,6 +48,8 @@ fn main() -> ExitCode {
         Command::Simulate(args) => cli::simulate::run(args),
         Command::Eval(args) => cli::eval::run(args),
         Command::Register(args) => cli::register::run(args),
+        Command::Check(args) => cli::check::run(args),
+        Command::Status(args) => cli::status::run(args),
     };
     cli::exit_code(result)
 }
