@@ -68,7 +68,7 @@ fn an_interrupted_write_leaves_the_old_file_intact() {
     let dir = tempfile::tempdir().unwrap();
     let old = poses(45.0);
     let path = old.save(dir.path()).unwrap();
-    let new_text = poses(90.0).to_toml();
+    let new_text = poses(90.0).to_toml().unwrap();
     // The write fails halfway, as a full disk would make it.
     let result = write_atomic_with(&path, |file| {
         file.write_all(&new_text.as_bytes()[..new_text.len() / 2])?;

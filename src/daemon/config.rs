@@ -604,7 +604,7 @@ impl Config {
         }
         let mut sensors: Vec<SensorConfig> = Vec::new();
         let mut first_line: BTreeMap<String, usize> = BTreeMap::new();
-        let mut endpoints: BTreeMap<String, (String, usize)> = BTreeMap::new();
+        let mut endpoints: BTreeMap<String, String> = BTreeMap::new();
         for raw_sensor in raw.sensor {
             let s = raw_sensor.into_inner();
             let id = s.id.get_ref().clone();
@@ -629,7 +629,7 @@ impl Config {
                 Connect::Replay { .. } => None,
             };
             if let Some(endpoint) = endpoint
-                && let Some((other, _)) = endpoints.insert(endpoint.clone(), (id.clone(), line))
+                && let Some(other) = endpoints.insert(endpoint.clone(), id.clone())
             {
                 return Err(loc.at(s.connect.span(), "sensor.connect", format!("{endpoint} is already sensor {other:?}'s connection; one scanner cannot be two sensors")));
             }

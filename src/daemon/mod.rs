@@ -1,5 +1,6 @@
 //! The daemon's foundations: its config file, the status socket and its protocol, the state it
-//! keeps on disk, and its conversation with systemd.
+//! keeps on disk, its conversation with systemd (notifications, signals), the queue to the
+//! registration worker and the scan-rate meter behind `status`.
 //!
 //! The pipeline (drivers, registration, fuser) plugs in through [`socket::StatusSource`] and
 //! [`socket::Publisher`]; nothing here knows how scans are made.

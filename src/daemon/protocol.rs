@@ -14,6 +14,12 @@ pub const PROTO_MINOR: u32 = 0;
 /// Request lines longer than this are rejected (and discarded up to their newline).
 pub const MAX_LINE_BYTES: usize = 64 * 1024;
 
+/// True for a number that is absent or not finite: serde_json would write NaN as `null`, and
+/// the protocol has no nulls, so such a value is left out ("unknown").
+pub fn unknown(value: &Option<f64>) -> bool {
+    !value.is_some_and(f64::is_finite)
+}
+
 /// What a client may ask.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(tag = "cmd", rename_all = "lowercase", deny_unknown_fields)]
@@ -143,7 +149,7 @@ pub struct SensorStatus {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub model: Option<String>,
     /// Scans per second over the last few seconds; absent before the first scans.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
     pub rate_hz: Option<f64>,
     /// Scans received since start.
     #[serde(default)]
@@ -155,13 +161,13 @@ pub struct SensorStatus {
     #[serde(default)]
     pub reconnects: u64,
     /// Seconds since the last scan; absent before the first.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
     pub last_scan_age_s: Option<f64>,
     /// The latest error, a sentence.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub last_error: Option<String>,
     /// Seconds since `last_error`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
     pub last_error_age_s: Option<f64>,
 }
 
@@ -222,28 +228,28 @@ pub struct Poses {
 pub struct SensorPose {
     pub id: String,
     pub registered: bool,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
     pub x_m: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
     pub y_m: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
     pub yaw_deg: Option<f64>,
     /// Height of the optical centre above the floor.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
     pub z_m: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
     pub pitch_deg: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
     pub sigma_x_m: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
     pub sigma_y_m: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
     pub sigma_yaw_deg: Option<f64>,
     /// Why the sensor is not registered (or a caveat about its pose).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reason: Option<String>,
     /// Seconds since the pose was obtained.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
     pub age_s: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub source: Option<PoseSource>,
@@ -333,7 +339,8 @@ pub struct Frame {
 pub struct FrameScan {
     pub sensor: String,
     pub stamp_ns: u64,
-    /// Points in the site frame, flattened: `[x0, y0, x1, y1, …]`, m.
+    /// Points in the site frame, flattened: `[x0, y0, x1, y1, …]`, m. Finite values only:
+    /// JSON has no NaN (serde_json would write `null`).
     pub xy_m: Vec<f32>,
 }
 
@@ -487,6 +494,24 @@ mod tests {
         .to_line();
         assert!(!status.contains("null"), "{status}");
         assert!(status.starts_with(r#"{"class":"STATUS","#), "{status}");
+    }
+
+    #[test]
+    fn numbers_that_are_not_finite_are_left_out() {
+        let mut pose = SensorPose::unregistered("b", "singular covariance");
+        pose.sigma_x_m = Some(f64::NAN);
+        pose.age_s = Some(f64::INFINITY);
+        pose.sigma_y_m = Some(0.25);
+        let line = serde_json::to_string(&pose).unwrap();
+        assert!(!line.contains("null"), "{line}");
+        assert!(
+            !line.contains("sigma_x_m") && !line.contains("age_s"),
+            "{line}"
+        );
+        assert!(line.contains(r#""sigma_y_m":0.25"#), "{line}");
+        let mut status = SensorStatus::new("a", SensorState::Streaming);
+        status.rate_hz = Some(f64::NAN);
+        assert!(!serde_json::to_string(&status).unwrap().contains("rate_hz"));
     }
 
     #[test]

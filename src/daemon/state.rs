@@ -23,6 +23,8 @@ pub const POSES_FILE: &str = "poses.toml";
 pub enum StateError {
     #[error("cannot write {}: {source}", path.display())]
     Write { path: PathBuf, source: io::Error },
+    #[error("cannot encode the poses as TOML: {0}")]
+    Encode(String),
     #[error("cannot read {}: {source}", path.display())]
     Read { path: PathBuf, source: io::Error },
     #[error("{} is not a valid poses file: {message}", path.display())]
@@ -100,21 +102,21 @@ pub struct PosesFile {
 pub struct SavedPose {
     pub id: String,
     pub registered: bool,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
     pub x_m: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
     pub y_m: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
     pub yaw_deg: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
     pub z_m: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
     pub pitch_deg: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
     pub sigma_x_m: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
     pub sigma_y_m: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
     pub sigma_yaw_deg: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reason: Option<String>,
@@ -170,18 +172,17 @@ impl SavedPose {
 
 impl PosesFile {
     /// The TOML text, as written to disk.
-    pub fn to_toml(&self) -> String {
+    pub fn to_toml(&self) -> Result<String, StateError> {
         let header = "# Written by scanfuse: where each sensor stands in the anchor's frame.\n\
                       # Replaced atomically; edit only while the daemon is stopped.\n";
-        // Only strings, numbers, booleans and tables of them: serialization cannot fail.
-        let body = toml::to_string(self).unwrap_or_default();
-        format!("{header}{body}")
+        let body = toml::to_string(self).map_err(|e| StateError::Encode(e.to_string()))?;
+        Ok(format!("{header}{body}"))
     }
 
     /// Writes `dir/poses.toml` atomically.
     pub fn save(&self, dir: &Path) -> Result<PathBuf, StateError> {
         let path = dir.join(POSES_FILE);
-        write_atomic(&path, self.to_toml().as_bytes())?;
+        write_atomic(&path, self.to_toml()?.as_bytes())?;
         Ok(path)
     }
 
@@ -333,7 +334,7 @@ mod tests {
     #[test]
     fn poses_round_trip_through_toml_with_the_design_fields() {
         let file = example();
-        let text = file.to_toml();
+        let text = file.to_toml().unwrap();
         assert!(text.contains("anchor = \"a\""), "{text}");
         assert!(text.contains("[[sensor]]"), "{text}");
         assert!(text.contains("source = \"re-registered\""), "{text}");
@@ -348,7 +349,7 @@ mod tests {
 
     #[test]
     fn inconsistent_files_are_rejected_with_the_reason() {
-        let text = example().to_toml();
+        let text = example().to_toml().unwrap();
         let cases = [
             (
                 text.replace("anchor = \"a\"", "anchor = \"z\""),
