@@ -3,10 +3,14 @@
 //!
 //! Every stage is usable alone; see `DESIGN.md` in the repository for the data flow.
 
+pub mod daemon;
+pub mod emulator;
 pub mod features;
 pub mod fuse;
 pub mod geometry;
 pub mod record;
 pub mod register;
 pub mod scan;
+pub mod scip;
+pub mod sensor;
 pub mod sim;

@@ -20,24 +20,36 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Serve one sensor of a recording over TCP as a live SCIP 2.0 unit (tests, demos).
+    Emulate(cli::emulate::Args),
     /// Describe a recording: sensors, models, PP fields, scan counts, rate, gaps, truth.
     Info(cli::info::Args),
+    /// Record a live sensor (or `scanfuse emulate`) into an MCAP recording, raw SCIP included.
+    Record(cli::record::Args),
     /// Simulate a floor plan with sensors and people into a recording with ground truth.
     Simulate(cli::simulate::Args),
     /// Work out every sensor's pose from the scans in the given recordings.
     Register(cli::register::Args),
     /// Measure registration: success per overlap bin, errors, time, baselines, real data.
     Eval(cli::eval::Args),
+    /// Validate a site config without starting anything (exit 2 on a bad config).
+    Check(cli::check::Args),
+    /// Ask the running daemon how its sensors and poses are (table, --json or --watch).
+    Status(cli::status::Args),
 }
 
 fn main() -> ExitCode {
     cli::init_logging();
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Emulate(args) => cli::emulate::run(args),
         Command::Info(args) => cli::info::run(args),
+        Command::Record(args) => cli::record::run(args),
         Command::Simulate(args) => cli::simulate::run(args),
         Command::Eval(args) => cli::eval::run(args),
         Command::Register(args) => cli::register::run(args),
+        Command::Check(args) => cli::check::run(args),
+        Command::Status(args) => cli::status::run(args),
     };
     cli::exit_code(result)
 }

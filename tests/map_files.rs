@@ -50,14 +50,21 @@ fn walls_of_the_plan_are_occupied_and_the_room_is_free() {
             })
         })
     };
+    // Cabinets and people hide some of each wall from every sensor.
     let wall_cells = (0..40)
         .filter(|k| occupied_near(5.0 + *k as f64 * 0.2, 0.0))
         .count();
     assert!(
-        wall_cells >= 36,
+        wall_cells >= 30,
         "south wall seen in {wall_cells} of 40 places"
     );
-    assert!(occupied_near(20.0, 2.0) && occupied_near(20.0, 4.0));
+    let east_cells = (0..25)
+        .filter(|k| occupied_near(20.0, 1.5 + *k as f64 * 0.2))
+        .count();
+    assert!(
+        east_cells >= 18,
+        "east wall seen in {east_cells} of 25 places"
+    );
     assert_eq!(grid.cell_at(Point2::new(4.0, 3.0)), Cell::Free);
     assert_eq!(grid.cell_at(Point2::new(10.0, 20.0)), Cell::Unknown);
 }

@@ -1,10 +1,14 @@
 //! Subcommand implementations. Errors reach `main` as `anyhow` errors; an error that wraps
 //! [`BadInput`] means the user gave something unusable and exits 2.
 
+pub mod check;
+pub mod emulate;
 pub mod eval;
 pub mod info;
+pub mod record;
 pub mod register;
 pub mod simulate;
+pub mod status;
 
 use std::process::ExitCode;
 

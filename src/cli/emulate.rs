@@ -1,0 +1,117 @@
+//! `scanfuse emulate FILE.mcap --sensor ID --listen 127.0.0.1:PORT`: serves one sensor of a
+//! recording over TCP as a live SCIP 2.0 unit. With port 0 the bound address is printed on
+//! stdout (one line) so scripts and tests can connect.
+
+use std::io::Write as _;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::Context as _;
+use scanfuse::emulator::{Emulator, EmulatorConfig, Faults};
+use scanfuse::record;
+
+use super::BadInput;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Recording to serve.
+    file: PathBuf,
+    /// Sensor id to serve (may be left out when the recording has one sensor).
+    #[arg(long)]
+    sensor: Option<String>,
+    /// Address to listen on; port 0 picks a free port and prints the address.
+    #[arg(long, default_value = "127.0.0.1:10940")]
+    listen: SocketAddr,
+    /// Playback speed (2 = twice the recorded rate).
+    #[arg(long, default_value_t = 1.0)]
+    speed: f64,
+    /// Start over after the last scan instead of ending.
+    #[arg(long = "loop")]
+    looping: bool,
+    /// Fault: close the connection after N scans (once).
+    #[arg(long, value_name = "N")]
+    drop_after: Option<u64>,
+    /// Fault: break one checksum in every Nth scan block.
+    #[arg(long, value_name = "N")]
+    corrupt_every: Option<u64>,
+    /// Fault: after N scans, go silent for --stall-ms (once).
+    #[arg(long, value_name = "N", requires = "stall_ms")]
+    stall_after: Option<u64>,
+    /// Length of the stall, ms.
+    #[arg(long, value_name = "MS", requires = "stall_after")]
+    stall_ms: Option<u64>,
+    /// Fault: send junk bytes before every Nth scan block.
+    #[arg(long, value_name = "N")]
+    garbage_every: Option<u64>,
+    /// Fault: close every connection for the first MS ms.
+    #[arg(long, value_name = "MS")]
+    refuse_ms: Option<u64>,
+    /// Fault: refuse TM0 and scans (status 0M) for the first MS ms, like a booting unit.
+    #[arg(long, value_name = "MS")]
+    booting_ms: Option<u64>,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    if !(args.speed.is_finite() && args.speed > 0.0) {
+        return Err(BadInput(format!("--speed {} must be a positive number", args.speed)).into());
+    }
+    let recording = record::read(&args.file)?;
+    let sensor = match (&args.sensor, recording.sensors.as_slice()) {
+        (Some(id), _) => recording.sensor(id).ok_or_else(|| {
+            let ids: Vec<&str> = recording.sensors.iter().map(|s| s.id.as_str()).collect();
+            BadInput(format!(
+                "{}: no sensor {id:?}; it has {}",
+                args.file.display(),
+                ids.join(", ")
+            ))
+        })?,
+        (None, [only]) => only,
+        (None, sensors) => {
+            let ids: Vec<&str> = sensors.iter().map(|s| s.id.as_str()).collect();
+            return Err(BadInput(format!(
+                "{} has {} sensors ({}); choose one with --sensor",
+                args.file.display(),
+                sensors.len(),
+                ids.join(", ")
+            ))
+            .into());
+        }
+    };
+    let config = EmulatorConfig {
+        speed: args.speed,
+        looping: args.looping,
+        faults: Faults {
+            drop_after_scans: args.drop_after,
+            corrupt_every: args.corrupt_every,
+            stall: args
+                .stall_after
+                .zip(args.stall_ms.map(Duration::from_millis)),
+            garbage_every: args.garbage_every,
+            refuse_for: args.refuse_ms.map(Duration::from_millis),
+            booting_for: args.booting_ms.map(Duration::from_millis),
+        },
+    };
+    let scans = recording.scans_of(&sensor.id);
+    let emulator = Emulator::new(sensor, scans, config).map_err(|e| BadInput(e.to_string()))?;
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()?;
+    runtime.block_on(async {
+        let listener = tokio::net::TcpListener::bind(args.listen)
+            .await
+            .with_context(|| format!("cannot listen on {}", args.listen))?;
+        let bound = listener.local_addr()?;
+        if args.listen.port() == 0 {
+            println!("{bound}");
+            std::io::stdout().flush()?;
+        }
+        tracing::info!(sensor = %sensor.id, scans = scans.len(), %bound, "emulating");
+        tokio::select! {
+            served = emulator.serve(listener) => served?,
+            _ = tokio::signal::ctrl_c() => {}
+        }
+        tracing::info!(stats = ?emulator.stats(), "emulator done");
+        anyhow::Ok(())
+    })
+}

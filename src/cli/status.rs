@@ -1,0 +1,332 @@
+//! `scanfuse status`: asks a running daemon how things are, over its status socket, and prints
+//! a table a person reads (or the raw JSON objects, or a stream of events).
+
+use std::fmt::Write as _;
+use std::io::{BufRead, BufReader, Write};
+use std::os::unix::net::UnixStream;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{Context as _, bail};
+use scanfuse::daemon::config::{self, Config};
+use scanfuse::daemon::protocol::{
+    Event, Message, PROTO_MAJOR, PoseSource, Poses, SensorPose, SensorStatus, Status,
+};
+
+use super::BadInput;
+
+/// How long to wait for a reply before deciding the daemon is wedged.
+const REPLY_TIMEOUT: Duration = Duration::from_secs(10);
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The daemon's status socket.
+    #[arg(long, value_name = "PATH", default_value = config::DEFAULT_SOCKET, conflicts_with = "config")]
+    socket: PathBuf,
+    /// Take the socket path from this site config instead.
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+    /// Print the daemon's JSON objects as they arrive, one per line.
+    #[arg(long)]
+    json: bool,
+    /// After the table, follow events until the daemon stops (Ctrl-C to quit).
+    #[arg(long)]
+    watch: bool,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let socket = match &args.config {
+        Some(path) => {
+            Config::load(path)
+                .map_err(|e| BadInput(e.to_string()))?
+                .site
+                .socket
+        }
+        None => args.socket.clone(),
+    };
+    let mut client = Client::connect(&socket)?;
+    let status_line = client.request(r#"{"cmd":"status"}"#)?;
+    let poses_line = client.request(r#"{"cmd":"poses"}"#)?;
+    let status = match parse(&status_line)? {
+        Message::Status(s) => s,
+        other => bail!("the daemon answered status with {other:?}"),
+    };
+    let poses = match parse(&poses_line)? {
+        Message::Poses(p) => p,
+        other => bail!("the daemon answered poses with {other:?}"),
+    };
+    let mut out = std::io::stdout().lock();
+    if args.json {
+        writeln!(out, "{status_line}\n{poses_line}")?;
+    } else {
+        write!(out, "{}", render_table(&status, &poses))?;
+    }
+    out.flush()?;
+    if !args.watch {
+        return Ok(());
+    }
+    let reply = client.request(r#"{"cmd":"watch","status":true}"#)?;
+    if args.json {
+        writeln!(out, "{reply}")?;
+    } else {
+        writeln!(out, "\nwatching events (Ctrl-C to stop)")?;
+    }
+    out.flush()?;
+    client.stream.set_read_timeout(None)?;
+    loop {
+        let Some(line) = client.next_line()? else {
+            bail!("the daemon closed the connection (it stopped or dropped this client)");
+        };
+        if args.json {
+            writeln!(out, "{line}")?;
+        } else {
+            match serde_json::from_str::<Message>(&line) {
+                Ok(Message::Event(e)) => writeln!(out, "{}", render_event(&e))?,
+                Ok(Message::Error(e)) => bail!("the daemon says: {}", e.message),
+                _ => {}
+            }
+        }
+        out.flush()?;
+    }
+}
+
+/// A connection to the daemon, past its banner.
+struct Client {
+    stream: UnixStream,
+    reader: BufReader<UnixStream>,
+}
+
+impl Client {
+    fn connect(socket: &Path) -> anyhow::Result<Client> {
+        let stream = UnixStream::connect(socket).map_err(|e| {
+            let shown = socket.display();
+            let start = "start it with `sudo systemctl start scanfuse` (or `scanfuse run --config FILE`), or point --socket at the socket named by site.socket in its config";
+            match e.kind() {
+                std::io::ErrorKind::NotFound => {
+                    anyhow::anyhow!("scanfuse is not running at {shown} (no socket there); {start}")
+                }
+                std::io::ErrorKind::ConnectionRefused => anyhow::anyhow!(
+                    "scanfuse is not running at {shown} (a socket file is there but nothing listens); {start}"
+                ),
+                std::io::ErrorKind::PermissionDenied => anyhow::anyhow!(
+                    "not allowed to connect to {shown}: the socket is for the daemon's user and group (site.socket_mode); run as a member of that group or with sudo"
+                ),
+                _ => anyhow::anyhow!("cannot connect to scanfuse at {shown}: {e}"),
+            }
+        })?;
+        stream.set_read_timeout(Some(REPLY_TIMEOUT))?;
+        let reader = BufReader::new(stream.try_clone()?);
+        let mut client = Client { stream, reader };
+        let banner = client
+            .next_line()?
+            .context("the daemon closed the connection before its banner")?;
+        match parse(&banner)? {
+            Message::Version(v) if v.proto_major == PROTO_MAJOR => Ok(client),
+            Message::Version(v) => bail!(
+                "the daemon (release {}) speaks protocol {}.{}, this client {PROTO_MAJOR}.x; use the scanfuse that came with the daemon",
+                v.release,
+                v.proto_major,
+                v.proto_minor
+            ),
+            Message::Error(e) => bail!("the daemon refused the connection: {}", e.message),
+            other => bail!("expected the daemon's VERSION banner, got {other:?}"),
+        }
+    }
+
+    fn next_line(&mut self) -> anyhow::Result<Option<String>> {
+        let mut line = String::new();
+        let n = self
+            .reader
+            .read_line(&mut line)
+            .context("no answer from the daemon")?;
+        Ok((n > 0).then(|| line.trim_end().to_string()))
+    }
+
+    /// Sends one request and returns the reply line; an ERROR reply becomes an error.
+    fn request(&mut self, request: &str) -> anyhow::Result<String> {
+        writeln!(self.stream, "{request}").context("cannot send to the daemon")?;
+        let line = self
+            .next_line()?
+            .context("the daemon closed the connection without answering")?;
+        if let Message::Error(e) = parse(&line)? {
+            bail!("the daemon says: {}", e.message);
+        }
+        Ok(line)
+    }
+}
+
+fn parse(line: &str) -> anyhow::Result<Message> {
+    serde_json::from_str(line)
+        .with_context(|| format!("cannot understand the daemon's reply {line:?}"))
+}
+
+/// The status table: one row per sensor, joined with its pose.
+pub fn render_table(status: &Status, poses: &Poses) -> String {
+    let mut out = String::new();
+    let _ = write!(
+        out,
+        "site {} · up {} · anchor {}",
+        status.site,
+        duration(status.uptime_s),
+        poses.anchor
+    );
+    if status.queue_drops > 0 {
+        let _ = write!(
+            out,
+            " · {} scans dropped by the registration queue",
+            status.queue_drops
+        );
+    }
+    out.push('\n');
+    let _ = writeln!(
+        out,
+        "{:<16} {:<12} {:>8} {:>9} {:>9} {:>8} {:>7} {:>7} {:>7}  {:<14} LAST ERROR",
+        "SENSOR", "STATE", "RATE Hz", "X m", "Y m", "YAW °", "σX m", "σY m", "σYAW °", "POSE FROM"
+    );
+    let mut ids: Vec<&str> = status.sensors.iter().map(|s| s.id.as_str()).collect();
+    for p in &poses.sensors {
+        if !ids.contains(&p.id.as_str()) {
+            ids.push(&p.id);
+        }
+    }
+    let mut notes = Vec::new();
+    for id in ids {
+        let s = status.sensors.iter().find(|s| s.id == id);
+        let p = poses.sensors.iter().find(|p| p.id == id);
+        let _ = writeln!(out, "{}", row(id, s, p));
+        if let Some(p) = p.filter(|p| !p.registered) {
+            notes.push(format!(
+                "{id}: not registered: {}",
+                p.reason.as_deref().unwrap_or("no reason given")
+            ));
+        }
+    }
+    for note in notes {
+        let _ = writeln!(out, "{note}");
+    }
+    out
+}
+
+fn row(id: &str, s: Option<&SensorStatus>, p: Option<&SensorPose>) -> String {
+    let num = |v: Option<f64>, decimals: usize| match v {
+        Some(v) => format!("{v:.decimals$}"),
+        None => "-".to_string(),
+    };
+    let registered = p.filter(|p| p.registered);
+    let field = |f: fn(&SensorPose) -> Option<f64>| registered.and_then(f);
+    let source = match p {
+        Some(p) if !p.registered => "unregistered".to_string(),
+        Some(p) => {
+            let from = p.source.map_or("-", PoseSource::as_str);
+            match p.age_s {
+                Some(age) => format!("{from} {}", duration(age)),
+                None => from.to_string(),
+            }
+        }
+        None => "-".to_string(),
+    };
+    let error = match s.and_then(|s| s.last_error.as_deref()) {
+        Some(e) => match s.and_then(|s| s.last_error_age_s) {
+            Some(age) => format!("{e} ({} ago)", duration(age)),
+            None => e.to_string(),
+        },
+        None => "-".to_string(),
+    };
+    format!(
+        "{:<16} {:<12} {:>8} {:>9} {:>9} {:>8} {:>7} {:>7} {:>7}  {:<14} {}",
+        id,
+        s.map_or("unknown", |s| s.state.as_str()),
+        num(s.and_then(|s| s.rate_hz), 1),
+        num(field(|p| p.x_m), 3),
+        num(field(|p| p.y_m), 3),
+        num(field(|p| p.yaw_deg), 2),
+        num(field(|p| p.sigma_x_m), 3),
+        num(field(|p| p.sigma_y_m), 3),
+        num(field(|p| p.sigma_yaw_deg), 2),
+        source,
+        error
+    )
+}
+
+/// One event as a line a person reads.
+pub fn render_event(e: &Event) -> String {
+    let kind = serde_json::to_value(e.kind)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_string))
+        .unwrap_or_default();
+    match &e.sensor {
+        Some(sensor) => format!("{}  {sensor}  {kind}: {}", e.time, e.message),
+        None => format!("{}  {kind}: {}", e.time, e.message),
+    }
+}
+
+/// `42s`, `3m05s`, `2h01m`, `3d04h`.
+fn duration(seconds: f64) -> String {
+    let s = seconds.max(0.0).round() as u64;
+    match s {
+        0..60 => format!("{s}s"),
+        60..3600 => format!("{}m{:02}s", s / 60, s % 60),
+        3600..86400 => format!("{}h{:02}m", s / 3600, s % 3600 / 60),
+        _ => format!("{}d{:02}h", s / 86400, s % 86400 / 3600),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use scanfuse::daemon::protocol::SensorState;
+
+    #[test]
+    fn the_table_joins_status_and_poses_and_explains_the_unregistered() {
+        let mut a = SensorStatus::new("entrance", SensorState::Streaming);
+        a.rate_hz = Some(39.96);
+        let mut b = SensorStatus::new("dock", SensorState::Disconnected);
+        b.last_error = Some("connection refused".into());
+        b.last_error_age_s = Some(75.0);
+        let status = Status {
+            site: "hall".into(),
+            uptime_s: 3725.0,
+            queue_drops: 3,
+            sensors: vec![a, b],
+        };
+        let mut pa = SensorPose::unregistered("entrance", "");
+        pa.registered = true;
+        pa.reason = None;
+        pa.x_m = Some(0.0);
+        pa.y_m = Some(0.0);
+        pa.yaw_deg = Some(0.0);
+        pa.sigma_x_m = Some(0.012);
+        pa.source = Some(PoseSource::Surveyed);
+        pa.age_s = Some(30.0);
+        let poses = Poses {
+            anchor: "entrance".into(),
+            sensors: vec![pa, SensorPose::unregistered("dock", "no static view yet")],
+        };
+        let table = render_table(&status, &poses);
+        let lines: Vec<&str> = table.lines().collect();
+        assert_eq!(lines.len(), 5, "{table}");
+        assert!(lines[0].contains("up 1h02m"), "{table}");
+        assert!(lines[0].contains("3 scans dropped"), "{table}");
+        assert!(lines[2].starts_with("entrance"), "{table}");
+        assert!(lines[2].contains("streaming"), "{table}");
+        assert!(lines[2].contains(" 40.0 "), "{table}");
+        assert!(lines[2].contains("0.012"), "{table}");
+        assert!(lines[2].contains("surveyed 30s"), "{table}");
+        assert!(lines[3].contains("disconnected"), "{table}");
+        assert!(lines[3].contains("unregistered"), "{table}");
+        assert!(
+            lines[3].ends_with("connection refused (1m15s ago)"),
+            "{table}"
+        );
+        assert_eq!(lines[4], "dock: not registered: no static view yet");
+    }
+
+    #[test]
+    fn durations_read_naturally() {
+        assert_eq!(duration(0.4), "0s");
+        assert_eq!(duration(59.0), "59s");
+        assert_eq!(duration(61.0), "1m01s");
+        assert_eq!(duration(7300.0), "2h01m");
+        assert_eq!(duration(90_000.0), "1d01h");
+    }
+}

@@ -1,0 +1,1287 @@
+//! The site config: one TOML file naming the site, where state and the socket live, and every
+//! sensor with its connection, mount and optional surveyed pose.
+//!
+//! Parsing is pure ([`Config::parse`]); [`Config::load`] adds the file reads. Every error names
+//! `file:line`, the key and what would be valid, so a person can fix the file without docs.
+
+use std::collections::BTreeMap;
+use std::fmt;
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+use toml::Spanned;
+
+use crate::scan::check_sensor_id;
+
+/// Default state directory (systemd's `StateDirectory=scanfuse`).
+pub const DEFAULT_STATE_DIR: &str = "/var/lib/scanfuse";
+/// Default socket path (systemd's `RuntimeDirectory=scanfuse`).
+pub const DEFAULT_SOCKET: &str = "/run/scanfuse/scanfuse.sock";
+/// Default socket mode: owner and group may connect.
+pub const DEFAULT_SOCKET_MODE: u32 = 0o660;
+/// Default cap on simultaneous status-socket clients.
+pub const DEFAULT_MAX_CLIENTS: usize = 16;
+/// Default serial speed; SCIP over USB ignores it, but the tty wants one.
+pub const DEFAULT_BAUD: u32 = 115_200;
+/// Serial speeds SCIP 2.0 sensors accept.
+pub const BAUD_RATES: [u32; 7] = [19_200, 38_400, 57_600, 115_200, 250_000, 500_000, 750_000];
+
+/// A validated config. Paths are absolute or relative to the working directory (relative
+/// paths in the file are resolved against the file's folder).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Config {
+    /// The file this was read from.
+    pub path: PathBuf,
+    pub site: SiteConfig,
+    pub sensors: Vec<SensorConfig>,
+    pub registration: RegistrationConfig,
+    pub publish: PublishConfig,
+}
+
+/// `[site]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SiteConfig {
+    pub name: String,
+    /// Where `poses.toml` and the map files go.
+    pub state_dir: PathBuf,
+    /// The status socket's path.
+    pub socket: PathBuf,
+    /// Permission bits of the socket file.
+    pub socket_mode: u32,
+    /// The sensor whose frame is the site frame.
+    pub anchor: String,
+    /// Status-socket clients served at once; more are refused.
+    pub max_clients: usize,
+}
+
+/// One `[[sensor]]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SensorConfig {
+    pub id: String,
+    pub connect: Connect,
+    pub mode: ScanMode,
+    /// Height of the optical centre above the floor; unknown if absent.
+    pub height_m: Option<f64>,
+    /// Pitch of the scan plane, positive up.
+    pub pitch_rad: f64,
+    pub survey: Option<Survey>,
+    /// Line of the sensor's `id` in the file, for later messages about it.
+    pub line: usize,
+}
+
+/// Where a sensor's scans come from.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Connect {
+    /// `tcp://HOST:PORT` (Ethernet units).
+    Tcp { host: String, port: u16 },
+    /// `serial:///dev/ttyACM0[?baud=115200]` (USB units).
+    Serial { device: PathBuf, baud: u32 },
+    /// `replay:FILE.mcap#ID`: sensor `ID` of a recording, served by an in-process emulator.
+    Replay { file: PathBuf, sensor: String },
+}
+
+impl fmt::Display for Connect {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Connect::Tcp { host, port } if host.contains(':') => write!(f, "tcp://[{host}]:{port}"),
+            Connect::Tcp { host, port } => write!(f, "tcp://{host}:{port}"),
+            Connect::Serial { device, baud } => {
+                write!(f, "serial://{}?baud={baud}", device.display())
+            }
+            Connect::Replay { file, sensor } => write!(f, "replay:{}#{sensor}", file.display()),
+        }
+    }
+}
+
+const CONNECT_FORMS: &str =
+    "tcp://HOST:PORT, serial:///dev/DEVICE[?baud=115200] or replay:FILE.mcap#SENSOR_ID";
+
+impl Connect {
+    /// Parses a `connect` URI; relative replay files are resolved against `base_dir`.
+    pub fn parse(uri: &str, base_dir: &Path) -> Result<Connect, String> {
+        if let Some(rest) = uri.strip_prefix("tcp://") {
+            let rest = rest.strip_suffix('/').unwrap_or(rest);
+            let (host, port) = if let Some(v6) = rest.strip_prefix('[') {
+                let Some((host, port)) = v6.split_once("]:") else {
+                    return Err(format!(
+                        "{uri:?}: an IPv6 address needs the form tcp://[ADDR]:PORT"
+                    ));
+                };
+                (host, port)
+            } else {
+                let Some((host, port)) = rest.rsplit_once(':') else {
+                    return Err(format!(
+                        "{uri:?} has no port; write tcp://HOST:PORT, e.g. tcp://192.168.0.10:10940"
+                    ));
+                };
+                if host.contains(':') {
+                    return Err(format!(
+                        "{uri:?}: put an IPv6 address in brackets, tcp://[ADDR]:PORT"
+                    ));
+                }
+                (host, port)
+            };
+            let ok_host = |c: char| c.is_ascii_alphanumeric() || matches!(c, '.' | '-' | ':' | '_');
+            if host.is_empty() || !host.chars().all(ok_host) {
+                return Err(format!("{uri:?}: {host:?} is not a host name or address"));
+            }
+            let port: u16 = match port.parse() {
+                Ok(p) if p > 0 => p,
+                _ => {
+                    return Err(format!(
+                        "{uri:?}: port {port:?} is not a number 1–65535 (Hokuyo's default is 10940)"
+                    ));
+                }
+            };
+            return Ok(Connect::Tcp {
+                host: host.to_string(),
+                port,
+            });
+        }
+        if let Some(rest) = uri.strip_prefix("serial://") {
+            let (device, query) = match rest.split_once('?') {
+                Some((d, q)) => (d, Some(q)),
+                None => (rest, None),
+            };
+            if !device.starts_with('/') || device.len() < 2 {
+                return Err(format!(
+                    "{uri:?}: the device must be an absolute path, e.g. serial:///dev/ttyACM0"
+                ));
+            }
+            let mut baud = DEFAULT_BAUD;
+            if let Some(query) = query {
+                let Some(value) = query.strip_prefix("baud=") else {
+                    return Err(format!(
+                        "{uri:?}: the only option is ?baud=N, not {query:?}"
+                    ));
+                };
+                baud = match value.parse() {
+                    Ok(b) if BAUD_RATES.contains(&b) => b,
+                    _ => {
+                        return Err(format!(
+                            "{uri:?}: baud {value:?} is not one of {BAUD_RATES:?}"
+                        ));
+                    }
+                };
+            }
+            return Ok(Connect::Serial {
+                device: PathBuf::from(device),
+                baud,
+            });
+        }
+        if let Some(rest) = uri.strip_prefix("replay:") {
+            let Some((file, sensor)) = rest.rsplit_once('#') else {
+                return Err(format!(
+                    "{uri:?} names no sensor; write replay:FILE.mcap#SENSOR_ID"
+                ));
+            };
+            if file.is_empty() {
+                return Err(format!(
+                    "{uri:?} names no file; write replay:FILE.mcap#SENSOR_ID"
+                ));
+            }
+            check_sensor_id(sensor).map_err(|e| format!("{uri:?}: {e}"))?;
+            let file = Path::new(file);
+            let file = if file.is_absolute() {
+                file.to_path_buf()
+            } else {
+                base_dir.join(file)
+            };
+            return Ok(Connect::Replay {
+                file,
+                sensor: sensor.to_string(),
+            });
+        }
+        Err(format!("{uri:?} is not a connection; use {CONNECT_FORMS}"))
+    }
+}
+
+/// SCIP streaming command a sensor is driven with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+pub enum ScanMode {
+    /// Ranges only.
+    MD,
+    /// Ranges and intensities.
+    ME,
+    /// Multi-echo ranges (SCIP 2.2 units such as the UXM-30LX-E).
+    ND,
+}
+
+/// A pose measured by other means (e.g. a total station), with its uncertainty; site frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Survey {
+    pub x_m: f64,
+    pub y_m: f64,
+    pub yaw_rad: f64,
+    pub sigma_xy_m: f64,
+    pub sigma_yaw_rad: f64,
+}
+
+/// `[registration]`: the registration worker and moved-sensor detection.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RegistrationConfig {
+    /// Scans queued for the registration worker; when full the oldest is dropped and counted.
+    pub queue_scans: usize,
+    /// A sensor's view must stay unchanged this long before it is used to register.
+    pub static_view_s: f64,
+    /// Fraction of a sensor's static background that must change for it to count as moved.
+    pub moved_fraction: f64,
+    /// The change must persist this long (rules out a person walking by, one glitchy scan).
+    pub moved_persist_s: f64,
+    /// Local refinement of a moved sensor searches this far from its old position first…
+    pub refine_radius_m: f64,
+    /// …and this far in heading, before falling back to a global search.
+    pub refine_yaw_deg: f64,
+}
+
+impl Default for RegistrationConfig {
+    fn default() -> Self {
+        RegistrationConfig {
+            queue_scans: 256,
+            static_view_s: 2.0,
+            moved_fraction: 0.3,
+            moved_persist_s: 0.5,
+            refine_radius_m: 0.5,
+            refine_yaw_deg: 10.0,
+        }
+    }
+}
+
+/// `[publish]`: the fused map and what is written where.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PublishConfig {
+    /// Occupancy grid cell size.
+    pub map_cell_m: f64,
+    /// Map files and `poses.toml` are written this often (and on `save` and at shutdown);
+    /// 0 writes only on `save` and at shutdown.
+    pub save_interval_s: f64,
+    /// Fused frames per second streamed to `watch` clients with `map` on.
+    pub frame_rate_hz: f64,
+    /// Messages a watcher may fall behind before it is dropped.
+    pub watch_backlog: usize,
+    /// `map.yaml`: cells at least this likely occupied are drawn occupied (ROS default 0.65).
+    pub occupied_thresh: f64,
+    /// `map.yaml`: cells at most this likely occupied are drawn free (ROS default 0.196).
+    pub free_thresh: f64,
+}
+
+impl Default for PublishConfig {
+    fn default() -> Self {
+        PublishConfig {
+            map_cell_m: 0.05,
+            save_interval_s: 60.0,
+            frame_rate_hz: 10.0,
+            watch_backlog: 256,
+            occupied_thresh: 0.65,
+            free_thresh: 0.196,
+        }
+    }
+}
+
+/// A config that cannot be used.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ConfigError {
+    #[error("cannot read the config {}: {source}", path.display())]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{}", located(path, *line, key, message))]
+    Invalid {
+        path: PathBuf,
+        /// 1-based line in the file.
+        line: usize,
+        /// Dotted key, e.g. `sensor.connect`; empty for a syntax error.
+        key: String,
+        /// What is wrong and what would be valid.
+        message: String,
+    },
+}
+
+fn located(path: &Path, line: usize, key: &str, message: &str) -> String {
+    if key.is_empty() {
+        format!("{}:{line}: {message}", path.display())
+    } else {
+        format!("{}:{line}: {key}: {message}", path.display())
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawConfig {
+    site: Spanned<RawSite>,
+    #[serde(default)]
+    sensor: Vec<Spanned<RawSensor>>,
+    #[serde(default)]
+    registration: Option<Spanned<RegistrationConfig>>,
+    #[serde(default)]
+    publish: Option<Spanned<PublishConfig>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSite {
+    name: Spanned<String>,
+    state_dir: Option<Spanned<String>>,
+    socket: Option<Spanned<String>>,
+    socket_mode: Option<Spanned<String>>,
+    anchor: Spanned<String>,
+    max_clients: Option<Spanned<i64>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSensor {
+    id: Spanned<String>,
+    connect: Spanned<String>,
+    mode: Option<Spanned<ScanMode>>,
+    height_m: Option<Spanned<f64>>,
+    pitch_deg: Option<Spanned<f64>>,
+    survey: Option<Spanned<RawSurvey>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSurvey {
+    x_m: f64,
+    y_m: f64,
+    yaw_deg: f64,
+    sigma_xy_m: f64,
+    sigma_yaw_deg: f64,
+}
+
+/// Builds errors that point into one file.
+struct Locator<'a> {
+    path: &'a Path,
+    text: &'a str,
+}
+
+impl Locator<'_> {
+    fn line_of(&self, offset: usize) -> usize {
+        let end = offset.min(self.text.len());
+        self.text
+            .as_bytes()
+            .get(..end)
+            .map_or(1, |b| b.iter().filter(|&&c| c == b'\n').count() + 1)
+    }
+
+    fn at(&self, span: Range<usize>, key: &str, message: impl Into<String>) -> ConfigError {
+        ConfigError::Invalid {
+            path: self.path.to_path_buf(),
+            line: self.line_of(span.start),
+            key: key.to_string(),
+            message: message.into(),
+        }
+    }
+
+    /// Turns toml's error into ours, working out the dotted key from the text around its span.
+    /// An error at `key`'s own line inside the table starting at `table`, or at the table.
+    fn in_table(&self, table: Range<usize>, key: &str, message: impl Into<String>) -> ConfigError {
+        let after = self.text.get(table.start..).unwrap_or("");
+        let mut offset = table.start;
+        for line in after.split_inclusive('\n') {
+            let t = line.trim_start();
+            if offset > table.start && t.starts_with('[') {
+                break;
+            }
+            if t.strip_prefix(key)
+                .is_some_and(|rest| rest.trim_start().starts_with('='))
+            {
+                return self.at(offset..offset, key, message);
+            }
+            offset += line.len();
+        }
+        self.at(table, key, message)
+    }
+
+    fn toml_error(&self, err: &toml::de::Error) -> ConfigError {
+        let span = err.span().unwrap_or(0..0);
+        let message = err.message().trim().to_string();
+        let named = backticked_after(&message, "unknown field ")
+            .or_else(|| backticked_after(&message, "missing field "));
+        let key = if message.starts_with("unknown field ") || message.starts_with("missing field ")
+        {
+            let mut parts = key_context(self.text, span.start, message.starts_with("missing"));
+            // An unknown table is reported at its own header, which already names it.
+            if parts.last() != named.as_ref() {
+                parts.extend(named);
+            }
+            parts.join(".")
+        } else if [
+            "invalid type",
+            "invalid value",
+            "invalid length",
+            "unknown variant",
+        ]
+        .iter()
+        .any(|p| message.starts_with(p))
+        {
+            key_context(self.text, span.start, true).join(".")
+        } else {
+            String::new()
+        };
+        let message = match message.strip_prefix("unknown variant ") {
+            Some(rest) => format!("unknown value {rest}"),
+            None => message,
+        };
+        self.at(span, &key, message)
+    }
+}
+
+/// The text between backticks right after `prefix` in `message`.
+fn backticked_after(message: &str, prefix: &str) -> Option<String> {
+    let rest = message.strip_prefix(prefix)?.strip_prefix('`')?;
+    Some(rest.split('`').next()?.to_string())
+}
+
+/// The dotted key whose value (or, without `include_current`, whose table) holds byte
+/// `offset`: the last `[table]` header above it, the inline tables it sits in, and the key
+/// being assigned. Good enough for messages; not a TOML parser.
+fn key_context(text: &str, offset: usize, include_current: bool) -> Vec<String> {
+    let offset = offset.min(text.len());
+    let before = text.get(..offset).unwrap_or("");
+    let line_start = before.rfind('\n').map_or(0, |i| i + 1);
+    let mut parts: Vec<String> = Vec::new();
+    for line in before.get(..line_start).unwrap_or("").lines().rev() {
+        let t = line.trim();
+        if t.starts_with('[') {
+            let name = t
+                .trim_start_matches('[')
+                .split(']')
+                .next()
+                .unwrap_or("")
+                .trim();
+            parts.extend(name.split('.').map(|s| s.trim().to_string()));
+            break;
+        }
+    }
+    let prefix = before.get(line_start..).unwrap_or("");
+    let line = text
+        .get(line_start..)
+        .unwrap_or("")
+        .lines()
+        .next()
+        .unwrap_or("");
+    if line.trim_start().starts_with('[') {
+        // The span is on a header line: the header is the context.
+        let name = line
+            .trim()
+            .trim_start_matches('[')
+            .split(']')
+            .next()
+            .unwrap_or("")
+            .trim();
+        parts.clear();
+        parts.extend(name.split('.').map(|s| s.trim().to_string()));
+        return parts;
+    }
+    let mut stack: Vec<String> = Vec::new();
+    let mut current: Option<String> = None;
+    let mut word = String::new();
+    let mut last_word = String::new();
+    for c in prefix.chars() {
+        match c {
+            c if c.is_ascii_alphanumeric() || c == '_' || c == '-' => word.push(c),
+            '=' => {
+                if !word.is_empty() {
+                    last_word = std::mem::take(&mut word);
+                }
+                current = Some(last_word.clone());
+            }
+            '{' => {
+                if let Some(k) = current.take() {
+                    stack.push(k);
+                }
+            }
+            '}' => {
+                stack.pop();
+                current = None;
+            }
+            _ => {
+                if !word.is_empty() {
+                    last_word = std::mem::take(&mut word);
+                }
+            }
+        }
+    }
+    parts.extend(stack);
+    if include_current {
+        parts.extend(current);
+    }
+    parts
+}
+
+impl Config {
+    /// Reads and validates `path`, including that replay recordings exist.
+    pub fn load(path: &Path) -> Result<Config, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Config::parse_with(&text, path, &|file: &Path| file.is_file())
+    }
+
+    /// Validates `text` as the contents of `path` (used for messages and to resolve relative
+    /// paths). No I/O: replay recordings are not looked for.
+    pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
+        Config::parse_with(text, path, &|_: &Path| true)
+    }
+
+    /// [`Config::parse`], asking `exists` whether each replay recording is there.
+    fn parse_with(
+        text: &str,
+        path: &Path,
+        exists: &dyn Fn(&Path) -> bool,
+    ) -> Result<Config, ConfigError> {
+        let loc = Locator { path, text };
+        let raw: RawConfig = toml::from_str(text).map_err(|e| loc.toml_error(&e))?;
+        let base_dir = path.parent().unwrap_or(Path::new(""));
+        let resolve = |p: &str| {
+            let p = Path::new(p);
+            if p.is_absolute() {
+                p.to_path_buf()
+            } else {
+                base_dir.join(p)
+            }
+        };
+
+        let site_span = raw.site.span();
+        let site = raw.site.into_inner();
+        let name = site.name.get_ref().trim().to_string();
+        if name.is_empty() {
+            return Err(loc.at(
+                site.name.span(),
+                "site.name",
+                "must not be empty; name the site, e.g. \"hall-3f\"",
+            ));
+        }
+        let state_dir = match &site.state_dir {
+            Some(s) if s.get_ref().is_empty() => {
+                return Err(loc.at(
+                    s.span(),
+                    "site.state_dir",
+                    "must not be empty; e.g. \"/var/lib/scanfuse\"",
+                ));
+            }
+            Some(s) => resolve(s.get_ref()),
+            None => PathBuf::from(DEFAULT_STATE_DIR),
+        };
+        let socket = match &site.socket {
+            Some(s) if s.get_ref().is_empty() => {
+                return Err(loc.at(
+                    s.span(),
+                    "site.socket",
+                    "must not be empty; e.g. \"/run/scanfuse/scanfuse.sock\"",
+                ));
+            }
+            Some(s) => resolve(s.get_ref()),
+            None => PathBuf::from(DEFAULT_SOCKET),
+        };
+        let socket_mode = match &site.socket_mode {
+            Some(s) => {
+                parse_mode(s.get_ref()).map_err(|m| loc.at(s.span(), "site.socket_mode", m))?
+            }
+            None => DEFAULT_SOCKET_MODE,
+        };
+        let max_clients = match &site.max_clients {
+            Some(n) => match usize::try_from(*n.get_ref()) {
+                Ok(n @ 1..=1024) => n,
+                _ => return Err(loc.at(n.span(), "site.max_clients", "must be 1–1024")),
+            },
+            None => DEFAULT_MAX_CLIENTS,
+        };
+
+        if raw.sensor.is_empty() {
+            return Err(loc.at(
+                site_span,
+                "sensor",
+                "the config has no [[sensor]] tables; add one per scanner",
+            ));
+        }
+        let mut sensors: Vec<SensorConfig> = Vec::new();
+        let mut first_line: BTreeMap<String, usize> = BTreeMap::new();
+        let mut endpoints: BTreeMap<String, String> = BTreeMap::new();
+        for raw_sensor in raw.sensor {
+            let s = raw_sensor.into_inner();
+            let id = s.id.get_ref().clone();
+            check_sensor_id(&id).map_err(|m| loc.at(s.id.span(), "sensor.id", m))?;
+            let line = loc.line_of(s.id.span().start);
+            if let Some(first) = first_line.insert(id.clone(), line) {
+                return Err(loc.at(s.id.span(), "sensor.id", format!("duplicate sensor id {id:?}, first used at line {first}; every sensor needs its own id")));
+            }
+            let connect = Connect::parse(s.connect.get_ref(), base_dir)
+                .map_err(|m| loc.at(s.connect.span(), "sensor.connect", m))?;
+            if let Connect::Replay { file, .. } = &connect
+                && !exists(file)
+            {
+                return Err(loc.at(s.connect.span(), "sensor.connect", format!(
+                    "the recording {} does not exist (relative paths are taken from the config's folder)",
+                    file.display()
+                )));
+            }
+            let endpoint = match &connect {
+                Connect::Tcp { .. } => Some(connect.to_string()),
+                Connect::Serial { device, .. } => Some(device.display().to_string()),
+                Connect::Replay { .. } => None,
+            };
+            if let Some(endpoint) = endpoint
+                && let Some(other) = endpoints.insert(endpoint.clone(), id.clone())
+            {
+                return Err(loc.at(s.connect.span(), "sensor.connect", format!("{endpoint} is already sensor {other:?}'s connection; one scanner cannot be two sensors")));
+            }
+            let height_m = match &s.height_m {
+                Some(h) if !(0.0..=20.0).contains(h.get_ref()) => {
+                    return Err(loc.at(
+                        h.span(),
+                        "sensor.height_m",
+                        "must be 0–20 (metres above the floor)",
+                    ));
+                }
+                Some(h) => Some(*h.get_ref()),
+                None => None,
+            };
+            let pitch_deg = match &s.pitch_deg {
+                Some(p) if !(-45.0..=45.0).contains(p.get_ref()) => {
+                    return Err(loc.at(
+                        p.span(),
+                        "sensor.pitch_deg",
+                        "must be −45–45 (degrees, positive up)",
+                    ));
+                }
+                Some(p) => *p.get_ref(),
+                None => 0.0,
+            };
+            let survey = match &s.survey {
+                Some(sv) => Some(
+                    check_survey(sv.get_ref())
+                        .map_err(|(k, m)| loc.at(sv.span(), &format!("sensor.survey.{k}"), m))?,
+                ),
+                None => None,
+            };
+            sensors.push(SensorConfig {
+                id,
+                connect,
+                mode: s.mode.map_or(ScanMode::ME, |m| *m.get_ref()),
+                height_m,
+                pitch_rad: pitch_deg.to_radians(),
+                survey,
+                line,
+            });
+        }
+        let anchor = site.anchor.get_ref().clone();
+        if !first_line.contains_key(&anchor) {
+            let ids: Vec<&str> = sensors.iter().map(|s| s.id.as_str()).collect();
+            return Err(loc.at(
+                site.anchor.span(),
+                "site.anchor",
+                format!(
+                    "{anchor:?} is not one of the sensors; use one of {}",
+                    ids.join(", ")
+                ),
+            ));
+        }
+
+        let registration = match raw.registration {
+            Some(r) => {
+                let span = r.span();
+                let r = r.into_inner();
+                check_registration(&r)
+                    .map_err(|(k, m)| rename(loc.in_table(span, k, m), "registration"))?;
+                r
+            }
+            None => RegistrationConfig::default(),
+        };
+        let publish = match raw.publish {
+            Some(p) => {
+                let span = p.span();
+                let p = p.into_inner();
+                check_publish(&p).map_err(|(k, m)| rename(loc.in_table(span, k, m), "publish"))?;
+                p
+            }
+            None => PublishConfig::default(),
+        };
+
+        Ok(Config {
+            path: path.to_path_buf(),
+            site: SiteConfig {
+                name,
+                state_dir,
+                socket,
+                socket_mode,
+                anchor,
+                max_clients,
+            },
+            sensors,
+            registration,
+            publish,
+        })
+    }
+
+    /// A few lines for `scanfuse check`.
+    pub fn summary(&self) -> String {
+        let mut out = format!(
+            "{}: site {:?}, {} sensor{}, anchor {}\n  state in {}, socket {} (mode {:04o}, at most {} clients)\n",
+            self.path.display(),
+            self.site.name,
+            self.sensors.len(),
+            if self.sensors.len() == 1 { "" } else { "s" },
+            self.site.anchor,
+            self.site.state_dir.display(),
+            self.site.socket.display(),
+            self.site.socket_mode,
+            self.site.max_clients,
+        );
+        for s in &self.sensors {
+            out.push_str(&format!("  {:<16} {:?}  {}", s.id, s.mode, s.connect));
+            if let Some(sv) = &s.survey {
+                out.push_str(&format!(
+                    "  surveyed ({:.3} m, {:.3} m, {:.2}°)",
+                    sv.x_m,
+                    sv.y_m,
+                    sv.yaw_rad.to_degrees()
+                ));
+            }
+            out.push('\n');
+        }
+        out
+    }
+}
+
+/// Prefixes an error's key with its table's name.
+fn rename(err: ConfigError, table: &str) -> ConfigError {
+    match err {
+        ConfigError::Invalid {
+            path,
+            line,
+            key,
+            message,
+        } => ConfigError::Invalid {
+            path,
+            line,
+            key: format!("{table}.{key}"),
+            message,
+        },
+        other => other,
+    }
+}
+
+/// What a reloaded config (SIGHUP) changes relative to the running one.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct ConfigChanges {
+    /// Sensors to start.
+    pub added: Vec<String>,
+    /// Sensors to stop.
+    pub removed: Vec<String>,
+    /// Sensors whose connection, mode, mount or survey changed: restart their driver, and
+    /// re-register them if the mount or survey changed.
+    pub changed: Vec<String>,
+    /// Keys a reload cannot apply (the socket and state files stay where they are until a
+    /// restart), e.g. `site.socket`.
+    pub need_restart: Vec<&'static str>,
+    /// The anchor changed: every pose is relative to it, so all sensors re-register.
+    pub anchor_changed: bool,
+}
+
+impl ConfigChanges {
+    /// True when the reload changes nothing.
+    pub fn is_empty(&self) -> bool {
+        *self == ConfigChanges::default()
+    }
+}
+
+impl Config {
+    /// What replacing `self` by `new` changes, sensors in `new`'s order.
+    pub fn changes_to(&self, new: &Config) -> ConfigChanges {
+        let old_by_id: BTreeMap<&str, &SensorConfig> =
+            self.sensors.iter().map(|s| (s.id.as_str(), s)).collect();
+        let new_ids: std::collections::BTreeSet<&str> =
+            new.sensors.iter().map(|s| s.id.as_str()).collect();
+        let mut changes = ConfigChanges::default();
+        for s in &new.sensors {
+            match old_by_id.get(s.id.as_str()) {
+                None => changes.added.push(s.id.clone()),
+                Some(old) if !same_sensor(old, s) => changes.changed.push(s.id.clone()),
+                Some(_) => {}
+            }
+        }
+        changes.removed = self
+            .sensors
+            .iter()
+            .filter(|s| !new_ids.contains(s.id.as_str()))
+            .map(|s| s.id.clone())
+            .collect();
+        let (a, b) = (&self.site, &new.site);
+        for (key, differs) in [
+            ("site.state_dir", a.state_dir != b.state_dir),
+            ("site.socket", a.socket != b.socket),
+            ("site.socket_mode", a.socket_mode != b.socket_mode),
+            ("site.max_clients", a.max_clients != b.max_clients),
+            (
+                "publish.watch_backlog",
+                self.publish.watch_backlog != new.publish.watch_backlog,
+            ),
+            (
+                "registration.queue_scans",
+                self.registration.queue_scans != new.registration.queue_scans,
+            ),
+        ] {
+            if differs {
+                changes.need_restart.push(key);
+            }
+        }
+        changes.anchor_changed = a.anchor != b.anchor;
+        changes
+    }
+}
+
+/// Same sensor, ignoring where in the file it is written.
+fn same_sensor(a: &SensorConfig, b: &SensorConfig) -> bool {
+    a.connect == b.connect
+        && a.mode == b.mode
+        && a.height_m == b.height_m
+        && a.pitch_rad == b.pitch_rad
+        && a.survey == b.survey
+}
+
+/// `socket_mode` is a string of octal digits, like `chmod`'s.
+fn parse_mode(text: &str) -> Result<u32, String> {
+    let valid = "write it as octal digits in a string, e.g. \"0660\" (owner and group) or \"0600\" (owner only)";
+    let mode = match u32::from_str_radix(text, 8) {
+        Ok(m) if !text.is_empty() && m <= 0o777 => m,
+        _ => return Err(format!("{text:?} is not a permission mode; {valid}")),
+    };
+    if mode & 0o600 != 0o600 {
+        return Err(format!(
+            "{text:?} denies the daemon's own user read/write; {valid}"
+        ));
+    }
+    Ok(mode)
+}
+
+fn check_survey(s: &RawSurvey) -> Result<Survey, (&'static str, String)> {
+    for (key, v) in [("x_m", s.x_m), ("y_m", s.y_m), ("yaw_deg", s.yaw_deg)] {
+        if !v.is_finite() || v.abs() > 1e5 {
+            return Err((key, "must be a finite number within ±100000".into()));
+        }
+    }
+    if !(s.sigma_xy_m > 0.0 && s.sigma_xy_m <= 10.0) {
+        return Err((
+            "sigma_xy_m",
+            "must be greater than 0 and at most 10 (metres)".into(),
+        ));
+    }
+    if !(s.sigma_yaw_deg > 0.0 && s.sigma_yaw_deg <= 180.0) {
+        return Err((
+            "sigma_yaw_deg",
+            "must be greater than 0 and at most 180 (degrees)".into(),
+        ));
+    }
+    Ok(Survey {
+        x_m: s.x_m,
+        y_m: s.y_m,
+        yaw_rad: s.yaw_deg.to_radians(),
+        sigma_xy_m: s.sigma_xy_m,
+        sigma_yaw_rad: s.sigma_yaw_deg.to_radians(),
+    })
+}
+
+fn check_registration(r: &RegistrationConfig) -> Result<(), (&'static str, String)> {
+    if !(1..=100_000).contains(&r.queue_scans) {
+        return Err(("queue_scans", "must be 1–100000".into()));
+    }
+    positive("static_view_s", r.static_view_s, 600.0)?;
+    if !(r.moved_fraction > 0.0 && r.moved_fraction <= 1.0) {
+        return Err((
+            "moved_fraction",
+            "must be greater than 0 and at most 1".into(),
+        ));
+    }
+    positive("moved_persist_s", r.moved_persist_s, 60.0)?;
+    positive("refine_radius_m", r.refine_radius_m, 10.0)?;
+    positive("refine_yaw_deg", r.refine_yaw_deg, 180.0)?;
+    Ok(())
+}
+
+fn check_publish(p: &PublishConfig) -> Result<(), (&'static str, String)> {
+    if !(p.map_cell_m >= 0.005 && p.map_cell_m <= 1.0) {
+        return Err(("map_cell_m", "must be 0.005–1 (metres per cell)".into()));
+    }
+    if !(p.save_interval_s == 0.0 || (1.0..=86_400.0).contains(&p.save_interval_s)) {
+        return Err((
+            "save_interval_s",
+            "must be 0 (only on save and shutdown) or 1–86400 seconds".into(),
+        ));
+    }
+    positive("frame_rate_hz", p.frame_rate_hz, 100.0)?;
+    if !(8..=65_536).contains(&p.watch_backlog) {
+        return Err(("watch_backlog", "must be 8–65536 messages".into()));
+    }
+    if !(p.free_thresh > 0.0 && p.free_thresh < p.occupied_thresh && p.occupied_thresh < 1.0) {
+        return Err((
+            "occupied_thresh",
+            "needs 0 < free_thresh < occupied_thresh < 1".into(),
+        ));
+    }
+    Ok(())
+}
+
+fn positive(key: &'static str, v: f64, max: f64) -> Result<(), (&'static str, String)> {
+    if v > 0.0 && v <= max {
+        Ok(())
+    } else {
+        Err((key, format!("must be greater than 0 and at most {max}")))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// Connections print as URIs that parse back to themselves.
+        #[test]
+        fn connect_uris_round_trip(
+            host in "[a-z][a-z0-9.-]{0,20}",
+            v6 in "[0-9a-f]{1,4}(:[0-9a-f]{1,4}){1,3}",
+            port in 1u16..,
+            device in "/dev/tty[A-Z]{3}[0-9]",
+            baud in proptest::sample::select(BAUD_RATES.to_vec()),
+            file in "/[a-z]{1,8}/[a-z#]{1,8}\\.mcap",
+            id in "[A-Za-z0-9_.-]{1,64}",
+        ) {
+            let base = Path::new("/cfg");
+            for connect in [
+                Connect::Tcp { host: host.clone(), port },
+                Connect::Tcp { host: v6.clone(), port },
+                Connect::Serial { device: device.clone().into(), baud },
+                Connect::Replay { file: file.clone().into(), sensor: id.clone() },
+            ] {
+                prop_assert_eq!(Connect::parse(&connect.to_string(), base), Ok(connect));
+            }
+        }
+
+        /// Any text gets a config or an error with a line inside the file, never a panic.
+        #[test]
+        fn any_text_gets_a_located_answer(text in "(\\PC|\n|\\[|\\]|=|\"){0,300}") {
+            let lines = text.lines().count().max(1);
+            match Config::parse(&text, Path::new("x.toml")) {
+                Ok(_) | Err(ConfigError::Read { .. }) => {}
+                Err(ConfigError::Invalid { line, .. }) => prop_assert!(line >= 1 && line <= lines + 1),
+            }
+        }
+    }
+
+    const GOOD: &str = r#"
+[site]
+name = "hall-3f"
+state_dir = "state"
+socket = "/run/scanfuse/scanfuse.sock"
+anchor = "entrance"
+
+[[sensor]]
+id = "entrance"
+connect = "tcp://192.168.0.10:10940"
+mode = "ME"
+height_m = 1.0
+pitch_deg = 0.0
+
+[[sensor]]
+id = "dock"
+connect = "serial:///dev/ttyACM0?baud=115200"
+survey = { x_m = 4.0, y_m = -2.0, yaw_deg = 90.0, sigma_xy_m = 0.02, sigma_yaw_deg = 0.5 }
+
+[[sensor]]
+id = "replayed"
+connect = "replay:../fixtures/hall.mcap#east"
+mode = "MD"
+
+[publish]
+map_cell_m = 0.1
+"#;
+
+    fn parse(text: &str) -> Result<Config, ConfigError> {
+        Config::parse(text, Path::new("/etc/scanfuse/site.toml"))
+    }
+
+    /// The error's `line`, `key` and message, or a panic if it parsed.
+    fn invalid(text: &str) -> (usize, String, String) {
+        match parse(text) {
+            Err(ConfigError::Invalid {
+                line, key, message, ..
+            }) => (line, key, message),
+            other => panic!("expected an Invalid error, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn a_good_config_parses_with_defaults_and_resolved_paths() {
+        let c = parse(GOOD).unwrap();
+        assert_eq!(c.site.name, "hall-3f");
+        assert_eq!(c.site.state_dir, PathBuf::from("/etc/scanfuse/state"));
+        assert_eq!(c.site.socket_mode, 0o660);
+        assert_eq!(c.site.max_clients, DEFAULT_MAX_CLIENTS);
+        assert_eq!(c.sensors.len(), 3);
+        assert_eq!(
+            c.sensors[0].connect,
+            Connect::Tcp {
+                host: "192.168.0.10".into(),
+                port: 10940
+            }
+        );
+        assert_eq!(c.sensors[0].height_m, Some(1.0));
+        assert_eq!(c.sensors[0].line, 9);
+        assert_eq!(
+            c.sensors[1].connect,
+            Connect::Serial {
+                device: "/dev/ttyACM0".into(),
+                baud: 115_200
+            }
+        );
+        assert_eq!(c.sensors[1].mode, ScanMode::ME);
+        let survey = c.sensors[1].survey.unwrap();
+        assert!((survey.yaw_rad - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+        assert_eq!(
+            c.sensors[2].connect,
+            Connect::Replay {
+                file: "/etc/scanfuse/../fixtures/hall.mcap".into(),
+                sensor: "east".into()
+            }
+        );
+        assert_eq!(c.publish.map_cell_m, 0.1);
+        assert_eq!(c.publish.save_interval_s, 60.0);
+        assert_eq!(c.registration, RegistrationConfig::default());
+        assert!(c.summary().contains("3 sensors, anchor entrance"));
+    }
+
+    #[test]
+    fn connect_uris_are_checked() {
+        let base = Path::new("/cfg");
+        assert_eq!(
+            Connect::parse("tcp://[fe80::1]:10940", base),
+            Ok(Connect::Tcp {
+                host: "fe80::1".into(),
+                port: 10940
+            })
+        );
+        assert_eq!(
+            Connect::parse("tcp://[fe80::1]:10940", base)
+                .unwrap()
+                .to_string(),
+            "tcp://[fe80::1]:10940"
+        );
+        // The last `#` separates the sensor, so a file name may contain one.
+        assert_eq!(
+            Connect::parse("replay:/abs/x.mcap#a#b", base),
+            Ok(Connect::Replay {
+                file: "/abs/x.mcap#a".into(),
+                sensor: "b".into()
+            })
+        );
+        for (bad, why) in [
+            ("tcp://host", "no port"),
+            ("tcp://host:0", "1–65535"),
+            ("tcp://host:99999", "1–65535"),
+            ("tcp://:10940", "not a host"),
+            ("tcp://fe80::1:10940", "brackets"),
+            ("serial://dev/ttyACM0", "absolute path"),
+            ("serial:///dev/ttyACM0?baud=12", "not one of"),
+            ("serial:///dev/ttyACM0?speed=9600", "only option"),
+            ("replay:hall.mcap", "names no sensor"),
+            ("replay:#a", "names no file"),
+            ("replay:hall.mcap#a/b", "not valid"),
+            ("http://x:1", "tcp://HOST:PORT, serial://"),
+        ] {
+            let err = Connect::parse(bad, base).unwrap_err();
+            assert!(err.contains(why), "{bad}: {err}");
+        }
+    }
+
+    #[test]
+    fn unknown_keys_name_line_key_and_valid_keys() {
+        let (line, key, msg) =
+            invalid(&GOOD.replace("mode = \"MD\"", "mode = \"MD\"\nrate_hz = 40"));
+        assert_eq!((line, key.as_str()), (24, "sensor.rate_hz"));
+        assert!(msg.contains("expected one of"), "{msg}");
+        let (line, key, _) =
+            invalid(&GOOD.replace("sigma_yaw_deg = 0.5 }", "sigma_yaw_deg = 0.5, z_m = 1 }"));
+        assert_eq!((line, key.as_str()), (18, "sensor.survey.z_m"));
+        let (line, key, _) = invalid(&GOOD.replace("[publish]", "[publish]\ncell = 1"));
+        assert_eq!((line, key.as_str()), (26, "publish.cell"));
+        let (line, key, msg) = invalid(&format!("{GOOD}\n[extra]\n"));
+        assert_eq!((line, key.as_str()), (28, "extra"));
+        assert!(msg.contains("`registration`"), "{msg}");
+    }
+
+    #[test]
+    fn bad_values_name_line_key_and_what_is_valid() {
+        let cases: [(&str, &str, usize, &str, &str); 12] = [
+            (
+                "mode = \"ME\"",
+                "mode = \"XX\"",
+                11,
+                "sensor.mode",
+                "`MD`, `ME`, `ND`",
+            ),
+            (
+                "height_m = 1.0",
+                "height_m = \"tall\"",
+                12,
+                "sensor.height_m",
+                "expected f64",
+            ),
+            (
+                "height_m = 1.0",
+                "height_m = 99.0",
+                12,
+                "sensor.height_m",
+                "0–20",
+            ),
+            (
+                "pitch_deg = 0.0",
+                "pitch_deg = 60.0",
+                13,
+                "sensor.pitch_deg",
+                "−45–45",
+            ),
+            (
+                "id = \"dock\"",
+                "id = \"entrance\"",
+                16,
+                "sensor.id",
+                "first used at line 9",
+            ),
+            (
+                "id = \"dock\"",
+                "id = \"do ck\"",
+                16,
+                "sensor.id",
+                "ASCII letters",
+            ),
+            (
+                "tcp://192.168.0.10:10940",
+                "udp://x:1",
+                10,
+                "sensor.connect",
+                "tcp://HOST:PORT",
+            ),
+            (
+                "?baud=115200",
+                "?baud=7",
+                17,
+                "sensor.connect",
+                "not one of",
+            ),
+            (
+                "anchor = \"entrance\"",
+                "anchor = \"roof\"",
+                6,
+                "site.anchor",
+                "entrance, dock, replayed",
+            ),
+            (
+                "map_cell_m = 0.1",
+                "map_cell_m = 0.0",
+                26,
+                "publish.map_cell_m",
+                "0.005–1",
+            ),
+            (
+                "sigma_xy_m = 0.02",
+                "sigma_xy_m = 0.0",
+                18,
+                "sensor.survey.sigma_xy_m",
+                "greater than 0",
+            ),
+            (
+                "socket = \"/run/scanfuse/scanfuse.sock\"",
+                "socket = \"/s\"\nsocket_mode = \"0999\"",
+                6,
+                "site.socket_mode",
+                "octal",
+            ),
+        ];
+        for (from, to, want_line, want_key, want_msg) in cases {
+            let text = GOOD.replacen(from, to, 1);
+            assert_ne!(text, GOOD, "{from}");
+            let (line, key, msg) = invalid(&text);
+            assert_eq!((line, key.as_str()), (want_line, want_key), "{to}: {msg}");
+            assert!(msg.contains(want_msg), "{to}: {msg}");
+        }
+    }
+
+    #[test]
+    fn missing_and_structural_errors() {
+        let (line, key, msg) =
+            invalid("[site]\nname = \"a\"\n\n[[sensor]]\nid = \"a\"\nconnect = \"tcp://a:1\"\n");
+        assert_eq!((line, key.as_str()), (1, "site.anchor"), "{msg}");
+        let (line, key, _) =
+            invalid("[site]\nname = \"a\"\nanchor = \"a\"\n\n[[sensor]]\nid = \"a\"\n");
+        assert_eq!((line, key.as_str()), (5, "sensor.connect"));
+        let (_, key, msg) = invalid("[site]\nname = \"a\"\nanchor = \"a\"\n");
+        assert_eq!(key, "sensor");
+        assert!(msg.contains("no [[sensor]]"), "{msg}");
+        let (line, key, _) = invalid("[site]\nname = \"a\n");
+        assert_eq!((line, key.as_str()), (2, ""));
+        let two_on_one_port = GOOD.replace(
+            "serial:///dev/ttyACM0?baud=115200",
+            "tcp://192.168.0.10:10940",
+        );
+        let (line, key, msg) = invalid(&two_on_one_port);
+        assert_eq!((line, key.as_str()), (17, "sensor.connect"));
+        assert!(msg.contains("\"entrance\""), "{msg}");
+    }
+
+    #[test]
+    fn the_error_reads_file_line_key_message() {
+        let err = parse(&GOOD.replace("mode = \"ME\"", "mode = \"XX\"")).unwrap_err();
+        let text = err.to_string();
+        assert!(
+            text.starts_with("/etc/scanfuse/site.toml:11: sensor.mode: "),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn a_reload_reports_what_changed() {
+        let old = parse(GOOD).unwrap();
+        assert!(old.changes_to(&old).is_empty());
+        let moved_down = GOOD.replace("id = \"entrance\"\nconnect", "\nid = \"entrance\"\nconnect");
+        assert!(
+            old.changes_to(&parse(&moved_down).unwrap()).is_empty(),
+            "line numbers are not changes"
+        );
+        let new_text = GOOD
+            .replace(
+                "id = \"replayed\"\nconnect = \"replay:../fixtures/hall.mcap#east\"",
+                "id = \"roof\"\nconnect = \"tcp://10.0.0.9:10940\"",
+            )
+            .replace("height_m = 1.0", "height_m = 1.2")
+            .replace(
+                "socket = \"/run/scanfuse/scanfuse.sock\"",
+                "socket = \"/tmp/s.sock\"",
+            );
+        let changes = old.changes_to(&parse(&new_text).unwrap());
+        assert_eq!(changes.added, vec!["roof"]);
+        assert_eq!(changes.removed, vec!["replayed"]);
+        assert_eq!(changes.changed, vec!["entrance"]);
+        assert_eq!(changes.need_restart, vec!["site.socket"]);
+        assert!(!changes.anchor_changed);
+        let re_anchored =
+            parse(&GOOD.replace("anchor = \"entrance\"", "anchor = \"dock\"")).unwrap();
+        assert!(old.changes_to(&re_anchored).anchor_changed);
+    }
+
+    #[test]
+    fn socket_modes() {
+        assert_eq!(parse_mode("0660"), Ok(0o660));
+        assert_eq!(parse_mode("600"), Ok(0o600));
+        for bad in ["", "0o660", "1777", "0440", "rw"] {
+            assert!(parse_mode(bad).is_err(), "{bad}");
+        }
+    }
+}

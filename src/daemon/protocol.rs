@@ -1,0 +1,580 @@
+//! The status socket's objects, in gpsd's manner: one JSON object per line, each with a
+//! `class`; a field that is unknown is absent, never `null`.
+//!
+//! Requests carry `cmd`; replies and stream items carry `class`. The pose fields are the same
+//! vocabulary as `scanfuse register --json` and `poses.toml`.
+
+use serde::{Deserialize, Serialize};
+
+/// Major protocol version: bumped when a client written for the old one would misread.
+pub const PROTO_MAJOR: u32 = 1;
+/// Minor protocol version: bumped when fields or classes are added.
+pub const PROTO_MINOR: u32 = 0;
+
+/// Request lines longer than this are rejected (and discarded up to their newline).
+pub const MAX_LINE_BYTES: usize = 64 * 1024;
+
+/// True for a number that is absent or not finite: serde_json would write NaN as `null`, and
+/// the protocol has no nulls, so such a value is left out ("unknown").
+pub fn unknown(value: &Option<f64>) -> bool {
+    !value.is_some_and(f64::is_finite)
+}
+
+/// What a client may ask.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(tag = "cmd", rename_all = "lowercase", deny_unknown_fields)]
+pub enum Request {
+    /// `{"cmd":"status"}` → [`Status`]. (Empty braces, so unknown fields are rejected.)
+    Status {},
+    /// `{"cmd":"poses"}` → [`Poses`].
+    Poses {},
+    /// `{"cmd":"watch","status":true,"map":false}` → [`Watch`], then a stream of [`Event`]s
+    /// (`status`) and [`Frame`]s (`map`). Both false stops the stream.
+    Watch {
+        /// Stream events (connects, moves, registrations…); default true.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        status: Option<bool>,
+        /// Stream fused frames; default false.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        map: Option<bool>,
+    },
+    /// `{"cmd":"reregister","sensor":"hall"}` → [`Reregister`].
+    Reregister { sensor: String },
+    /// `{"cmd":"save"}` → [`Saved`].
+    Save {},
+}
+
+/// Every reply or stream item the daemon sends, tagged by `class`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "class", rename_all = "UPPERCASE")]
+pub enum Message {
+    Version(Version),
+    Status(Status),
+    Poses(Poses),
+    Watch(Watch),
+    Reregister(Reregister),
+    Saved(Saved),
+    Event(Event),
+    Frame(Frame),
+    Error(ErrorReply),
+}
+
+impl Message {
+    /// One protocol line, without the newline.
+    pub fn to_line(&self) -> String {
+        // Serializing these types cannot fail: no maps with non-string keys, no foreign types.
+        serde_json::to_string(self).unwrap_or_else(|e| {
+            format!(r#"{{"class":"ERROR","message":"internal error encoding a reply: {e}"}}"#)
+        })
+    }
+
+    /// The `ERROR` reply with `message`.
+    pub fn error(message: impl Into<String>) -> Message {
+        Message::Error(ErrorReply {
+            message: message.into(),
+        })
+    }
+}
+
+/// The banner sent on connect.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Version {
+    /// The daemon's release, e.g. `0.1.0`.
+    pub release: String,
+    pub proto_major: u32,
+    pub proto_minor: u32,
+}
+
+impl Version {
+    /// This build's banner.
+    pub fn current() -> Version {
+        Version {
+            release: env!("CARGO_PKG_VERSION").to_string(),
+            proto_major: PROTO_MAJOR,
+            proto_minor: PROTO_MINOR,
+        }
+    }
+}
+
+/// How a sensor's driver is doing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SensorState {
+    /// Opening the connection or setting the sensor up.
+    Connecting,
+    /// Scans arriving.
+    Streaming,
+    /// Lost; the driver is waiting to reconnect.
+    Disconnected,
+    /// Gave up or cannot start (bad device, refused configuration); needs a person.
+    Failed,
+    /// Shut down on purpose.
+    Stopped,
+}
+
+impl SensorState {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            SensorState::Connecting => "connecting",
+            SensorState::Streaming => "streaming",
+            SensorState::Disconnected => "disconnected",
+            SensorState::Failed => "failed",
+            SensorState::Stopped => "stopped",
+        }
+    }
+}
+
+/// Reply to `status`: the site and every sensor's driver.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Status {
+    /// Site name from the config.
+    pub site: String,
+    /// Seconds since the daemon started.
+    pub uptime_s: f64,
+    /// Scans the registration worker's full queue dropped (oldest first), all sensors.
+    #[serde(default)]
+    pub queue_drops: u64,
+    pub sensors: Vec<SensorStatus>,
+}
+
+/// One sensor's driver in a [`Status`] reply.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SensorStatus {
+    pub id: String,
+    pub state: SensorState,
+    /// The config's `connect` URI.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub connect: Option<String>,
+    /// Model from the sensor's VV/PP reply, once connected.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub model: Option<String>,
+    /// Scans per second over the last few seconds; absent before the first scans.
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+    pub rate_hz: Option<f64>,
+    /// Scans received since start.
+    #[serde(default)]
+    pub scans: u64,
+    /// Scans dropped for a bad checksum.
+    #[serde(default)]
+    pub checksum_errors: u64,
+    /// Times the connection was re-established.
+    #[serde(default)]
+    pub reconnects: u64,
+    /// Seconds since the last scan; absent before the first.
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+    pub last_scan_age_s: Option<f64>,
+    /// The latest error, a sentence.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub last_error: Option<String>,
+    /// Seconds since `last_error`.
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+    pub last_error_age_s: Option<f64>,
+}
+
+impl SensorStatus {
+    /// A sensor with nothing known yet but its id and state.
+    pub fn new(id: impl Into<String>, state: SensorState) -> Self {
+        SensorStatus {
+            id: id.into(),
+            state,
+            connect: None,
+            model: None,
+            rate_hz: None,
+            scans: 0,
+            checksum_errors: 0,
+            reconnects: 0,
+            last_scan_age_s: None,
+            last_error: None,
+            last_error_age_s: None,
+        }
+    }
+}
+
+/// How a pose was obtained.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum PoseSource {
+    /// Loaded from `poses.toml` at start.
+    Saved,
+    /// Worked out from the scans.
+    Registered,
+    /// Worked out again after the sensor moved or on request.
+    ReRegistered,
+    /// Taken from the config's surveyed pose.
+    Surveyed,
+}
+
+impl PoseSource {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            PoseSource::Saved => "saved",
+            PoseSource::Registered => "registered",
+            PoseSource::ReRegistered => "re-registered",
+            PoseSource::Surveyed => "surveyed",
+        }
+    }
+}
+
+/// Reply to `poses`: where every sensor stands in the anchor's (the site's) frame.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Poses {
+    pub anchor: String,
+    pub sensors: Vec<SensorPose>,
+}
+
+/// One sensor's pose: `scanfuse register --json`'s fields plus `age_s` and `source`.
+/// An unregistered sensor has `registered: false`, a `reason` and no pose fields.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SensorPose {
+    pub id: String,
+    pub registered: bool,
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+    pub x_m: Option<f64>,
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+    pub y_m: Option<f64>,
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+    pub yaw_deg: Option<f64>,
+    /// Height of the optical centre above the floor.
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+    pub z_m: Option<f64>,
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+    pub pitch_deg: Option<f64>,
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+    pub sigma_x_m: Option<f64>,
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+    pub sigma_y_m: Option<f64>,
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+    pub sigma_yaw_deg: Option<f64>,
+    /// Why the sensor is not registered (or a caveat about its pose).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reason: Option<String>,
+    /// Seconds since the pose was obtained.
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+    pub age_s: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source: Option<PoseSource>,
+}
+
+impl SensorPose {
+    /// An unregistered sensor, with the reason.
+    pub fn unregistered(id: impl Into<String>, reason: impl Into<String>) -> Self {
+        SensorPose {
+            id: id.into(),
+            registered: false,
+            x_m: None,
+            y_m: None,
+            yaw_deg: None,
+            z_m: None,
+            pitch_deg: None,
+            sigma_x_m: None,
+            sigma_y_m: None,
+            sigma_yaw_deg: None,
+            reason: Some(reason.into()),
+            age_s: None,
+            source: None,
+        }
+    }
+}
+
+/// Reply to `watch`: what the stream will now carry.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Watch {
+    pub status: bool,
+    pub map: bool,
+}
+
+/// Reply to `reregister`: the request was accepted; the outcome follows as an [`Event`].
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Reregister {
+    pub sensor: String,
+    pub message: String,
+}
+
+/// Reply to `save`: what was written where.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Saved {
+    /// The state directory.
+    pub dir: String,
+    /// File names written, relative to `dir`.
+    pub files: Vec<String>,
+}
+
+/// What an [`Event`] reports.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum EventKind {
+    Connected,
+    Disconnected,
+    Registered,
+    Moved,
+    ReRegistered,
+    Saved,
+    ConfigReloaded,
+    Error,
+}
+
+/// Something that happened, streamed to watchers with `status` on.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Event {
+    /// RFC 3339 UTC.
+    pub time: String,
+    pub kind: EventKind,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sensor: Option<String>,
+    /// A sentence for a person.
+    pub message: String,
+}
+
+/// One fused frame, streamed to watchers with `map` on: the latest scan of each sensor as
+/// points in the site frame.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Frame {
+    /// Host time of the newest scan in the frame, ns since the Unix epoch.
+    pub stamp_ns: u64,
+    pub scans: Vec<FrameScan>,
+}
+
+/// One sensor's points in a [`Frame`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FrameScan {
+    pub sensor: String,
+    pub stamp_ns: u64,
+    /// Points in the site frame, flattened: `[x0, y0, x1, y1, …]`, m. Finite values only:
+    /// JSON has no NaN (serde_json would write `null`).
+    pub xy_m: Vec<f32>,
+}
+
+/// A failure, with a sentence a person can act on.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ErrorReply {
+    pub message: String,
+}
+
+/// The commands a client may send, for error messages.
+pub const COMMANDS: &str = r#"{"cmd":"status"}, {"cmd":"poses"}, {"cmd":"watch","status":true,"map":false}, {"cmd":"reregister","sensor":"ID"}, {"cmd":"save"}"#;
+
+/// Parses one request line, or explains what is wrong and what would be valid.
+pub fn parse_request(line: &[u8]) -> Result<Request, String> {
+    let text = std::str::from_utf8(line)
+        .map_err(|_| format!("the request is not UTF-8 text; send one of {COMMANDS}"))?;
+    let value: serde_json::Value = serde_json::from_str(text)
+        .map_err(|e| format!("the request is not valid JSON ({e}); send one of {COMMANDS}"))?;
+    let Some(object) = value.as_object() else {
+        return Err(format!(
+            "the request must be a JSON object, not {}; send one of {COMMANDS}",
+            kind_of(&value)
+        ));
+    };
+    match object.get("cmd") {
+        None => {
+            return Err(format!(
+                "the request has no \"cmd\"; send one of {COMMANDS}"
+            ));
+        }
+        Some(serde_json::Value::String(_)) => {}
+        Some(other) => {
+            return Err(format!(
+                "\"cmd\" must be a string, not {}; send one of {COMMANDS}",
+                kind_of(other)
+            ));
+        }
+    }
+    serde_json::from_value(value)
+        .map_err(|e| format!("bad request: {e}; valid requests: {COMMANDS}"))
+}
+
+fn kind_of(value: &serde_json::Value) -> &'static str {
+    match value {
+        serde_json::Value::Null => "null",
+        serde_json::Value::Bool(_) => "a boolean",
+        serde_json::Value::Number(_) => "a number",
+        serde_json::Value::String(_) => "a string",
+        serde_json::Value::Array(_) => "an array",
+        serde_json::Value::Object(_) => "an object",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// Whatever a client sends, the parser answers (a request or a sentence), never panics.
+        #[test]
+        fn any_bytes_get_an_answer(bytes in proptest::collection::vec(any::<u8>(), 0..200)) {
+            if let Err(message) = parse_request(&bytes) {
+                prop_assert!(message.contains(COMMANDS));
+            }
+        }
+
+        /// Requests survive encoding and parsing.
+        #[test]
+        fn requests_round_trip(sensor in "[a-z0-9_.-]{1,12}", status in any::<Option<bool>>(), map in any::<Option<bool>>()) {
+            for request in [
+                Request::Status {},
+                Request::Poses {},
+                Request::Watch { status, map },
+                Request::Reregister { sensor: sensor.clone() },
+                Request::Save {},
+            ] {
+                let line = serde_json::to_string(&request).unwrap();
+                prop_assert!(!line.contains("null"));
+                prop_assert_eq!(parse_request(line.as_bytes()), Ok(request));
+            }
+        }
+    }
+
+    #[test]
+    fn requests_parse_with_defaults() {
+        assert_eq!(
+            parse_request(br#"{"cmd":"status"}"#),
+            Ok(Request::Status {})
+        );
+        assert_eq!(
+            parse_request(br#" {"cmd":"poses"} "#),
+            Ok(Request::Poses {})
+        );
+        assert_eq!(
+            parse_request(br#"{"cmd":"watch","map":true}"#),
+            Ok(Request::Watch {
+                status: None,
+                map: Some(true)
+            })
+        );
+        assert_eq!(
+            parse_request(br#"{"cmd":"reregister","sensor":"hall"}"#),
+            Ok(Request::Reregister {
+                sensor: "hall".into()
+            })
+        );
+        assert_eq!(parse_request(br#"{"cmd":"save"}"#), Ok(Request::Save {}));
+    }
+
+    #[test]
+    fn bad_requests_say_what_is_wrong_and_what_is_valid() {
+        let cases: [(&[u8], &str); 7] = [
+            (b"{\"cmd\":", "not valid JSON"),
+            (b"[1,2]", "must be a JSON object, not an array"),
+            (br#"{"sensor":"a"}"#, "no \"cmd\""),
+            (br#"{"cmd":7}"#, "must be a string, not a number"),
+            (br#"{"cmd":"fly"}"#, "unknown variant `fly`"),
+            (br#"{"cmd":"reregister"}"#, "missing field `sensor`"),
+            (
+                br#"{"cmd":"status","verbose":true}"#,
+                "unknown field `verbose`",
+            ),
+        ];
+        for (line, want) in cases {
+            let err = parse_request(line).unwrap_err();
+            assert!(err.contains(want), "{err}");
+            assert!(err.contains(r#"{"cmd":"status"}"#), "{err}");
+        }
+        assert!(parse_request(b"\xff\xfe").unwrap_err().contains("UTF-8"));
+    }
+
+    #[test]
+    fn absent_fields_are_omitted_never_null() {
+        let pose = SensorPose::unregistered("b", "no overlap with any other sensor");
+        let line = Message::Poses(Poses {
+            anchor: "a".into(),
+            sensors: vec![pose],
+        })
+        .to_line();
+        assert_eq!(
+            line,
+            r#"{"class":"POSES","anchor":"a","sensors":[{"id":"b","registered":false,"reason":"no overlap with any other sensor"}]}"#
+        );
+        let status = Message::Status(Status {
+            site: "s".into(),
+            uptime_s: 1.5,
+            queue_drops: 0,
+            sensors: vec![SensorStatus::new("a", SensorState::Connecting)],
+        })
+        .to_line();
+        assert!(!status.contains("null"), "{status}");
+        assert!(status.starts_with(r#"{"class":"STATUS","#), "{status}");
+    }
+
+    #[test]
+    fn numbers_that_are_not_finite_are_left_out() {
+        let mut pose = SensorPose::unregistered("b", "singular covariance");
+        pose.sigma_x_m = Some(f64::NAN);
+        pose.age_s = Some(f64::INFINITY);
+        pose.sigma_y_m = Some(0.25);
+        let line = serde_json::to_string(&pose).unwrap();
+        assert!(!line.contains("null"), "{line}");
+        assert!(
+            !line.contains("sigma_x_m") && !line.contains("age_s"),
+            "{line}"
+        );
+        assert!(line.contains(r#""sigma_y_m":0.25"#), "{line}");
+        let mut status = SensorStatus::new("a", SensorState::Streaming);
+        status.rate_hz = Some(f64::NAN);
+        assert!(!serde_json::to_string(&status).unwrap().contains("rate_hz"));
+    }
+
+    #[test]
+    fn every_class_round_trips() {
+        let mut pose = SensorPose::unregistered("b", "x");
+        pose.registered = true;
+        pose.reason = None;
+        pose.x_m = Some(1.0);
+        pose.source = Some(PoseSource::ReRegistered);
+        let messages = [
+            Message::Version(Version::current()),
+            Message::Status(Status {
+                site: "s".into(),
+                uptime_s: 2.0,
+                queue_drops: 3,
+                sensors: vec![SensorStatus::new("a", SensorState::Streaming)],
+            }),
+            Message::Poses(Poses {
+                anchor: "a".into(),
+                sensors: vec![pose],
+            }),
+            Message::Watch(Watch {
+                status: true,
+                map: false,
+            }),
+            Message::Reregister(Reregister {
+                sensor: "a".into(),
+                message: "queued".into(),
+            }),
+            Message::Saved(Saved {
+                dir: "/d".into(),
+                files: vec!["poses.toml".into()],
+            }),
+            Message::Event(Event {
+                time: "2026-01-01T00:00:00Z".into(),
+                kind: EventKind::ReRegistered,
+                sensor: Some("a".into()),
+                message: "m".into(),
+            }),
+            Message::Frame(Frame {
+                stamp_ns: 5,
+                scans: vec![FrameScan {
+                    sensor: "a".into(),
+                    stamp_ns: 5,
+                    xy_m: vec![1.0, 2.0],
+                }],
+            }),
+            Message::error("e"),
+        ];
+        for m in messages {
+            let line = m.to_line();
+            let back: Message = serde_json::from_str(&line).unwrap();
+            assert_eq!(back, m, "{line}");
+        }
+        assert!(
+            Message::Version(Version::current())
+                .to_line()
+                .contains(r#""proto_major":1"#)
+        );
+        assert!(
+            serde_json::to_string(&PoseSource::ReRegistered)
+                .unwrap()
+                .contains("re-registered")
+        );
+    }
+}

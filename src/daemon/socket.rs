@@ -1,0 +1,456 @@
+//! The status socket: a Unix stream socket speaking the [status protocol](super::protocol), one JSON
+//! object per line each way.
+//!
+//! The pipeline plugs in through [`StatusSource`] (answers to requests) and [`Publisher`]
+//! (events and fused frames for watchers). Every connection is its own task; none of them can
+//! stall the pipeline or each other: replies that cannot be written within the write timeout,
+//! and watchers that fall behind the stream, are dropped. Shutdown follows mini-redis: a
+//! broadcast every task listens to, and completion when the last task's sender drops.
+
+use std::future::Future;
+use std::io;
+use std::os::unix::fs::{FileTypeExt, MetadataExt, PermissionsExt};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, SystemTime};
+
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::unix::OwnedWriteHalf;
+use tokio::net::{UnixListener, UnixStream};
+use tokio::sync::{Semaphore, broadcast, mpsc};
+
+use super::lines::{Frame as LineFrame, LineFramer};
+use super::protocol::{
+    self, Event, EventKind, Frame, MAX_LINE_BYTES, Message, Poses, Request, Saved, Status, Version,
+    Watch,
+};
+
+/// How long a reply may take to be taken by a client before the client is dropped.
+pub const DEFAULT_WRITE_TIMEOUT: Duration = Duration::from_secs(5);
+/// Pause after a failed accept (e.g. out of file descriptors) before trying again.
+const ACCEPT_BACKOFF: Duration = Duration::from_millis(100);
+/// Bytes read from a client at a time.
+const READ_CHUNK: usize = 8 * 1024;
+
+/// What the socket asks of the pipeline. `status` and `poses` must be cheap snapshots (they
+/// run on the connection's task); `reregister` and `save` may block and run on a blocking
+/// thread.
+pub trait StatusSource: Send + Sync + 'static {
+    fn status(&self) -> Status;
+    fn poses(&self) -> Poses;
+    /// Queues a re-registration of `sensor`; the reply says what will happen.
+    fn reregister(&self, sensor: &str) -> Result<String, Refused>;
+    /// Writes poses and map files now.
+    fn save(&self) -> Result<Saved, Refused>;
+}
+
+/// The pipeline declined a request; the sentence goes to the client as an ERROR.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct Refused(pub String);
+
+/// The socket could not be set up.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum SocketError {
+    #[error(
+        "another scanfuse is already serving {}; stop it first (systemctl stop scanfuse) or configure another socket path",
+        path.display()
+    )]
+    AlreadyRunning { path: PathBuf },
+    #[error(
+        "{} exists and is not a socket; remove it or configure another socket path",
+        path.display()
+    )]
+    NotASocket { path: PathBuf },
+    #[error("cannot bind the status socket {}: {source}", path.display())]
+    Bind { path: PathBuf, source: io::Error },
+    #[error("cannot set the mode of {} to {mode:04o}: {source}", path.display())]
+    Mode {
+        path: PathBuf,
+        mode: u32,
+        source: io::Error,
+    },
+}
+
+/// Settings of one server.
+#[derive(Debug, Clone, Copy)]
+pub struct ServerOptions {
+    /// Permission bits of the socket file.
+    pub socket_mode: u32,
+    /// Clients served at once; the next one gets an ERROR and is closed.
+    pub max_clients: usize,
+    /// A client that takes no bytes for this long is dropped.
+    pub write_timeout: Duration,
+}
+
+impl Default for ServerOptions {
+    fn default() -> Self {
+        ServerOptions {
+            socket_mode: super::config::DEFAULT_SOCKET_MODE,
+            max_clients: super::config::DEFAULT_MAX_CLIENTS,
+            write_timeout: DEFAULT_WRITE_TIMEOUT,
+        }
+    }
+}
+
+/// Sends events and fused frames to every watcher. Each item is serialized once; sending
+/// never waits: a watcher that falls `backlog` items behind is dropped by its own task.
+#[derive(Debug, Clone)]
+pub struct Publisher {
+    events: broadcast::Sender<Arc<str>>,
+    frames: broadcast::Sender<Arc<str>>,
+}
+
+impl Publisher {
+    /// A publisher whose watchers may fall `backlog` items behind per stream.
+    pub fn new(backlog: usize) -> Publisher {
+        Publisher {
+            events: broadcast::channel(backlog.max(1)).0,
+            frames: broadcast::channel(backlog.max(1)).0,
+        }
+    }
+
+    /// Publishes an event to `status` watchers.
+    pub fn event(&self, event: Event) {
+        let line = format!("{}\n", Message::Event(event).to_line());
+        // An error only means nobody is watching.
+        let _ = self.events.send(line.into());
+    }
+
+    /// Builds and publishes an event stamped now.
+    pub fn announce(&self, kind: EventKind, sensor: Option<&str>, message: impl Into<String>) {
+        self.event(Event {
+            time: humantime::format_rfc3339_millis(SystemTime::now()).to_string(),
+            kind,
+            sensor: sensor.map(str::to_string),
+            message: message.into(),
+        });
+    }
+
+    /// Publishes a fused frame to `map` watchers; skips the encoding when nobody watches.
+    pub fn frame(&self, frame: Frame) {
+        if self.frames.receiver_count() == 0 {
+            return;
+        }
+        let line = format!("{}\n", Message::Frame(frame).to_line());
+        let _ = self.frames.send(line.into());
+    }
+
+    /// Clients currently watching events.
+    pub fn event_watchers(&self) -> usize {
+        self.events.receiver_count()
+    }
+
+    /// Clients currently watching frames.
+    pub fn frame_watchers(&self) -> usize {
+        self.frames.receiver_count()
+    }
+}
+
+/// A bound status socket, ready to [`run`](StatusServer::run).
+pub struct StatusServer<S> {
+    listener: UnixListener,
+    path: PathBuf,
+    /// Device and inode of the socket file we made, so cleanup never removes another's.
+    identity: (u64, u64),
+    source: Arc<S>,
+    publisher: Publisher,
+    options: ServerOptions,
+}
+
+impl<S: StatusSource> StatusServer<S> {
+    /// Binds `path` (inside a tokio runtime). A leftover socket file nobody listens on is
+    /// removed; a live one means another daemon runs, and binding is refused.
+    pub fn bind(
+        path: &Path,
+        source: Arc<S>,
+        publisher: Publisher,
+        options: ServerOptions,
+    ) -> Result<StatusServer<S>, SocketError> {
+        let bind_err = |source| SocketError::Bind {
+            path: path.to_path_buf(),
+            source,
+        };
+        remove_stale_socket(path)?;
+        if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+            std::fs::create_dir_all(parent).map_err(bind_err)?;
+        }
+        let listener = UnixListener::bind(path).map_err(bind_err)?;
+        std::fs::set_permissions(path, std::fs::Permissions::from_mode(options.socket_mode))
+            .map_err(|source| SocketError::Mode {
+                path: path.to_path_buf(),
+                mode: options.socket_mode,
+                source,
+            })?;
+        let meta = std::fs::symlink_metadata(path).map_err(bind_err)?;
+        Ok(StatusServer {
+            listener,
+            path: path.to_path_buf(),
+            identity: (meta.dev(), meta.ino()),
+            source,
+            publisher: publisher.clone(),
+            options,
+        })
+    }
+
+    /// The socket's path.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Serves clients until `shutdown` resolves, then closes every connection, waits for
+    /// their tasks and removes the socket file.
+    pub async fn run(self, shutdown: impl Future<Output = ()>) {
+        let (notify_shutdown, _) = broadcast::channel::<()>(1);
+        let (complete_tx, mut complete_rx) = mpsc::channel::<()>(1);
+        let limit = Arc::new(Semaphore::new(self.options.max_clients));
+        tokio::select! {
+            _ = self.accept_loop(&limit, &notify_shutdown, &complete_tx) => {}
+            _ = shutdown => {}
+        }
+        drop(notify_shutdown);
+        drop(complete_tx);
+        // Resolves once every connection task has dropped its sender.
+        let _ = complete_rx.recv().await;
+        if let Ok(meta) = std::fs::symlink_metadata(&self.path)
+            && (meta.dev(), meta.ino()) == self.identity
+        {
+            let _ = std::fs::remove_file(&self.path);
+        }
+    }
+
+    async fn accept_loop(
+        &self,
+        limit: &Arc<Semaphore>,
+        notify_shutdown: &broadcast::Sender<()>,
+        complete_tx: &mpsc::Sender<()>,
+    ) {
+        loop {
+            let stream = match self.listener.accept().await {
+                Ok((stream, _)) => stream,
+                Err(e) => {
+                    tracing::warn!("status socket: accept failed: {e}");
+                    tokio::time::sleep(ACCEPT_BACKOFF).await;
+                    continue;
+                }
+            };
+            let complete = complete_tx.clone();
+            let write_timeout = self.options.write_timeout;
+            let Ok(permit) = Arc::clone(limit).try_acquire_owned() else {
+                let max = self.options.max_clients;
+                tokio::spawn(async move {
+                    let (_, mut writer) = stream.into_split();
+                    let message = Message::error(format!(
+                        "too many clients: this daemon serves at most {max} at once (site.max_clients); close another client or raise the limit"
+                    ));
+                    let _ = write_line(&mut writer, &message.to_line(), write_timeout).await;
+                    drop(complete);
+                });
+                continue;
+            };
+            let connection = Connection {
+                source: Arc::clone(&self.source),
+                publisher: self.publisher.clone(),
+                shutdown: notify_shutdown.subscribe(),
+                write_timeout,
+            };
+            tokio::spawn(async move {
+                if let Err(e) = connection.serve(stream).await {
+                    tracing::debug!("status client dropped: {e}");
+                }
+                drop(permit);
+                drop(complete);
+            });
+        }
+    }
+}
+
+/// Removes a socket file nobody listens on; refuses a live one or a non-socket.
+fn remove_stale_socket(path: &Path) -> Result<(), SocketError> {
+    let bind_err = |source| SocketError::Bind {
+        path: path.to_path_buf(),
+        source,
+    };
+    match std::fs::symlink_metadata(path) {
+        Err(e) if e.kind() == io::ErrorKind::NotFound => Ok(()),
+        Err(e) => Err(bind_err(e)),
+        Ok(meta) if !meta.file_type().is_socket() => Err(SocketError::NotASocket {
+            path: path.to_path_buf(),
+        }),
+        Ok(_) => match std::os::unix::net::UnixStream::connect(path) {
+            Ok(_) => Err(SocketError::AlreadyRunning {
+                path: path.to_path_buf(),
+            }),
+            Err(e) if e.kind() == io::ErrorKind::ConnectionRefused => {
+                tracing::info!("removing stale socket {}", path.display());
+                std::fs::remove_file(path).map_err(bind_err)
+            }
+            Err(e) => Err(bind_err(e)),
+        },
+    }
+}
+
+/// Why a connection ended early.
+#[derive(Debug, thiserror::Error)]
+enum ConnectionEnd {
+    #[error("client did not take a reply within {0:?}")]
+    WriteTimeout(Duration),
+    #[error("watcher fell {0} messages behind")]
+    Lagged(u64),
+    #[error(transparent)]
+    Io(#[from] io::Error),
+}
+
+async fn write_line(
+    writer: &mut OwnedWriteHalf,
+    line: &str,
+    timeout: Duration,
+) -> Result<(), ConnectionEnd> {
+    let write = async {
+        writer.write_all(line.as_bytes()).await?;
+        if !line.ends_with('\n') {
+            writer.write_all(b"\n").await?;
+        }
+        Ok::<(), io::Error>(())
+    };
+    match tokio::time::timeout(timeout, write).await {
+        Ok(result) => Ok(result?),
+        Err(_) => Err(ConnectionEnd::WriteTimeout(timeout)),
+    }
+}
+
+/// Receives from a watch stream, or waits forever when not subscribed.
+async fn next_item(
+    rx: &mut Option<broadcast::Receiver<Arc<str>>>,
+) -> Result<Arc<str>, broadcast::error::RecvError> {
+    match rx {
+        Some(rx) => rx.recv().await,
+        None => std::future::pending().await,
+    }
+}
+
+struct Connection<S> {
+    source: Arc<S>,
+    publisher: Publisher,
+    shutdown: broadcast::Receiver<()>,
+    write_timeout: Duration,
+}
+
+impl<S: StatusSource> Connection<S> {
+    async fn serve(mut self, stream: UnixStream) -> Result<(), ConnectionEnd> {
+        let (mut reader, mut writer) = stream.into_split();
+        let timeout = self.write_timeout;
+        write_line(
+            &mut writer,
+            &Message::Version(Version::current()).to_line(),
+            timeout,
+        )
+        .await?;
+        let mut framer = LineFramer::new(MAX_LINE_BYTES);
+        let mut buf = vec![0u8; READ_CHUNK];
+        let mut events: Option<broadcast::Receiver<Arc<str>>> = None;
+        let mut frames: Option<broadcast::Receiver<Arc<str>>> = None;
+        // False once the client has shut its sending side: a watcher may still be listening
+        // (`echo '{"cmd":"watch"}' | socat - UNIX:…`), so the stream goes on until a write fails.
+        let mut reading = true;
+        loop {
+            let item = tokio::select! {
+                _ = self.shutdown.recv() => return Ok(()),
+                read = reader.read(&mut buf), if reading => {
+                    let n = read?;
+                    if n == 0 {
+                        if events.is_none() && frames.is_none() {
+                            return Ok(());
+                        }
+                        reading = false;
+                        continue;
+                    }
+                    for frame in framer.push(buf.get(..n).unwrap_or_default()) {
+                        let reply = match frame {
+                            LineFrame::Line(line) if line.iter().all(u8::is_ascii_whitespace) => continue,
+                            LineFrame::Line(line) => self.answer(&line, &mut events, &mut frames).await,
+                            LineFrame::TooLong { .. } => Message::error(format!(
+                                "request line longer than {MAX_LINE_BYTES} bytes; it was discarded. Send one request per line, e.g. {{\"cmd\":\"status\"}}"
+                            )),
+                        };
+                        write_line(&mut writer, &reply.to_line(), timeout).await?;
+                    }
+                    continue;
+                }
+                item = next_item(&mut events) => item,
+                item = next_item(&mut frames) => item,
+            };
+            match item {
+                Ok(line) => write_line(&mut writer, &line, timeout).await?,
+                Err(broadcast::error::RecvError::Lagged(n)) => {
+                    let goodbye = Message::error(format!(
+                        "you fell {n} messages behind the stream and were dropped; read continuously, or watch without \"map\" to receive less"
+                    ));
+                    // Best effort: a client this slow may not take even this.
+                    let _ = write_line(&mut writer, &goodbye.to_line(), timeout).await;
+                    return Err(ConnectionEnd::Lagged(n));
+                }
+                // The publisher is gone: the daemon is shutting down.
+                Err(broadcast::error::RecvError::Closed) => return Ok(()),
+            }
+        }
+    }
+
+    /// The reply to one request line; `watch` (un)subscribes the streams.
+    async fn answer(
+        &self,
+        line: &[u8],
+        events: &mut Option<broadcast::Receiver<Arc<str>>>,
+        frames: &mut Option<broadcast::Receiver<Arc<str>>>,
+    ) -> Message {
+        let request = match protocol::parse_request(line) {
+            Ok(r) => r,
+            Err(message) => return Message::error(message),
+        };
+        match request {
+            Request::Status {} => Message::Status(self.source.status()),
+            Request::Poses {} => Message::Poses(self.source.poses()),
+            Request::Watch { status, map } => {
+                let want = Watch {
+                    status: status.unwrap_or(true),
+                    map: map.unwrap_or(false),
+                };
+                *events = match (want.status, events.take()) {
+                    (true, Some(rx)) => Some(rx),
+                    (true, None) => Some(self.publisher.events.subscribe()),
+                    (false, _) => None,
+                };
+                *frames = match (want.map, frames.take()) {
+                    (true, Some(rx)) => Some(rx),
+                    (true, None) => Some(self.publisher.frames.subscribe()),
+                    (false, _) => None,
+                };
+                Message::Watch(want)
+            }
+            Request::Reregister { sensor } => {
+                let source = Arc::clone(&self.source);
+                let name = sensor.clone();
+                match tokio::task::spawn_blocking(move || source.reregister(&name)).await {
+                    Ok(Ok(message)) => {
+                        Message::Reregister(protocol::Reregister { sensor, message })
+                    }
+                    Ok(Err(refused)) => Message::error(refused.0),
+                    Err(e) => Message::error(format!(
+                        "re-registration failed inside the daemon ({e}); see its log"
+                    )),
+                }
+            }
+            Request::Save {} => {
+                let source = Arc::clone(&self.source);
+                match tokio::task::spawn_blocking(move || source.save()).await {
+                    Ok(Ok(saved)) => Message::Saved(saved),
+                    Ok(Err(refused)) => Message::error(refused.0),
+                    Err(e) => Message::error(format!(
+                        "saving failed inside the daemon ({e}); see its log"
+                    )),
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,369 @@
+//! The emulator's I/O edge: accepts connections, feeds command lines to the [`Unit`], sends
+//! scan blocks when they are due and injects the configured faults. All time comes from tokio's
+//! clock, so tests can pause and advance it.
+
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+use thiserror::Error;
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::net::TcpListener;
+use tokio::sync::watch;
+use tokio::time::Instant;
+
+use super::faults::{EmulatorStats, Faults, GARBAGE};
+use super::playback::Playback;
+use super::unit::{SourceScan, Unit};
+use crate::scan::{Scan, SensorInfo};
+
+#[derive(Debug, Error)]
+#[non_exhaustive]
+pub enum EmulatorError {
+    #[error(
+        "sensor {0:?} has no PP geometry (DMIN, AMAX, SCAN, …); the emulator needs it to answer PP and scans"
+    )]
+    NoGeometry(String),
+    #[error("sensor {0:?} has no scans to serve")]
+    NoScans(String),
+    #[error("connection: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+/// How to play the recording.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EmulatorConfig {
+    /// Playback speed; 2.0 sends scans twice as often as recorded.
+    pub speed: f64,
+    /// Start over after the last scan instead of ending.
+    pub looping: bool,
+    pub faults: Faults,
+}
+
+impl Default for EmulatorConfig {
+    fn default() -> Self {
+        EmulatorConfig {
+            speed: 1.0,
+            looping: false,
+            faults: Faults::default(),
+        }
+    }
+}
+
+#[derive(Debug, Default)]
+struct FaultState {
+    stats: EmulatorStats,
+    drop_done: bool,
+    stall_done: bool,
+}
+
+struct Shared {
+    /// Each connection gets a fresh copy, as a unit drops its stream when its client leaves.
+    unit: Unit,
+    sources: Vec<SourceScan>,
+    playback: Playback,
+    faults: Faults,
+    boot: Instant,
+    /// Playback starts with the first scan command, so a client that connects late still gets
+    /// the recording from its first scan.
+    play_start: Mutex<Option<Instant>>,
+    state: Mutex<FaultState>,
+    finished: watch::Sender<bool>,
+}
+
+/// One emulated sensor; cheap to clone (shared state).
+#[derive(Clone)]
+pub struct Emulator {
+    shared: Arc<Shared>,
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    // A poisoned lock only means another connection task panicked; the data is still usable.
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+impl Emulator {
+    pub fn new(
+        info: &SensorInfo,
+        scans: &[Scan],
+        config: EmulatorConfig,
+    ) -> Result<Self, EmulatorError> {
+        let geometry = info
+            .geometry
+            .ok_or_else(|| EmulatorError::NoGeometry(info.id.clone()))?;
+        if scans.is_empty() {
+            return Err(EmulatorError::NoScans(info.id.clone()));
+        }
+        let sources = scans
+            .iter()
+            .map(|s| SourceScan::from_scan(s, &geometry))
+            .collect();
+        let playback = Playback::new(
+            scans,
+            geometry.period_s() * 1000.0,
+            config.speed,
+            config.looping,
+        );
+        let (finished, _) = watch::channel(false);
+        Ok(Emulator {
+            shared: Arc::new(Shared {
+                unit: Unit::new(info, geometry).booting_until(
+                    config
+                        .faults
+                        .booting_for
+                        .map_or(0, |d| d.as_millis() as u64),
+                ),
+                sources,
+                playback,
+                faults: config.faults,
+                boot: Instant::now(),
+                play_start: Mutex::new(None),
+                state: Mutex::new(FaultState::default()),
+                finished,
+            }),
+        })
+    }
+
+    pub fn stats(&self) -> EmulatorStats {
+        lock(&self.shared.state).stats
+    }
+
+    /// Resolves once a non-looping recording has been served to its end.
+    pub async fn finished(&self) {
+        let mut rx = self.shared.finished.subscribe();
+        let _ = rx.wait_for(|done| *done).await;
+    }
+
+    fn now_ms(&self) -> u64 {
+        self.shared.boot.elapsed().as_millis() as u64
+    }
+
+    /// Accepts connections until the recording ends (never, when looping).
+    pub async fn serve(&self, listener: TcpListener) -> Result<(), EmulatorError> {
+        let mut finished = self.shared.finished.subscribe();
+        loop {
+            let (socket, peer) = tokio::select! {
+                accepted = listener.accept() => accepted?,
+                _ = finished.wait_for(|done| *done) => return Ok(()),
+            };
+            let refusing = self
+                .shared
+                .faults
+                .refuse_for
+                .is_some_and(|t| self.shared.boot.elapsed() < t);
+            {
+                let mut state = lock(&self.shared.state);
+                state.stats.connections += 1;
+                if refusing {
+                    state.stats.refused += 1;
+                }
+            }
+            if refusing {
+                tracing::debug!(%peer, "refusing connection (fault injection)");
+                drop(socket);
+                continue;
+            }
+            let _ = socket.set_nodelay(true);
+            let emulator = self.clone();
+            tokio::spawn(async move {
+                if let Err(err) = emulator.serve_stream(socket).await {
+                    tracing::debug!(%peer, %err, "emulator connection ended");
+                }
+            });
+        }
+    }
+
+    /// Serves one client over any byte stream (a TCP socket, a pty bridge).
+    pub async fn serve_stream<S: AsyncRead + AsyncWrite + Unpin>(
+        &self,
+        stream: S,
+    ) -> Result<(), EmulatorError> {
+        let (mut rd, mut wr) = tokio::io::split(stream);
+        let mut unit = self.shared.unit.clone();
+        let result = self.connection(&mut unit, &mut rd, &mut wr).await;
+        let _ = wr.shutdown().await;
+        result
+    }
+
+    /// Serves one client over a serial port (a pty in tests).
+    pub async fn serve_serial(
+        &self,
+        port: Box<dyn serialport::SerialPort>,
+    ) -> Result<(), EmulatorError> {
+        let stream = crate::sensor::transport::bridge(port)?;
+        self.serve_stream(stream).await
+    }
+
+    async fn connection<R: AsyncRead + Unpin, W: AsyncWrite + Unpin>(
+        &self,
+        unit: &mut Unit,
+        rd: &mut R,
+        wr: &mut W,
+    ) -> Result<(), EmulatorError> {
+        let shared = &self.shared;
+        let mut pending: Vec<u8> = Vec::new();
+        let mut chunk = [0u8; 1024];
+        let mut streams_seen = unit.streams_started();
+        let mut next_k: u64 = 0;
+        loop {
+            let streaming = unit.is_streaming();
+            let play_start = *lock(&shared.play_start);
+            let due = match (streaming, play_start) {
+                (true, Some(start)) => match shared.playback.due_ms(next_k) {
+                    Some(ms) => Some(start + Duration::from_secs_f64(ms / 1000.0)),
+                    None => {
+                        // A non-looping recording has been played to its end.
+                        let _ = shared.finished.send(true);
+                        return Ok(());
+                    }
+                },
+                _ => None,
+            };
+            let sleep = tokio::time::sleep_until(
+                due.unwrap_or_else(|| Instant::now() + Duration::from_secs(3600)),
+            );
+            tokio::select! {
+                n = rd.read(&mut chunk) => {
+                    let n = n?;
+                    if n == 0 {
+                        return Ok(());
+                    }
+                    pending.extend_from_slice(chunk.get(..n).unwrap_or_default());
+                    while let Some(end) = pending.iter().position(|&b| b == b'\n' || b == b'\r') {
+                        let line: Vec<u8> = pending.drain(..=end).take(end).collect();
+                        if line.is_empty() {
+                            continue; // the other half of a CR LF
+                        }
+                        let reply = self.answer(unit, &line);
+                        wr.write_all(&reply).await?;
+                        let started = unit.streams_started();
+                        if started != streams_seen {
+                            streams_seen = started;
+                            next_k = self.first_due_after_now();
+                        }
+                    }
+                }
+                _ = sleep, if due.is_some() => {
+                    if !self.emit(unit, wr, &mut next_k).await? {
+                        return Ok(());
+                    }
+                }
+            }
+        }
+    }
+
+    fn answer(&self, unit: &mut Unit, line: &[u8]) -> Vec<u8> {
+        let shared = &self.shared;
+        let now_ms = self.now_ms();
+        let current = self
+            .current_k()
+            .and_then(|k| shared.playback.index(k))
+            .and_then(|i| shared.sources.get(i));
+        unit.handle(line, now_ms, current.or(shared.sources.first()))
+    }
+
+    fn current_k(&self) -> Option<u64> {
+        let start = (*lock(&self.shared.play_start))?;
+        self.shared
+            .playback
+            .current(start.elapsed().as_secs_f64() * 1000.0)
+    }
+
+    /// Sequence number a new stream starts with: the first scan if playback has not started,
+    /// else the next one to fall due.
+    fn first_due_after_now(&self) -> u64 {
+        let mut start = lock(&self.shared.play_start);
+        match *start {
+            None => {
+                *start = Some(Instant::now());
+                0
+            }
+            Some(s) => {
+                let elapsed = s.elapsed().as_secs_f64() * 1000.0;
+                self.shared.playback.current(elapsed).map_or(0, |k| k + 1)
+            }
+        }
+    }
+
+    /// Sends the block for `next_k` (or the latest scan if this connection fell behind).
+    /// Returns `false` when a fault closes the connection.
+    async fn emit<W: AsyncWrite + Unpin>(
+        &self,
+        unit: &mut Unit,
+        wr: &mut W,
+        next_k: &mut u64,
+    ) -> Result<bool, EmulatorError> {
+        let shared = &self.shared;
+        // A sensor does not queue scans for a slow link: skip to the newest due scan.
+        let k = self.current_k().map_or(*next_k, |c| c.max(*next_k));
+        *next_k = k + 1;
+        let Some(source) = shared.playback.index(k).and_then(|i| shared.sources.get(i)) else {
+            return Ok(true);
+        };
+        let now_ms = self.now_ms();
+        let Some(mut block) = unit.stream_block(source, now_ms) else {
+            return Ok(true);
+        };
+        let faults = &shared.faults;
+        let (garbage, drop_now, stall) = {
+            let mut state = lock(&shared.state);
+            state.stats.scans_sent += 1;
+            let n = state.stats.scans_sent;
+            let every = |e: Option<u64>| e.is_some_and(|e| e > 0 && n.is_multiple_of(e));
+            if every(faults.corrupt_every) && corrupt(&mut block) {
+                state.stats.corrupted += 1;
+            }
+            let garbage = every(faults.garbage_every);
+            if garbage {
+                state.stats.garbage_bursts += 1;
+            }
+            let drop_now = !state.drop_done && faults.drop_after_scans.is_some_and(|d| n >= d);
+            if drop_now {
+                state.drop_done = true;
+                state.stats.dropped += 1;
+            }
+            let stall = match faults.stall {
+                Some((after, duration)) if !state.stall_done && n >= after => {
+                    state.stall_done = true;
+                    state.stats.stalls += 1;
+                    Some(duration)
+                }
+                _ => None,
+            };
+            (garbage, drop_now, stall)
+        };
+        if garbage {
+            wr.write_all(GARBAGE).await?;
+        }
+        wr.write_all(&block).await?;
+        wr.flush().await?;
+        if drop_now {
+            return Ok(false);
+        }
+        if let Some(duration) = stall {
+            tokio::time::sleep(duration).await;
+        }
+        Ok(true)
+    }
+}
+
+/// Breaks the checksum of the first data line of a scan block; `false` if it has none.
+fn corrupt(block: &mut [u8]) -> bool {
+    // Lines: echo, status, timestamp, data…; the first data line ends at the 4th LF.
+    let Some(end) = block
+        .iter()
+        .enumerate()
+        .filter(|(_, b)| **b == b'\n')
+        .nth(3)
+        .map(|(i, _)| i)
+    else {
+        return false;
+    };
+    match end.checked_sub(1).and_then(|i| block.get_mut(i)) {
+        Some(sum) if *sum != b'\n' => {
+            // Stay inside the checksum alphabet so only the value is wrong.
+            *sum = if *sum == 0x6F { 0x30 } else { *sum + 1 };
+            true
+        }
+        _ => false,
+    }
+}

@@ -1,0 +1,111 @@
+//! A framed reply split into echo, status and data lines, and the encoder the emulator uses to
+//! write replies.
+
+use thiserror::Error;
+
+use super::checksum::checksum;
+use super::framer::Frame;
+use super::status::Status;
+
+/// A reply whose structure is wrong.
+#[derive(Debug, Clone, PartialEq, Eq, Error)]
+#[non_exhaustive]
+pub enum ReplyError {
+    #[error("reply has no status line")]
+    NoStatus,
+    #[error("status line {0:?} is not two characters and a valid checksum")]
+    BadStatus(String),
+}
+
+/// A reply borrowed from its frame.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Reply<'a> {
+    /// The echoed command line.
+    pub echo: &'a [u8],
+    pub status: Status,
+    /// Lines after the status, each still ending in its checksum.
+    pub lines: Vec<&'a [u8]>,
+}
+
+impl<'a> Reply<'a> {
+    pub fn parse(frame: &'a Frame) -> Result<Reply<'a>, ReplyError> {
+        let mut lines = frame.lines();
+        let echo = lines.next().unwrap_or_default();
+        let status_line = lines.next().ok_or(ReplyError::NoStatus)?;
+        let status = match status_line {
+            [a, b, sum] if checksum(&[*a, *b]) == *sum => Status([*a, *b]),
+            other => {
+                return Err(ReplyError::BadStatus(
+                    String::from_utf8_lossy(other).into_owned(),
+                ));
+            }
+        };
+        Ok(Reply {
+            echo,
+            status,
+            lines: lines.collect(),
+        })
+    }
+
+    /// The two command letters of the echo (`%S` for `%ST`).
+    pub fn symbol(&self) -> [u8; 2] {
+        match self.echo {
+            [a, b, ..] => [*a, *b],
+            _ => *b"??",
+        }
+    }
+}
+
+/// Appends `line + checksum + LF`.
+pub fn push_line(out: &mut Vec<u8>, payload: &[u8]) {
+    out.extend_from_slice(payload);
+    out.push(checksum(payload));
+    out.push(b'\n');
+}
+
+/// Echo and status, no data: `echo LF status sum LF LF`.
+pub fn encode_status(echo: &[u8], status: [u8; 2]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(echo.len() + 6);
+    out.extend_from_slice(echo);
+    out.push(b'\n');
+    push_line(&mut out, &status);
+    out.push(b'\n');
+    out
+}
+
+/// A `KEY:VALUE;sum` line, the sum covering `KEY:VALUE`.
+pub fn push_field(out: &mut Vec<u8>, key: &str, value: &str) {
+    let start = out.len();
+    out.extend_from_slice(key.as_bytes());
+    out.push(b':');
+    out.extend_from_slice(value.as_bytes());
+    let sum = checksum(out.get(start..).unwrap_or_default());
+    out.push(b';');
+    out.push(sum);
+    out.push(b'\n');
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn status_and_field_lines_match_real_units() {
+        assert_eq!(encode_status(b"CR00", *b"04"), b"CR00\n04T\n\n");
+        let mut out = Vec::new();
+        push_field(&mut out, "DMIN", "100");
+        assert_eq!(out, b"DMIN:100;c\n");
+        let frame = Frame {
+            bytes: b"BM\n02R\n\n".to_vec(),
+        };
+        let reply = Reply::parse(&frame).unwrap();
+        assert_eq!(
+            (reply.echo, reply.status, reply.lines.len()),
+            (&b"BM"[..], Status(*b"02"), 0)
+        );
+        let bad = Frame {
+            bytes: b"BM\n02S\n\n".to_vec(),
+        };
+        assert!(matches!(Reply::parse(&bad), Err(ReplyError::BadStatus(_))));
+    }
+}

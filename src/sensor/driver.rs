@@ -1,0 +1,558 @@
+//! The driver state machine: connect → handshake (QT RS VV PP II) → TM sync → stream →
+//! (silence or error) → back off → reconnect. It never gives up on a sensor and never panics
+//! on what the sensor sends; every failure is counted and the last one kept as text.
+//!
+//! Known UTM-30LX-EW habits it tolerates: TM0 fails while the unit boots (retried), QT also
+//! ends time-adjust mode (used as the fallback when TM2 fails), II says `Measuring` after QT
+//! (II is read for the record, never trusted for state).
+
+use std::future::Future;
+use std::pin::Pin;
+use std::sync::Arc;
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use thiserror::Error;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::sync::{mpsc, watch};
+use tokio::time::Instant;
+
+use super::clock::{ClockModel, TimeSample, Unwrapper, sync};
+use super::counters::Counters;
+use super::transport::{Link, TransportError, connect};
+use crate::scan::{Scan, ScanGeometry, SensorInfo};
+use crate::scip::command::{Command, DataKind, Request, ScanRequest, TimeControl};
+use crate::scip::info::{Parameters, StateInfo, VersionInfo, parse_tm1};
+use crate::scip::scan::{Echo, ScanError, ScipScan};
+use crate::scip::status::StatusError;
+use crate::scip::{Frame, Framer, Reply};
+
+/// Shortest no-data watchdog, whatever the scan rate.
+const MIN_WATCHDOG: Duration = Duration::from_millis(50);
+
+/// Which stream to run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ScanMode {
+    /// Ranges.
+    Md,
+    /// Ranges and intensities.
+    Me,
+    /// Multi-echo ranges.
+    Nd,
+    /// Multi-echo ranges and intensities.
+    Ne,
+}
+
+impl ScanMode {
+    pub fn kind(self) -> DataKind {
+        match self {
+            ScanMode::Md => DataKind::Range,
+            ScanMode::Me => DataKind::RangeIntensity,
+            ScanMode::Nd => DataKind::MultiRange,
+            ScanMode::Ne => DataKind::MultiRangeIntensity,
+        }
+    }
+
+    pub fn parse(text: &str) -> Option<ScanMode> {
+        match text.to_ascii_uppercase().as_str() {
+            "MD" => Some(ScanMode::Md),
+            "ME" => Some(ScanMode::Me),
+            "ND" => Some(ScanMode::Nd),
+            "NE" => Some(ScanMode::Ne),
+            _ => None,
+        }
+    }
+}
+
+/// How long to wait for what. Named here, not scattered through the code.
+#[derive(Debug, Clone)]
+pub struct DriverConfig {
+    pub id: String,
+    /// `tcp://host:port` or `serial:///dev/…`.
+    pub connect: String,
+    pub mode: ScanMode,
+    pub connect_timeout: Duration,
+    /// For the answer to one command.
+    pub reply_timeout: Duration,
+    /// Silence, in scan periods, after which the link is declared dead.
+    pub watchdog_periods: f64,
+    pub backoff_initial: Duration,
+    pub backoff_max: Duration,
+    /// TM1 exchanges per sync.
+    pub sync_samples: usize,
+    /// TM0 attempts while the unit boots.
+    pub tm0_attempts: u32,
+    /// Also send every chunk of bytes read, for `/<id>/scip`.
+    pub raw: bool,
+}
+
+impl DriverConfig {
+    pub fn new(id: impl Into<String>, connect: impl Into<String>) -> Self {
+        DriverConfig {
+            id: id.into(),
+            connect: connect.into(),
+            mode: ScanMode::Me,
+            connect_timeout: Duration::from_secs(3),
+            reply_timeout: Duration::from_secs(2),
+            watchdog_periods: 3.0,
+            backoff_initial: Duration::from_millis(100),
+            backoff_max: Duration::from_secs(10),
+            sync_samples: 10,
+            tm0_attempts: 5,
+            raw: false,
+        }
+    }
+}
+
+/// A scan plus what `scan::Scan` does not carry.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SensorScan {
+    /// `stamp_ns` is the host receive time, `sensor_stamp_ms` the unwrapped sensor clock.
+    pub scan: Scan,
+    /// When the sensor measured it, on the host clock (TM1 sync plus drift), ns since the epoch.
+    pub measured_ns: Option<u64>,
+    /// Second and third echoes (ND/NE only), ranges in mm as sent.
+    pub extra_echoes: Vec<Echo>,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub enum DriverEvent {
+    /// Handshake done: the sensor's identity and every VV/PP/II field.
+    Connected(SensorInfo),
+    Scan(SensorScan),
+    /// Bytes as read from the link (only with `raw`).
+    Raw {
+        stamp_ns: u64,
+        bytes: Vec<u8>,
+    },
+    Disconnected {
+        reason: String,
+    },
+}
+
+#[derive(Debug, Error)]
+#[non_exhaustive]
+pub enum DriverError {
+    #[error(transparent)]
+    Transport(#[from] TransportError),
+    #[error("link: {0}")]
+    Io(#[from] std::io::Error),
+    #[error("sensor closed the connection")]
+    Closed,
+    #[error("no answer to {0} within {1:?}")]
+    NoReply(String, Duration),
+    #[error("no scan for {0:?} (watchdog)")]
+    NoData(Duration),
+    #[error(transparent)]
+    Status(#[from] StatusError),
+    #[error("{what}: {why}")]
+    BadReply { what: &'static str, why: String },
+    #[error("the sensor's clock could not be read (no valid TM1 answer)")]
+    NoTimeSync,
+    #[error("shutting down")]
+    Shutdown,
+}
+
+/// Host time as ns since the epoch, advancing with tokio's clock (so paused tests control it).
+#[derive(Debug, Clone, Copy)]
+struct HostClock {
+    epoch_ns: u64,
+    base: Instant,
+}
+
+impl HostClock {
+    fn new() -> Self {
+        let epoch_ns = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos() as u64);
+        HostClock {
+            epoch_ns,
+            base: Instant::now(),
+        }
+    }
+    fn now_ns(&self) -> u64 {
+        self.epoch_ns + self.base.elapsed().as_nanos() as u64
+    }
+}
+
+/// One sensor's driver.
+pub struct Driver {
+    config: DriverConfig,
+    counters: Arc<Counters>,
+    host: HostClock,
+    connector: Option<Connector>,
+}
+
+/// Opens a link; replaces [`connect`] for in-process tests.
+pub type Connector = Arc<
+    dyn Fn() -> Pin<Box<dyn Future<Output = Result<Link, TransportError>> + Send>> + Send + Sync,
+>;
+
+impl Driver {
+    pub fn new(config: DriverConfig) -> Self {
+        Driver {
+            config,
+            counters: Arc::new(Counters::default()),
+            host: HostClock::new(),
+            connector: None,
+        }
+    }
+
+    /// A driver that opens its links with `connector` instead of `config.connect`.
+    pub fn with_connector(config: DriverConfig, connector: Connector) -> Self {
+        Driver {
+            connector: Some(connector),
+            ..Driver::new(config)
+        }
+    }
+
+    pub fn counters(&self) -> Arc<Counters> {
+        self.counters.clone()
+    }
+
+    /// Runs until `shutdown` turns true or `events` is closed.
+    pub async fn run(self, events: mpsc::Sender<DriverEvent>, mut shutdown: watch::Receiver<bool>) {
+        let mut backoff = self.config.backoff_initial;
+        let mut first = true;
+        loop {
+            if *shutdown.borrow() || events.is_closed() {
+                return;
+            }
+            if !first {
+                Counters::add(&self.counters.reconnects, 1);
+            }
+            first = false;
+            let mut session = Session::new(&self, &events);
+            let result = tokio::select! {
+                r = session.run() => r,
+                _ = shutdown.wait_for(|s| *s) => Err(DriverError::Shutdown),
+            };
+            let delivered = session.delivered > 0;
+            let error = match result {
+                Err(DriverError::Shutdown) => return,
+                Err(e) => e,
+                Ok(()) => DriverError::Closed,
+            };
+            tracing::warn!(sensor = %self.config.id, error = %error, "sensor link lost; reconnecting");
+            self.counters.set_last_error(error.to_string());
+            let _ = events.try_send(DriverEvent::Disconnected {
+                reason: error.to_string(),
+            });
+            if delivered {
+                backoff = self.config.backoff_initial;
+            }
+            tokio::select! {
+                _ = tokio::time::sleep(backoff) => {}
+                _ = shutdown.wait_for(|s| *s) => return,
+            }
+            backoff = (backoff * 2).min(self.config.backoff_max);
+        }
+    }
+}
+
+/// One connection's worth of state.
+struct Session<'a> {
+    driver: &'a Driver,
+    events: &'a mpsc::Sender<DriverEvent>,
+    link: Option<Link>,
+    framer: Framer,
+    skipped_seen: u64,
+    scratch: Vec<u8>,
+    read_buf: Vec<u8>,
+    delivered: u64,
+    tm1_tag: u32,
+}
+
+impl<'a> Session<'a> {
+    fn new(driver: &'a Driver, events: &'a mpsc::Sender<DriverEvent>) -> Self {
+        Session {
+            driver,
+            events,
+            link: None,
+            framer: Framer::new(),
+            skipped_seen: 0,
+            scratch: Vec::new(),
+            read_buf: vec![0; 16 * 1024],
+            delivered: 0,
+            tm1_tag: 0,
+        }
+    }
+
+    async fn run(&mut self) -> Result<(), DriverError> {
+        let config = &self.driver.config;
+        self.link = Some(match &self.driver.connector {
+            Some(connector) => connector().await?,
+            None => connect(&config.connect, config.connect_timeout).await?,
+        });
+        let (info, geometry) = self.handshake().await?;
+        let clock = self.time_sync().await?;
+        Counters::add(&self.driver.counters.connects, 1);
+        tracing::info!(sensor = %config.id, model = %info.model, "sensor connected");
+        let _ = self.events.send(DriverEvent::Connected(info)).await;
+        self.stream(geometry, clock).await
+    }
+
+    fn counters(&self) -> &Counters {
+        &self.driver.counters
+    }
+
+    async fn send(&mut self, request: &Request) -> Result<(), DriverError> {
+        let link = self.link.as_mut().ok_or(DriverError::Closed)?;
+        link.write_all(&request.encode()).await?;
+        Ok(())
+    }
+
+    /// The next frame, reading until `deadline`.
+    async fn frame(&mut self, deadline: Instant) -> Result<Option<Frame>, DriverError> {
+        loop {
+            if let Some(frame) = self.framer.next_frame() {
+                self.note_skipped();
+                return Ok(Some(frame));
+            }
+            let link = self.link.as_mut().ok_or(DriverError::Closed)?;
+            let n = match tokio::time::timeout_at(deadline, link.read(&mut self.read_buf)).await {
+                Err(_) => return Ok(None),
+                Ok(n) => n?,
+            };
+            if n == 0 {
+                self.note_skipped();
+                return Err(DriverError::Closed);
+            }
+            let bytes = self.read_buf.get(..n).unwrap_or_default();
+            if self.driver.config.raw {
+                // Raw bytes are for recordings, which must be complete: wait for the consumer.
+                let event = DriverEvent::Raw {
+                    stamp_ns: self.driver.host.now_ns(),
+                    bytes: bytes.to_vec(),
+                };
+                self.events
+                    .send(event)
+                    .await
+                    .map_err(|_| DriverError::Shutdown)?;
+            }
+            self.framer.push(bytes);
+            self.note_skipped();
+        }
+    }
+
+    fn note_skipped(&mut self) {
+        let skipped = self.framer.stats().skipped_bytes;
+        Counters::add(
+            &self.driver.counters.skipped_bytes,
+            skipped - self.skipped_seen,
+        );
+        self.skipped_seen = skipped;
+    }
+
+    /// Sends `request` and waits for the reply echoing it; other replies (scans still in
+    /// flight, answers to earlier commands) are passed over.
+    async fn command(&mut self, request: &Request) -> Result<Frame, DriverError> {
+        self.send(request).await?;
+        let line = request.line();
+        let timeout = self.driver.config.reply_timeout;
+        let deadline = Instant::now() + timeout;
+        loop {
+            match self.frame(deadline).await? {
+                Some(frame) if frame.echo() == line.as_slice() => return Ok(frame),
+                Some(_) => continue,
+                None => {
+                    return Err(DriverError::NoReply(
+                        String::from_utf8_lossy(&line).into_owned(),
+                        timeout,
+                    ));
+                }
+            }
+        }
+    }
+
+    /// Sends `request`, returns its parsed reply after checking the status.
+    async fn checked(&mut self, command: Command) -> Result<Frame, DriverError> {
+        let request = Request::new(command);
+        let frame = self.command(&request).await?;
+        let reply = parse_reply(&frame, "reply")?;
+        reply.status.check(reply.symbol())?;
+        Ok(frame)
+    }
+
+    async fn handshake(&mut self) -> Result<(SensorInfo, ScanGeometry), DriverError> {
+        // QT stops a stream left running by an earlier client; RS puts settings back.
+        self.checked(Command::Quit).await?;
+        self.checked(Command::Reset).await?;
+        let vv = self.checked(Command::Version).await?;
+        let version =
+            VersionInfo::parse(&parse_reply(&vv, "VV")?).map_err(|e| bad_info("VV", e))?;
+        let pp = self.checked(Command::Parameters).await?;
+        let params = Parameters::parse(&parse_reply(&pp, "PP")?).map_err(|e| bad_info("PP", e))?;
+        let ii = self.checked(Command::Info).await?;
+        // II is informative only: firmwares report "Measuring" after QT.
+        let state = StateInfo::parse(&parse_reply(&ii, "II")?).ok();
+        let config = &self.driver.config;
+        let mut info = SensorInfo::new(config.id.clone(), params.model.clone());
+        info.connect = config.connect.clone();
+        info.geometry = Some(params.geometry);
+        info.fields.extend(version.fields);
+        if let Some(state) = state {
+            info.fields.extend(state.fields);
+        }
+        info.fields.extend(params.fields);
+        Ok((info, params.geometry))
+    }
+
+    /// TM0, TM1 × n, TM2 → clock offset.
+    async fn time_sync(&mut self) -> Result<ClockModel, DriverError> {
+        let attempts = self.driver.config.tm0_attempts.max(1);
+        let mut entered = false;
+        for attempt in 1..=attempts {
+            match self.checked(Command::Time(TimeControl::Enter)).await {
+                Ok(_) => {
+                    entered = true;
+                    break;
+                }
+                // Already in time-adjust mode: fine.
+                Err(DriverError::Status(e)) if &e.code == b"02" => {
+                    entered = true;
+                    break;
+                }
+                Err(DriverError::Status(e)) => {
+                    tracing::debug!(sensor = %self.driver.config.id, attempt, code = %String::from_utf8_lossy(&e.code), "TM0 refused; the unit may still be booting");
+                    self.counters().set_last_error(e.to_string());
+                    tokio::time::sleep(Duration::from_millis(100 * attempt as u64)).await;
+                }
+                Err(e) => return Err(e),
+            }
+        }
+        if !entered {
+            return Err(DriverError::NoTimeSync);
+        }
+        let mut samples = Vec::with_capacity(self.driver.config.sync_samples);
+        for _ in 0..self.driver.config.sync_samples.max(1) {
+            self.tm1_tag = self.tm1_tag.wrapping_add(1);
+            // A tag per TM1 so a late answer to an earlier one cannot be taken for this one.
+            let request = Request::tagged(
+                Command::Time(TimeControl::Read),
+                format!("s{}", self.tm1_tag),
+            );
+            let sent_ns = self.driver.host.now_ns();
+            let frame = self.command(&request).await?;
+            let received_ns = self.driver.host.now_ns();
+            if let Some(sensor_ms) = Reply::parse(&frame)
+                .ok()
+                .filter(|r| r.status.is_success())
+                .and_then(|r| parse_tm1(&r))
+            {
+                samples.push(TimeSample {
+                    sent_ns,
+                    received_ns,
+                    sensor_ms,
+                });
+            }
+        }
+        if self
+            .checked(Command::Time(TimeControl::Leave))
+            .await
+            .is_err()
+        {
+            // QT also ends time-adjust mode on the UTM-30LX-EW.
+            self.checked(Command::Quit).await?;
+        }
+        let result = sync(&samples).ok_or(DriverError::NoTimeSync)?;
+        Counters::add(&self.driver.counters.time_syncs, 1);
+        let reference_ms = samples.last().map_or(0, |s| s.sensor_ms as u64);
+        Ok(ClockModel::new(result, reference_ms))
+    }
+
+    async fn stream(
+        &mut self,
+        geometry: ScanGeometry,
+        mut clock: ClockModel,
+    ) -> Result<(), DriverError> {
+        let config = &self.driver.config;
+        let request = ScanRequest {
+            kind: config.mode.kind(),
+            continuous: true,
+            start_step: geometry.amin as u16,
+            end_step: geometry.amax as u16,
+            cluster: 1,
+            interval: 0,
+            scans: 0,
+        };
+        let symbol = request.kind.symbol(true);
+        self.checked(Command::Scan(request)).await?;
+        let watchdog = Duration::try_from_secs_f64(geometry.period_s() * config.watchdog_periods)
+            .unwrap_or(Duration::ZERO)
+            .max(MIN_WATCHDOG);
+        let mut unwrapper = Unwrapper::default();
+        let mut last_stamp_ns = 0u64;
+        loop {
+            let deadline = Instant::now() + watchdog;
+            let frame = match self.frame(deadline).await? {
+                Some(frame) => frame,
+                None => {
+                    Counters::add(&self.counters().watchdog_timeouts, 1);
+                    return Err(DriverError::NoData(watchdog));
+                }
+            };
+            let received_ns = self.driver.host.now_ns().max(last_stamp_ns + 1);
+            if !frame.echo().starts_with(&symbol) {
+                continue;
+            }
+            let reply = match Reply::parse(&frame) {
+                Ok(reply) => reply,
+                Err(_) => {
+                    Counters::add(&self.counters().decode_errors, 1);
+                    continue;
+                }
+            };
+            let scan = match ScipScan::decode(&reply, &mut self.scratch) {
+                Ok(scan) => scan,
+                Err(ScanError::Acknowledgement) => continue,
+                Err(ScanError::Checksum { line }) => {
+                    Counters::add(&self.counters().checksum_errors, 1);
+                    tracing::debug!(sensor = %config.id, line, "scan dropped: bad checksum");
+                    continue;
+                }
+                Err(ScanError::Status(e)) => {
+                    Counters::add(&self.counters().status_errors, 1);
+                    self.counters().set_last_error(e.to_string());
+                    continue;
+                }
+                Err(e) => {
+                    Counters::add(&self.counters().decode_errors, 1);
+                    self.counters().set_last_error(format!("scan dropped: {e}"));
+                    continue;
+                }
+            };
+            let sensor_ms = unwrapper.unwrap(scan.timestamp_ms);
+            clock.observe(sensor_ms, received_ns);
+            let measured_ns = u64::try_from(clock.host_ns(sensor_ms)).ok();
+            last_stamp_ns = received_ns;
+            let out = SensorScan {
+                scan: scan.to_scan(&geometry, received_ns, Some(sensor_ms)),
+                measured_ns,
+                extra_echoes: scan.extra_echoes,
+            };
+            Counters::add(&self.counters().scans, 1);
+            self.delivered += 1;
+            if let Err(mpsc::error::TrySendError::Full(_)) =
+                self.events.try_send(DriverEvent::Scan(out))
+            {
+                Counters::add(&self.counters().dropped_scans, 1);
+            } else if self.events.is_closed() {
+                return Err(DriverError::Shutdown);
+            }
+        }
+    }
+}
+
+fn parse_reply<'f>(frame: &'f Frame, what: &'static str) -> Result<Reply<'f>, DriverError> {
+    Reply::parse(frame).map_err(|e| DriverError::BadReply {
+        what,
+        why: e.to_string(),
+    })
+}
+
+fn bad_info(what: &'static str, e: crate::scip::InfoError) -> DriverError {
+    DriverError::BadReply {
+        what,
+        why: e.to_string(),
+    }
+}

@@ -1,0 +1,119 @@
+//! `poses.toml` on disk, and the atomic write every state file goes through.
+
+use std::io::Write;
+use std::path::Path;
+use std::time::{Duration, UNIX_EPOCH};
+
+use scanfuse::daemon::protocol::{PoseSource, SensorPose};
+use scanfuse::daemon::state::{
+    POSES_FILE, PosesFile, SavedPose, StateError, write_atomic, write_atomic_with,
+};
+
+fn poses(yaw_deg: f64) -> PosesFile {
+    let mut a = SensorPose::unregistered("a", "");
+    a.registered = true;
+    a.reason = None;
+    a.x_m = Some(0.0);
+    a.y_m = Some(0.0);
+    a.yaw_deg = Some(0.0);
+    let mut b = a.clone();
+    b.id = "b".into();
+    b.x_m = Some(2.5);
+    b.y_m = Some(-0.75);
+    b.yaw_deg = Some(yaw_deg);
+    b.sigma_x_m = Some(0.01);
+    let t = UNIX_EPOCH + Duration::from_secs(1_800_000_000);
+    PosesFile {
+        anchor: "a".into(),
+        sensors: vec![
+            SavedPose::from_pose(&a, PoseSource::Registered, t),
+            SavedPose::from_pose(&b, PoseSource::Surveyed, t),
+        ],
+    }
+}
+
+/// Files in `dir` other than `keep`: temp files must not be left behind.
+fn others(dir: &Path, keep: &str) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n != keep)
+        .collect()
+}
+
+#[test]
+fn poses_round_trip_through_the_state_dir() {
+    let dir = tempfile::tempdir().unwrap();
+    assert!(PosesFile::load(dir.path()).unwrap().is_none());
+    let written = poses(45.0);
+    let path = written.save(dir.path()).unwrap();
+    assert_eq!(path, dir.path().join(POSES_FILE));
+    assert_eq!(PosesFile::load(dir.path()).unwrap(), Some(written));
+    let text = std::fs::read_to_string(&path).unwrap();
+    assert!(
+        text.contains("updated = \"2027-01-15T08:00:00Z\""),
+        "{text}"
+    );
+    assert!(others(dir.path(), POSES_FILE).is_empty());
+    // Saving again replaces it.
+    poses(46.0).save(dir.path()).unwrap();
+    assert_eq!(
+        PosesFile::load(dir.path()).unwrap().unwrap().sensors[1].yaw_deg,
+        Some(46.0)
+    );
+}
+
+#[test]
+fn an_interrupted_write_leaves_the_old_file_intact() {
+    let dir = tempfile::tempdir().unwrap();
+    let old = poses(45.0);
+    let path = old.save(dir.path()).unwrap();
+    let new_text = poses(90.0).to_toml().unwrap();
+    // The write fails halfway, as a full disk would make it.
+    let result = write_atomic_with(&path, |file| {
+        file.write_all(&new_text.as_bytes()[..new_text.len() / 2])?;
+        Err(std::io::Error::other("no space left on device (simulated)"))
+    });
+    match result {
+        Err(e @ StateError::Write { .. }) => {
+            assert!(e.to_string().contains("no space left"), "{e}")
+        }
+        other => panic!("expected a write error, got {other:?}"),
+    }
+    assert_eq!(PosesFile::load(dir.path()).unwrap(), Some(old));
+    assert!(
+        others(dir.path(), POSES_FILE).is_empty(),
+        "the temp file is removed"
+    );
+}
+
+#[test]
+fn a_write_that_cannot_replace_the_target_changes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    // The target is a non-empty directory: the rename fails after the temp file was written.
+    let target = dir.path().join("map.pgm");
+    std::fs::create_dir(&target).unwrap();
+    std::fs::write(target.join("keep"), b"x").unwrap();
+    assert!(write_atomic(&target, b"P5 1 1 255\n\0").is_err());
+    assert!(target.join("keep").exists());
+    assert!(
+        others(dir.path(), "map.pgm").is_empty(),
+        "the temp file is removed"
+    );
+    // A missing folder is an error naming the path, not a panic.
+    let err = write_atomic(&dir.path().join("no/such/dir/poses.toml"), b"x").unwrap_err();
+    assert!(err.to_string().contains("no/such/dir/poses.toml"), "{err}");
+}
+
+#[test]
+fn write_atomic_writes_exactly_the_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("map.yaml");
+    write_atomic(&path, b"image: map.pgm\n").unwrap();
+    write_atomic(&path, b"image: map.pgm\nresolution: 0.05\n").unwrap();
+    assert_eq!(
+        std::fs::read(&path).unwrap(),
+        b"image: map.pgm\nresolution: 0.05\n"
+    );
+    assert!(others(dir.path(), "map.yaml").is_empty());
+}

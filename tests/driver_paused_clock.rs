@@ -1,0 +1,173 @@
+//! The driver's timing on tokio's paused clock, with the emulator in the same process over an
+//! in-memory link: backoff, watchdog and time sync are checked to the millisecond, in no time.
+
+mod driver_support;
+
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use driver_support::{mm, recording};
+use scanfuse::emulator::{Emulator, EmulatorConfig, Faults};
+use scanfuse::sensor::{
+    Connector, Driver, DriverConfig, DriverEvent, Link, ScanMode, TransportError,
+};
+use tokio::sync::{mpsc, watch};
+use tokio::time::Instant;
+
+/// Connects to `emulator` in memory, refusing the first `refuse` attempts; logs every attempt.
+fn connector(emulator: Emulator, refuse: usize, attempts: Arc<Mutex<Vec<Instant>>>) -> Connector {
+    Arc::new(move || {
+        let emulator = emulator.clone();
+        let attempts = attempts.clone();
+        Box::pin(async move {
+            let n = {
+                let mut a = attempts.lock().unwrap();
+                a.push(Instant::now());
+                a.len()
+            };
+            if n <= refuse {
+                return Err(TransportError::Io {
+                    uri: "memory://emulator".into(),
+                    source: std::io::ErrorKind::ConnectionRefused.into(),
+                });
+            }
+            let (ours, theirs) = tokio::io::duplex(256 * 1024);
+            tokio::spawn(async move { emulator.serve_stream(theirs).await });
+            Ok(Link::Memory(ours))
+        })
+    })
+}
+
+fn config() -> DriverConfig {
+    let mut config = DriverConfig::new("hall", "memory://emulator");
+    config.mode = ScanMode::Me;
+    config.backoff_initial = Duration::from_millis(100);
+    config.backoff_max = Duration::from_millis(800);
+    config
+}
+
+#[tokio::test(start_paused = true)]
+async fn backoff_doubles_up_to_its_cap() {
+    let (info, scans) = recording(20);
+    let emulator = Emulator::new(
+        &info,
+        &scans,
+        EmulatorConfig {
+            looping: true,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let attempts = Arc::new(Mutex::new(Vec::new()));
+    let driver = Driver::with_connector(config(), connector(emulator, 6, attempts.clone()));
+    let counters = driver.counters();
+    let (tx, mut rx) = mpsc::channel(1024);
+    let (stop, stop_rx) = watch::channel(false);
+    let task = tokio::spawn(driver.run(tx, stop_rx));
+    while !matches!(rx.recv().await, Some(DriverEvent::Scan(_))) {}
+    let attempts = attempts.lock().unwrap().clone();
+    let gaps_ms: Vec<u128> = attempts
+        .windows(2)
+        .map(|w| (w[1] - w[0]).as_millis())
+        .collect();
+    assert_eq!(gaps_ms, vec![100, 200, 400, 800, 800, 800]);
+    let c = counters.snapshot();
+    assert_eq!((c.reconnects, c.connects), (6, 1));
+    assert!(c.last_error.unwrap().contains("memory://emulator"));
+    stop.send(true).unwrap();
+    task.await.unwrap();
+}
+
+#[tokio::test(start_paused = true)]
+async fn watchdog_fires_three_periods_after_the_last_scan_and_sync_is_exact() {
+    let (info, scans) = recording(40);
+    let faults = Faults {
+        stall: Some((5, Duration::from_secs(5))),
+        ..Faults::default()
+    };
+    let emulator = Emulator::new(
+        &info,
+        &scans,
+        EmulatorConfig {
+            looping: true,
+            faults,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let driver = Driver::with_connector(config(), connector(emulator, 0, Arc::default()));
+    let counters = driver.counters();
+    let (tx, mut rx) = mpsc::channel(1024);
+    let (stop, stop_rx) = watch::channel(false);
+    let task = tokio::spawn(driver.run(tx, stop_rx));
+    let mut last_scan_at = None;
+    let mut got = Vec::new();
+    let silence = loop {
+        match rx.recv().await.unwrap() {
+            DriverEvent::Scan(scan) => {
+                last_scan_at = Some(Instant::now());
+                got.push(scan);
+            }
+            DriverEvent::Disconnected { reason } => {
+                assert!(reason.contains("watchdog"), "{reason}");
+                break Instant::now() - last_scan_at.unwrap();
+            }
+            _ => {}
+        }
+    };
+    // UTM-30LX-EW: 25 ms per scan, watchdog 3 periods.
+    assert_eq!(silence, Duration::from_millis(75));
+    assert_eq!(got.len(), 5);
+    for (k, scan) in got.iter().enumerate() {
+        assert_eq!(mm(&scan.scan.ranges_m), mm(&scans[k].ranges_m));
+        // No transmission delay in memory: the synced sensor time is the arrival time, to the ms.
+        let error_ns = scan.measured_ns.unwrap() as i128 - scan.scan.stamp_ns as i128;
+        assert!(
+            error_ns.abs() < 1_000_000,
+            "scan {k}: sync off by {error_ns} ns"
+        );
+    }
+    // One block per recorded period on the sensor clock.
+    let stamps: Vec<u64> = got
+        .iter()
+        .map(|s| s.scan.sensor_stamp_ms.unwrap())
+        .collect();
+    assert!(stamps.windows(2).all(|w| w[1] - w[0] == 25), "{stamps:?}");
+    let c = counters.snapshot();
+    assert_eq!((c.watchdog_timeouts, c.scans), (1, 5));
+    stop.send(true).unwrap();
+    task.await.unwrap();
+}
+
+#[tokio::test(start_paused = true)]
+async fn tm0_refused_while_the_unit_boots_is_retried() {
+    let (info, scans) = recording(20);
+    let faults = Faults {
+        booting_for: Some(Duration::from_millis(250)),
+        ..Faults::default()
+    };
+    let emulator = Emulator::new(
+        &info,
+        &scans,
+        EmulatorConfig {
+            looping: true,
+            faults,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let driver = Driver::with_connector(config(), connector(emulator, 0, Arc::default()));
+    let counters = driver.counters();
+    let (tx, mut rx) = mpsc::channel(1024);
+    let (stop, stop_rx) = watch::channel(false);
+    let task = tokio::spawn(driver.run(tx, stop_rx));
+    let started = Instant::now();
+    while !matches!(rx.recv().await, Some(DriverEvent::Scan(_))) {}
+    // TM0 at 0 ms and 100 ms is refused; the third, at 300 ms, gets through on the same link.
+    assert_eq!(started.elapsed(), Duration::from_millis(300));
+    let c = counters.snapshot();
+    assert_eq!((c.connects, c.reconnects, c.time_syncs), (1, 0, 1));
+    assert!(c.last_error.unwrap().contains("0M"));
+    stop.send(true).unwrap();
+    task.await.unwrap();
+}

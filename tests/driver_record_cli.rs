@@ -1,0 +1,119 @@
+//! `scanfuse record` against `scanfuse emulate`, both as processes: the recording made from the
+//! emulated sensor holds the source recording's scans (ranges in mm, intensities) and its raw
+//! SCIP bytes.
+
+mod driver_support;
+
+use std::io::{BufRead, BufReader};
+use std::process::{Command, Stdio};
+
+use driver_support::{mm, recording};
+use scanfuse::record::{self, RecordingWriter};
+
+const BIN: &str = env!("CARGO_BIN_EXE_scanfuse");
+
+#[test]
+fn record_of_emulate_reproduces_the_source_scans() {
+    let dir = tempfile::tempdir().unwrap();
+    let source = dir.path().join("source.mcap");
+    let (info, scans) = recording(50);
+    let mut writer = RecordingWriter::create(&source).unwrap();
+    writer.add_sensor(&info).unwrap();
+    for scan in &scans {
+        writer.write_scan(&info.id, scan).unwrap();
+    }
+    writer.finish().unwrap();
+
+    let mut emulate = Command::new(BIN)
+        .args([
+            "emulate",
+            source.to_str().unwrap(),
+            "--sensor",
+            "hall",
+            "--listen",
+            "127.0.0.1:0",
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut addr = String::new();
+    BufReader::new(emulate.stdout.take().unwrap())
+        .read_line(&mut addr)
+        .unwrap();
+    let addr = addr.trim();
+    assert!(addr.starts_with("127.0.0.1:"), "emulate printed {addr:?}");
+
+    let out = dir.path().join("copy.mcap");
+    let status = Command::new(BIN)
+        .args([
+            "record",
+            "--connect",
+            &format!("tcp://{addr}"),
+            "--id",
+            "copy",
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .args(["--scans", "50", "--seconds", "30"])
+        .stderr(Stdio::null())
+        .status()
+        .unwrap();
+    let _ = emulate.kill();
+    let _ = emulate.wait();
+    assert!(status.success());
+
+    let copy = record::read(&out).unwrap();
+    let sensor = copy.sensor("copy").expect("sensor recorded");
+    assert_eq!(sensor.geometry, info.geometry);
+    assert_eq!(
+        sensor.fields.get("SERI").map(String::as_str),
+        Some("H1234567")
+    );
+    let got = copy.scans_of("copy");
+    assert_eq!(got.len(), scans.len());
+    for (k, (a, b)) in got.iter().zip(&scans).enumerate() {
+        assert_eq!(mm(&a.ranges_m), mm(&b.ranges_m), "scan {k}");
+        assert_eq!(a.intensities, b.intensities, "scan {k}");
+        assert!(a.sensor_stamp_ms.is_some() || a.stamp_ns > 0);
+    }
+    assert!(got.windows(2).all(|w| w[1].stamp_ns > w[0].stamp_ns));
+    assert!(
+        copy.scip_messages.get("copy").copied().unwrap_or(0) > 0,
+        "raw SCIP kept on /copy/scip"
+    );
+}
+
+#[test]
+fn emulate_and_record_refuse_bad_input_with_exit_code_2() {
+    let dir = tempfile::tempdir().unwrap();
+    let source = dir.path().join("source.mcap");
+    let (info, scans) = recording(2);
+    let mut writer = RecordingWriter::create(&source).unwrap();
+    writer.add_sensor(&info).unwrap();
+    writer.write_scan(&info.id, &scans[0]).unwrap();
+    writer.finish().unwrap();
+    let out = Command::new(BIN)
+        .args([
+            "emulate",
+            source.to_str().unwrap(),
+            "--sensor",
+            "nope",
+            "--listen",
+            "127.0.0.1:0",
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("hall"),
+        "names the sensors it has"
+    );
+    let out = Command::new(BIN)
+        .args(["record", "--connect", "udp://x", "--id", "a", "--out"])
+        .arg(dir.path().join("x.mcap"))
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("tcp://HOST:PORT"));
+}
