@@ -19,6 +19,8 @@ pub enum Abstain {
     NoHypotheses,
     /// The best pose shares too little of the view.
     TooLittleOverlap { overlap: f64 },
+    /// The best pose's hits barely outweigh its free-space violations.
+    WeakMatch { score: f64 },
     /// The best pose puts too many points in space the other sensor saw empty.
     ContradictsFreeSpace { violation: f64 },
     /// A clearly different pose scores nearly as well (a symmetric corridor, a repeated room).
@@ -31,6 +33,7 @@ impl fmt::Display for Abstain {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Abstain::NoHypotheses => write!(f, "too few walls or corners to form a hypothesis"),
+            Abstain::WeakMatch { score } => write!(f, "weak match (score {score:.2})"),
             Abstain::TooLittleOverlap { overlap } => {
                 write!(f, "too little shared view ({:.0} %)", overlap * 100.0)
             }
@@ -174,8 +177,12 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
     let at_best = super::icp::refine(a, b, &best.a_from_b, &narrow, p.class_aware);
     let (covariance, weak) = covariance_of(&at_best, p);
     let overlap = best.score.overlap();
-    let verdict = if best.score.value < p.min_score || overlap < p.min_overlap {
+    let verdict = if overlap < p.min_overlap {
         Err(Abstain::TooLittleOverlap { overlap })
+    } else if best.score.value < p.min_score {
+        Err(Abstain::WeakMatch {
+            score: best.score.value,
+        })
     } else if best.score.violation() > p.max_violation {
         Err(Abstain::ContradictsFreeSpace {
             violation: best.score.violation(),
