@@ -42,17 +42,14 @@ fn recording() -> (SensorInfo, Vec<Scan>) {
 }
 
 fn main() {
-    let sensors: usize = std::env::var("SENSORS")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(32);
-    let seconds: f64 = std::env::var("SECONDS")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(10.0);
     if std::env::args().any(|a| a == "--list") {
         return;
     }
+    // `cargo bench` passes `--bench`; `cargo test --all-targets` does not: a short smoke run then.
+    let full = std::env::args().any(|a| a == "--bench");
+    let env = |key: &str| std::env::var(key).ok().and_then(|s| s.parse::<f64>().ok());
+    let sensors = env("SENSORS").unwrap_or(if full { 32.0 } else { 2.0 }) as usize;
+    let seconds = env("SECONDS").unwrap_or(if full { 10.0 } else { 1.0 });
     let (info, scans) = recording();
     let emulators = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(1)
@@ -131,6 +128,7 @@ fn main() {
     });
     let (scans, wall, cpu, errors) = drivers.join().expect("driver thread");
     let expected = sensors as f64 * 40.0 * wall;
+    assert!(scans > 0, "no scan reached the drivers");
     println!("scip_drivers: {sensors} sensors × 40 Hz ME over loopback, {wall:.1} s");
     println!("  scans received {scans} (expected ≈ {expected:.0}), errors+reconnects {errors}");
     match cpu {

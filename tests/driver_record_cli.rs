@@ -117,3 +117,53 @@ fn emulate_and_record_refuse_bad_input_with_exit_code_2() {
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("tcp://HOST:PORT"));
 }
+
+#[test]
+fn record_reads_emulate_over_a_pty() {
+    let dir = tempfile::tempdir().unwrap();
+    let source = dir.path().join("source.mcap");
+    let (info, scans) = recording(20);
+    let mut writer = RecordingWriter::create(&source).unwrap();
+    writer.add_sensor(&info).unwrap();
+    for scan in &scans {
+        writer.write_scan(&info.id, scan).unwrap();
+    }
+    writer.finish().unwrap();
+    let mut emulate = Command::new(BIN)
+        .args(["emulate", source.to_str().unwrap(), "--pty"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut path = String::new();
+    BufReader::new(emulate.stdout.take().unwrap())
+        .read_line(&mut path)
+        .unwrap();
+    let path = path.trim();
+    assert!(path.starts_with("/dev/"), "emulate printed {path:?}");
+    let out = dir.path().join("copy.mcap");
+    let status = Command::new(BIN)
+        .args([
+            "record",
+            "--connect",
+            &format!("serial://{path}"),
+            "--id",
+            "usb",
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .args(["--scans", "20", "--seconds", "30", "--mode", "MD"])
+        .stderr(Stdio::null())
+        .status()
+        .unwrap();
+    let _ = emulate.kill();
+    let _ = emulate.wait();
+    assert!(status.success());
+    let copy = record::read(&out).unwrap();
+    let got = copy.scans_of("usb");
+    assert_eq!(got.len(), 20);
+    for (a, b) in got.iter().zip(&scans) {
+        assert_eq!(mm(&a.ranges_m), mm(&b.ranges_m));
+        assert!(a.intensities.is_empty(), "MD carries no intensities");
+    }
+}

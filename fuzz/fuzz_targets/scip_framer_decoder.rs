@@ -2,7 +2,9 @@
 //! however the bytes are split, and every scan that decodes re-encodes to a scan that decodes
 //! to the same values.
 //!
-//! `cargo +nightly fuzz run scip_framer_decoder` (from the repository root)
+//! `cargo +nightly fuzz run scip_framer_decoder` (from the repository root). Input: one byte
+//! choosing the chunk size, then the stream. Seeds worth giving it: the three captures in
+//! `fixtures/scip/`, unpacked (`scip::capture::unpack`) and prefixed with any byte.
 
 #![no_main]
 

@@ -10,6 +10,7 @@ use std::time::Duration;
 use anyhow::Context as _;
 use scanfuse::emulator::{Emulator, EmulatorConfig, Faults};
 use scanfuse::record;
+use serialport::SerialPort as _;
 
 use super::BadInput;
 
@@ -23,6 +24,9 @@ pub struct Args {
     /// Address to listen on; port 0 picks a free port and prints the address.
     #[arg(long, default_value = "127.0.0.1:10940")]
     listen: SocketAddr,
+    /// Serve on a new pseudo-terminal instead of TCP, as a USB unit would; prints its path.
+    #[arg(long, conflicts_with = "listen")]
+    pty: bool,
     /// Playback speed (2 = twice the recorded rate).
     #[arg(long, default_value_t = 1.0)]
     speed: f64,
@@ -97,6 +101,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()?;
+    if args.pty {
+        return runtime.block_on(serve_pty(emulator, &sensor.id));
+    }
     runtime.block_on(async {
         let listener = tokio::net::TcpListener::bind(args.listen)
             .await
@@ -114,4 +121,26 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         tracing::info!(stats = ?emulator.stats(), "emulator done");
         anyhow::Ok(())
     })
+}
+
+/// Time for the last bytes to reach the pty after the recording ends.
+const PTY_DRAIN: Duration = Duration::from_millis(300);
+
+/// One client over a pty: the emulator holds the master, a driver opens the printed slave path.
+async fn serve_pty(emulator: Emulator, id: &str) -> anyhow::Result<()> {
+    let (master, slave) = serialport::TTYPort::pair().context("cannot open a pseudo-terminal")?;
+    let path = slave.name().context("the pseudo-terminal has no name")?;
+    println!("{path}");
+    std::io::stdout().flush()?;
+    tracing::info!(sensor = %id, %path, "emulating on a pty");
+    tokio::select! {
+        served = emulator.serve_serial(Box::new(master)) => served?,
+        _ = tokio::signal::ctrl_c() => {}
+    }
+    // The serial bridge writes from its own thread: give it time to hand the last reply to
+    // the pty before the process exits. The slave end stays open until here so the pty
+    // outlives client reconnects.
+    tokio::time::sleep(PTY_DRAIN).await;
+    drop(slave);
+    Ok(())
 }

@@ -293,8 +293,8 @@ impl Emulator {
         next_k: &mut u64,
     ) -> Result<bool, EmulatorError> {
         let shared = &self.shared;
-        // A sensor does not queue scans for a slow link: skip to the newest due scan.
-        let k = self.current_k().map_or(*next_k, |c| c.max(*next_k));
+        // A late timer (a busy host) sends the scan late rather than losing it.
+        let k = *next_k;
         *next_k = k + 1;
         let Some(source) = shared.playback.index(k).and_then(|i| shared.sources.get(i)) else {
             return Ok(true);
@@ -341,6 +341,10 @@ impl Emulator {
         }
         if let Some(duration) = stall {
             tokio::time::sleep(duration).await;
+            // A stalled unit does not queue what it measured meanwhile: go on with the newest.
+            if let Some(current) = self.current_k() {
+                *next_k = (*next_k).max(current);
+            }
         }
         Ok(true)
     }

@@ -27,6 +27,36 @@ pub fn decode(chars: &[u8]) -> Result<u32, EncodingError> {
     Ok(value)
 }
 
+/// Checks that every byte is an encoded character.
+pub fn validate(chars: &[u8]) -> Result<(), EncodingError> {
+    // A branch-free OR over all bytes (vectorises); find the culprit only when there is one.
+    let bad = chars
+        .iter()
+        .fold(0u8, |acc, &b| acc | (b.wrapping_sub(0x30) & 0xC0));
+    if bad == 0 {
+        return Ok(());
+    }
+    let offset = chars
+        .iter()
+        .position(|&b| b.wrapping_sub(0x30) > 0x3F)
+        .unwrap_or(0);
+    Err(EncodingError {
+        byte: chars.get(offset).copied().unwrap_or(0),
+        offset,
+    })
+}
+
+/// Decodes characters already checked by [`validate`] (others give a wrong value, not a panic).
+#[inline]
+pub fn decode_valid(chars: &[u8]) -> u32 {
+    let group = |b: u8| (b.wrapping_sub(0x30) & 0x3F) as u32;
+    match *chars {
+        [a, b, c] => (group(a) << 12) | (group(b) << 6) | group(c),
+        [a, b] => (group(a) << 6) | group(b),
+        _ => chars.iter().fold(0u32, |value, &b| (value << 6) | group(b)),
+    }
+}
+
 /// Encodes the low `6 * width` bits of `value` into `width` characters, appended to `out`.
 pub fn encode_into(value: u32, width: usize, out: &mut Vec<u8>) {
     for i in (0..width).rev() {

@@ -34,7 +34,14 @@ impl Frame {
     /// The lines of the reply without their LFs and without the final empty line.
     pub fn lines(&self) -> impl Iterator<Item = &[u8]> {
         let body = self.bytes.strip_suffix(b"\n\n").unwrap_or(&self.bytes);
-        body.split(|&b| b == b'\n')
+        let mut start = 0;
+        let mut ends = memchr::memchr_iter(b'\n', body).chain([body.len()]);
+        std::iter::from_fn(move || {
+            let end = ends.next()?;
+            let line = body.get(start..end).unwrap_or_default();
+            start = end + 1;
+            Some(line)
+        })
     }
 }
 
@@ -81,6 +88,11 @@ fn is_status(line: &[u8]) -> bool {
     }
 }
 
+/// Offset of the first `LF LF` in `bytes`, looking only at LFs.
+fn find_blank_line(bytes: &[u8]) -> Option<usize> {
+    memchr::memmem::find(bytes, b"\n\n")
+}
+
 impl Framer {
     pub fn new() -> Self {
         Self::default()
@@ -120,10 +132,10 @@ impl Framer {
                 continue;
             }
             // The reply must start with an echo and a status line; both must be complete.
-            let first_end = rest.iter().position(|&b| b == b'\n')?;
+            let first_end = memchr::memchr(b'\n', rest)?;
             let first = rest.get(..first_end).unwrap_or_default();
             let after = rest.get(first_end + 1..).unwrap_or_default();
-            let second_end = after.iter().position(|&b| b == b'\n')?;
+            let second_end = memchr::memchr(b'\n', after)?;
             let second = after.get(..second_end).unwrap_or_default();
             if !is_status(second) {
                 self.stats.skipped_lines += 1;
@@ -144,7 +156,7 @@ impl Framer {
             // A status line followed directly by LF ends the reply at once.
             let from = self.search_from.max(self.pos + first_end);
             let window = self.buf.get(from..).unwrap_or_default();
-            match window.windows(2).position(|w| w == b"\n\n") {
+            match find_blank_line(window) {
                 Some(i) => {
                     let end = from + i + 2;
                     if end - self.pos > MAX_FRAME_BYTES {

@@ -198,20 +198,50 @@ impl ScipScan {
 }
 
 fn decode_values(kind: DataKind, data: &[u8], scan: &mut ScipScan) -> Result<(), ScanError> {
-    let range_width = kind.range_width();
     let width = kind.echo_width();
     if !kind.is_multi_echo() {
         if !data.len().is_multiple_of(width) {
             return Err(ScanError::Truncated);
         }
-        if kind.has_intensity() {
-            scan.intensities.reserve(data.len() / width);
-        }
-        for chunk in data.chunks_exact(width) {
-            let (range, rest) = chunk.split_at(range_width);
-            scan.ranges_mm.push(encoding::decode(range)?);
-            if kind.has_intensity() {
-                scan.intensities.push(encoding::decode(rest)?);
+        // Check every character once, then decode without per-value checks (the hot path):
+        // fixed-width patterns over exact chunks let the compiler drop bounds and capacity checks.
+        encoding::validate(data)?;
+        let g = |b: u8| (b.wrapping_sub(0x30) & 0x3F) as u32;
+        let three = |a: u8, b: u8, c: u8| (g(a) << 12) | (g(b) << 6) | g(c);
+        match kind {
+            DataKind::RangeIntensity => {
+                scan.ranges_mm = data
+                    .chunks_exact(6)
+                    .map(|c| match *c {
+                        [a, b, c, ..] => three(a, b, c),
+                        _ => 0,
+                    })
+                    .collect();
+                scan.intensities = data
+                    .chunks_exact(6)
+                    .map(|c| match *c {
+                        [_, _, _, d, e, f] => three(d, e, f),
+                        _ => 0,
+                    })
+                    .collect();
+            }
+            DataKind::ShortRange => {
+                scan.ranges_mm = data
+                    .chunks_exact(2)
+                    .map(|c| match *c {
+                        [a, b] => (g(a) << 6) | g(b),
+                        _ => 0,
+                    })
+                    .collect();
+            }
+            _ => {
+                scan.ranges_mm = data
+                    .chunks_exact(3)
+                    .map(|c| match *c {
+                        [a, b, c] => three(a, b, c),
+                        _ => 0,
+                    })
+                    .collect();
             }
         }
         return Ok(());
