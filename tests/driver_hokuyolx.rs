@@ -33,6 +33,11 @@ fn python() -> Option<PathBuf> {
 #[tokio::test]
 async fn hokuyolx_reads_the_recorded_ranges_from_the_emulator() {
     let Some(python) = python() else {
+        // CI installs it (.ci/run, tests/python/requirements.txt): there, absence is a failure.
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "no Python with hokuyolx under CI: .ci/run should have installed it"
+        );
         eprintln!(
             "SKIPPED: no Python with hokuyolx (set HOKUYOLX_PYTHON or make target/hokuyolx-venv)"
         );
