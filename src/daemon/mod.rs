@@ -8,9 +8,13 @@
 pub mod config;
 pub mod lines;
 pub mod notify;
+pub mod pipeline;
+pub mod pipeline_fuse;
+pub mod pipeline_register;
 pub mod protocol;
 pub mod queue;
 pub mod rate;
+pub mod run;
 pub mod signals;
 pub mod socket;
 pub mod state;
