@@ -298,6 +298,19 @@ impl Pipeline {
         inner.poses.remove(id);
     }
 
+    /// Stops a sensor's driver but keeps its state (a replay that reached its end).
+    pub(super) fn stop_sensor(&self, id: &str, why: &str) {
+        {
+            let mut inner = lock(&self.inner);
+            let Some(slot) = inner.sensors.get_mut(id) else {
+                return;
+            };
+            let _ = slot.stop.send(true);
+            slot.state = SensorState::Stopped;
+        }
+        self.announce(EventKind::Disconnected, Some(id), why);
+    }
+
     /// Stops every driver (shutdown).
     pub(super) fn stop_all(&self) {
         let inner = lock(&self.inner);
@@ -355,6 +368,9 @@ impl Pipeline {
                     let Some(slot) = inner.sensors.get_mut(id) else {
                         return;
                     };
+                    if slot.state == SensorState::Stopped {
+                        return;
+                    }
                     slot.state = SensorState::Disconnected;
                     slot.last_error_at = Some(Instant::now());
                 }

@@ -184,7 +184,18 @@ async fn start_sensor(
                 looping: options.replay_loop,
                 ..EmulatorConfig::default()
             };
-            emulators.start(&sensor.id, file, rid, config).await?
+            let uri = emulators.start(&sensor.id, file, rid, config).await?;
+            if let Some((emulator, _)) = emulators.running.get(&sensor.id)
+                && !options.replay_loop
+            {
+                // The end of a recording is not a failure: stop the driver instead of retrying.
+                let (emulator, p, id) = (emulator.clone(), Arc::clone(pipeline), sensor.id.clone());
+                tokio::spawn(async move {
+                    emulator.finished().await;
+                    p.stop_sensor(&id, "the recording ended");
+                });
+            }
+            uri
         }
         other => other.to_string(),
     };
