@@ -99,8 +99,13 @@ fn kills_during_saves_leave_poses_toml_old_or_new_never_partial() {
             let all = client.poses().sensors.iter().all(|p| p.registered);
             (all && state.join("poses.toml").exists()).then_some(())
         });
+        // Inode numbers are reused at once, so the write time tells files apart too.
         let inode = |path: &std::path::Path| {
-            std::os::unix::fs::MetadataExt::ino(&std::fs::metadata(path).unwrap())
+            let meta = std::fs::metadata(path).unwrap();
+            (
+                std::os::unix::fs::MetadataExt::ino(&meta),
+                meta.modified().unwrap(),
+            )
         };
         let before = inode(&state.join("poses.toml"));
         let hammer = std::thread::spawn({
