@@ -11,7 +11,7 @@ use std::time::{Duration, SystemTime};
 
 use crossbeam_channel::{Receiver, select};
 
-use super::config::Survey;
+use super::config::{RegistrationConfig, Survey};
 use super::pipeline::{Pipeline, PoseEntry, now_ns};
 use super::protocol::{EventKind, PoseSource};
 use super::queue::WorkerEnd;
@@ -27,6 +27,11 @@ pub const STATIC_WINDOW_S: f64 = 1.0;
 pub const WAIT_FOR_ALL_S: f64 = 10.0;
 /// A sensor that failed to register is tried again after this long, with fresh scans.
 pub const RETRY_S: f64 = 30.0;
+/// A beam has changed when its range differs from the background by more than this (or it
+/// lost its return): well above range noise, below any real displacement of a mount.
+pub const CHANGE_TOL_M: f32 = 0.2;
+/// This many unchanged scans in a row end a streak of changed ones (a glitch, a passer-by).
+pub const UNCHANGED_TO_RESET: u32 = 3;
 
 /// One scan for the worker.
 #[derive(Debug, Clone)]
@@ -73,6 +78,41 @@ struct Track {
     geometry: Option<ScanGeometry>,
     scans: VecDeque<Scan>,
     need: Need,
+    /// Per-beam static ranges the sensor's scans are compared with (moved-sensor detection).
+    background: Option<Vec<f32>>,
+    /// Stamp of the first changed scan of the current streak.
+    changed_since_ns: Option<u64>,
+    unchanged_run: u32,
+}
+
+/// Share of the background's returns that `scan` no longer sees where they were; `None`
+/// when the layouts differ or the background has no returns.
+pub fn changed_fraction(background: &[f32], scan: &Scan) -> Option<f64> {
+    if background.len() != scan.ranges_m.len() {
+        return None;
+    }
+    let mut seen = 0usize;
+    let mut changed = 0usize;
+    for (&bg, &r) in background.iter().zip(&scan.ranges_m) {
+        if !(bg.is_finite() && bg > 0.0) {
+            continue;
+        }
+        seen += 1;
+        if !(r.is_finite() && r > 0.0) || (r - bg).abs() > CHANGE_TOL_M {
+            changed += 1;
+        }
+    }
+    (seen > 0).then(|| changed as f64 / seen as f64)
+}
+
+/// A sensor whose view of static structure changed consistently.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Moved {
+    pub id: String,
+    /// Stamp of the first changed scan: re-registration uses scans from here on.
+    pub since_ns: u64,
+    /// Share of the background that changed in the scan that confirmed it.
+    pub fraction: f64,
 }
 
 impl Track {
@@ -102,16 +142,20 @@ pub struct Outcome {
 pub struct Registrar {
     anchor: String,
     window_s: f64,
+    moved_fraction: f64,
+    moved_persist_s: f64,
     tracks: BTreeMap<String, Track>,
     params: RegisterParams,
     site_params: SiteParams,
 }
 
 impl Registrar {
-    pub fn new(anchor: impl Into<String>) -> Registrar {
+    pub fn new(anchor: impl Into<String>, config: &RegistrationConfig) -> Registrar {
         Registrar {
             anchor: anchor.into(),
             window_s: STATIC_WINDOW_S,
+            moved_fraction: config.moved_fraction,
+            moved_persist_s: config.moved_persist_s,
             tracks: BTreeMap::new(),
             params: RegisterParams::default(),
             site_params: SiteParams::default(),
@@ -142,6 +186,9 @@ impl Registrar {
                         geometry: None,
                         scans: VecDeque::new(),
                         need,
+                        background: None,
+                        changed_since_ns: None,
+                        unchanged_run: 0,
                     },
                 );
             }
@@ -152,6 +199,8 @@ impl Registrar {
             Command::Reregister { id, after_ns } => {
                 if let Some(t) = self.tracks.get_mut(&id) {
                     t.scans.clear();
+                    t.background = None;
+                    t.changed_since_ns = None;
                     t.need = Need::Pose {
                         since_ns: after_ns.min(now_ns),
                         source: PoseSource::ReRegistered,
@@ -161,29 +210,68 @@ impl Registrar {
         }
     }
 
-    /// Keeps the scan if its sensor is known; older scans than one window are let go.
-    pub fn push(&mut self, item: WorkItem) {
+    /// Keeps the scan if its sensor is known; older scans than one window are let go. A posed
+    /// sensor's scan is compared with its background; `Some` when that shows it moved (the
+    /// sensor then waits for a new pose from the scans since the change began).
+    pub fn push(&mut self, item: WorkItem) -> Option<Moved> {
         let window_ns = (self.window_s * 1e9) as u64;
-        let Some(t) = self.tracks.get_mut(&item.sensor) else {
-            return;
-        };
+        let window_s = self.window_s;
+        let t = self.tracks.get_mut(&item.sensor)?;
         if item.geometry.is_some() {
             t.geometry = item.geometry;
         }
-        if let Need::Pose { since_ns, .. } = t.need
-            && item.scan.stamp_ns < since_ns
+        let stamp_ns = item.scan.stamp_ns;
+        let mut moved = None;
+        if t.need == Need::Nothing
+            && item.sensor != self.anchor
+            && let Some(fraction) = t
+                .background
+                .as_deref()
+                .and_then(|bg| changed_fraction(bg, &item.scan))
         {
-            return;
+            if fraction > self.moved_fraction {
+                t.unchanged_run = 0;
+                let since = *t.changed_since_ns.get_or_insert(stamp_ns);
+                if stamp_ns.saturating_sub(since) as f64 >= self.moved_persist_s * 1e9 {
+                    moved = Some(Moved {
+                        id: item.sensor.clone(),
+                        since_ns: since,
+                        fraction,
+                    });
+                    t.need = Need::Pose {
+                        since_ns: since,
+                        source: PoseSource::ReRegistered,
+                    };
+                    t.background = None;
+                    t.changed_since_ns = None;
+                    t.scans.retain(|s| s.stamp_ns >= since);
+                }
+            } else {
+                t.unchanged_run += 1;
+                if t.unchanged_run >= UNCHANGED_TO_RESET {
+                    t.changed_since_ns = None;
+                }
+            }
         }
-        let newest = item.scan.stamp_ns;
+        if let Need::Pose { since_ns, .. } = t.need
+            && stamp_ns < since_ns
+        {
+            return moved;
+        }
         t.scans.push_back(item.scan);
         while t
             .scans
             .front()
-            .is_some_and(|s| newest.saturating_sub(s.stamp_ns) > window_ns)
+            .is_some_and(|s| stamp_ns.saturating_sub(s.stamp_ns) > window_ns)
         {
             t.scans.pop_front();
         }
+        // A posed sensor without a background takes its first full static view as one.
+        if t.need == Need::Nothing && t.background.is_none() && t.ready(window_s) {
+            let scans: Vec<Scan> = t.scans.iter().cloned().collect();
+            t.background = static_view(&scans, window_s).map(|v| v.ranges_m);
+        }
+        moved
     }
 
     /// Sensors waiting for a pose.
@@ -327,7 +415,19 @@ pub fn run_worker(
         let now = now_ns();
         select! {
             recv(scans) -> item => match item {
-                Ok(item) => registrar.push(item),
+                Ok(item) => {
+                    if let Some(moved) = registrar.push(item) {
+                        pipeline.announce(
+                            EventKind::Moved,
+                            Some(&moved.id),
+                            format!(
+                                "{} moved: {:.0} % of its static view changed and stayed changed; re-registering it",
+                                moved.id,
+                                moved.fraction * 100.0
+                            ),
+                        );
+                    }
+                }
                 Err(_) => return,
             },
             recv(commands) -> command => match command {
@@ -429,7 +529,7 @@ mod tests {
 
     #[test]
     fn registration_waits_for_every_static_view() {
-        let mut r = Registrar::new("a");
+        let mut r = Registrar::new("a", &RegistrationConfig::default());
         add(&mut r, "a", false);
         add(&mut r, "b", false);
         feed(&mut r, "a", 1.0, 2.1);
@@ -442,7 +542,7 @@ mod tests {
 
     #[test]
     fn a_silent_sensor_stalls_the_others_only_for_a_while() {
-        let mut r = Registrar::new("a");
+        let mut r = Registrar::new("a", &RegistrationConfig::default());
         add(&mut r, "a", false);
         add(&mut r, "b", false);
         feed(&mut r, "a", 1.0, 2.1);
@@ -452,7 +552,7 @@ mod tests {
 
     #[test]
     fn reregistration_uses_only_scans_after_the_request() {
-        let mut r = Registrar::new("a");
+        let mut r = Registrar::new("a", &RegistrationConfig::default());
         add(&mut r, "a", true);
         add(&mut r, "b", true);
         feed(&mut r, "a", 1.0, 3.0);

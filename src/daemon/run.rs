@@ -277,7 +277,7 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
     load_saved_poses(&config, &pipeline);
 
     let worker_pipeline = Arc::clone(&pipeline);
-    let registrar = Registrar::new(config.site.anchor.clone());
+    let registrar = Registrar::new(config.site.anchor.clone(), &config.registration);
     std::thread::Builder::new()
         .name("registration".into())
         .spawn(move || run_worker(worker_pipeline, queue_rx, command_rx, registrar))?;
