@@ -528,6 +528,49 @@ mod tests {
     }
 
     #[test]
+    fn the_changed_fraction_counts_background_returns_seen_elsewhere() {
+        let background = vec![2.0, 2.0, 2.0, 2.0, 0.0];
+        let mut s = scan(0);
+        s.ranges_m = vec![2.05, 1.0, 2.0, f32::NAN, 5.0];
+        // Beam 1 is nearer (someone in front), beam 3 lost its return; beam 4 had none.
+        assert_eq!(changed_fraction(&background, &s), Some(0.5));
+        s.ranges_m = vec![2.0; 4];
+        assert_eq!(changed_fraction(&background, &s), None, "another layout");
+    }
+
+    #[test]
+    fn one_glitchy_scan_is_not_a_move_but_a_lasting_change_is() {
+        let mut r = Registrar::new("a", &RegistrationConfig::default());
+        add(&mut r, "a", true);
+        add(&mut r, "b", true);
+        feed(&mut r, "b", 0.0, 1.0);
+        let far = |t_s: f64| {
+            let mut s = scan((t_s * 1e9) as u64);
+            s.ranges_m = vec![4.0; 8];
+            WorkItem {
+                sensor: "b".into(),
+                scan: s,
+                geometry: None,
+            }
+        };
+        assert_eq!(r.push(far(1.1)), None);
+        feed(&mut r, "b", 1.125, 1.5);
+        let mut moved = None;
+        let mut t = 2.0;
+        while moved.is_none() && t < 4.0 {
+            moved = r.push(far(t));
+            t += 0.025;
+        }
+        let moved = moved.expect("a lasting change is a move");
+        assert_eq!(
+            moved.since_ns, 2_000_000_000,
+            "from the start of the lasting change"
+        );
+        assert!((t - 2.5).abs() < 0.06, "after moved_persist_s: {t}");
+        assert_eq!(r.pending(), ["b"]);
+    }
+
+    #[test]
     fn registration_waits_for_every_static_view() {
         let mut r = Registrar::new("a", &RegistrationConfig::default());
         add(&mut r, "a", false);
