@@ -34,6 +34,10 @@ enum Command {
     Eval(cli::eval::Args),
     /// Validate a site config without starting anything (exit 2 on a bad config).
     Check(cli::check::Args),
+    /// Run the daemon in the foreground: drivers, registration, fused map, status socket.
+    Run(cli::run::Args),
+    /// Run the whole pipeline on recordings, with no config: poses and map files to a folder.
+    Replay(cli::replay::Args),
     /// Ask the running daemon how its sensors and poses are (table, --json or --watch).
     Status(cli::status::Args),
 }
@@ -50,6 +54,8 @@ fn main() -> ExitCode {
         Command::Register(args) => cli::register::run(args),
         Command::Check(args) => cli::check::run(args),
         Command::Status(args) => cli::status::run(args),
+        Command::Run(args) => cli::run::run(args),
+        Command::Replay(args) => cli::replay::run(args),
     };
     cli::exit_code(result)
 }

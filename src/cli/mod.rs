@@ -7,6 +7,8 @@ pub mod eval;
 pub mod info;
 pub mod record;
 pub mod register;
+pub mod replay;
+pub mod run;
 pub mod simulate;
 pub mod status;
 

@@ -1,0 +1,555 @@
+//! The running pipeline's shared state: every sensor's driver status, the latest scan of each,
+//! the current poses and the occupancy grid; and the [`StatusSource`] the socket asks.
+//!
+//! Driver tasks write scans in ([`Pipeline::on_driver_event`]), the registration worker
+//! (`pipeline_register`) writes poses, the fuser (`pipeline_fuse`) reads both. Each lock is held
+//! only for a copy or a small update, so no stage waits on another's work.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Instant, SystemTime, UNIX_EPOCH};
+
+use crossbeam_channel::Sender;
+use tokio::sync::watch;
+
+use super::config::{Config, Connect, ScanMode as ConfigMode, SensorConfig, Survey};
+use super::pipeline_fuse::{Fuser, save_files};
+use super::pipeline_register::{Command, WorkItem, surveyed};
+use super::protocol::{
+    Event, EventKind, PoseSource, Poses, Saved, SensorPose, SensorState, SensorStatus, Status,
+};
+use super::queue::DropOldestSender;
+use super::rate::RateMeter;
+use super::socket::{Publisher, Refused, StatusSource};
+use crate::geometry::{Mount, Pose3};
+use crate::scan::{Scan, ScanGeometry};
+use crate::sensor::{Counters, DriverEvent, ScanMode};
+
+/// Window of the scan-rate meter shown by `status`.
+const RATE_WINDOW_S: f64 = 2.0;
+
+/// What the pipeline needs to know about one configured sensor.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SensorSpec {
+    pub id: String,
+    /// The connection as configured (shown by `status`).
+    pub connect: String,
+    pub mode: ScanMode,
+    pub mount: Mount,
+    pub survey: Option<Survey>,
+}
+
+impl SensorSpec {
+    /// From the config; `connect` is the configured URI, whatever the driver is later given.
+    pub fn from_config(s: &SensorConfig) -> SensorSpec {
+        SensorSpec {
+            id: s.id.clone(),
+            connect: s.connect.to_string(),
+            mode: match s.mode {
+                ConfigMode::MD => ScanMode::Md,
+                ConfigMode::ME => ScanMode::Me,
+                ConfigMode::ND => ScanMode::Nd,
+            },
+            mount: Mount {
+                height_m: s.height_m,
+                pitch_rad: s.pitch_rad,
+            },
+            survey: s.survey,
+        }
+    }
+
+    /// True when the sensor is served by an in-process emulator.
+    pub fn is_replay(config: &SensorConfig) -> bool {
+        matches!(config.connect, Connect::Replay { .. })
+    }
+}
+
+/// A pose the pipeline holds, with how and when it was obtained.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PoseEntry {
+    /// x, y, yaw in the site (anchor) frame; z and pitch from the mount.
+    pub site_from_sensor: Pose3,
+    pub sigma_x_m: Option<f64>,
+    pub sigma_y_m: Option<f64>,
+    pub sigma_yaw_rad: Option<f64>,
+    /// How the pose was obtained: what `poses.toml` records.
+    pub source: PoseSource,
+    /// Loaded from `poses.toml` at start (the socket then says `saved`).
+    pub loaded: bool,
+    pub updated: SystemTime,
+}
+
+impl PoseEntry {
+    /// The socket/file form.
+    pub fn to_sensor_pose(&self, id: &str, now: SystemTime) -> SensorPose {
+        let p = &self.site_from_sensor;
+        SensorPose {
+            id: id.to_string(),
+            registered: true,
+            x_m: Some(p.x_m),
+            y_m: Some(p.y_m),
+            yaw_deg: Some(p.yaw_rad.to_degrees()),
+            z_m: Some(p.z_m),
+            pitch_deg: Some(p.pitch_rad.to_degrees()),
+            sigma_x_m: self.sigma_x_m,
+            sigma_y_m: self.sigma_y_m,
+            sigma_yaw_deg: self.sigma_yaw_rad.map(f64::to_degrees),
+            reason: None,
+            age_s: now
+                .duration_since(self.updated)
+                .ok()
+                .map(|d| d.as_secs_f64()),
+            source: Some(if self.loaded {
+                PoseSource::Saved
+            } else {
+                self.source
+            }),
+        }
+    }
+}
+
+/// One sensor's live state.
+struct Slot {
+    spec: SensorSpec,
+    state: SensorState,
+    counters: Arc<Counters>,
+    rate: RateMeter,
+    model: Option<String>,
+    geometry: Option<ScanGeometry>,
+    last_scan: Option<Scan>,
+    last_scan_at: Option<Instant>,
+    last_error_at: Option<Instant>,
+    /// Why the sensor has no pose, when it has none.
+    unposed_reason: String,
+    /// Turns true to stop the sensor's driver.
+    stop: watch::Sender<bool>,
+}
+
+/// The latest scan of a posed sensor, as the fuser takes it.
+#[derive(Debug, Clone)]
+pub struct PosedScan {
+    pub index: u16,
+    pub id: String,
+    pub scan: Scan,
+    pub geometry: Option<ScanGeometry>,
+    pub mount: Mount,
+    pub site_from_sensor: Pose3,
+}
+
+/// Reports for a terminal front end (`scanfuse run`, `scanfuse replay`).
+#[derive(Debug, Clone)]
+pub enum Report {
+    Event(Event),
+    /// Once a second: how things are.
+    Tick {
+        status: Status,
+        poses: Poses,
+    },
+}
+
+#[derive(Default)]
+struct Inner {
+    sensors: BTreeMap<String, Slot>,
+    poses: BTreeMap<String, PoseEntry>,
+}
+
+/// The shared state of a running daemon.
+pub struct Pipeline {
+    site: String,
+    anchor: String,
+    state_dir: PathBuf,
+    started: Instant,
+    inner: Mutex<Inner>,
+    queue: DropOldestSender<WorkItem>,
+    commands: Sender<Command>,
+    publisher: Publisher,
+    tap: Option<std::sync::mpsc::Sender<Report>>,
+    pub(super) fuser: Mutex<Fuser>,
+    /// Serializes file writes (`save` requests, the periodic save, shutdown).
+    save_lock: Mutex<()>,
+    /// Host time of the fuser's last pass, ns since the epoch (watchdog liveness).
+    fuser_beat_ns: AtomicU64,
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    // A poisoned lock means a panic elsewhere; the state is still the best we have.
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+pub(super) fn now_ns() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
+}
+
+impl Pipeline {
+    pub(super) fn new(
+        config: &Config,
+        queue: DropOldestSender<WorkItem>,
+        commands: Sender<Command>,
+        publisher: Publisher,
+        tap: Option<std::sync::mpsc::Sender<Report>>,
+    ) -> Pipeline {
+        Pipeline {
+            site: config.site.name.clone(),
+            anchor: config.site.anchor.clone(),
+            state_dir: config.site.state_dir.clone(),
+            started: Instant::now(),
+            inner: Mutex::new(Inner::default()),
+            queue,
+            commands,
+            publisher,
+            tap,
+            fuser: Mutex::new(Fuser::new(&config.publish)),
+            save_lock: Mutex::new(()),
+            fuser_beat_ns: AtomicU64::new(now_ns()),
+        }
+    }
+
+    pub fn anchor(&self) -> &str {
+        &self.anchor
+    }
+
+    pub fn state_dir(&self) -> &std::path::Path {
+        &self.state_dir
+    }
+
+    /// Publishes an event to watchers, the log and the terminal.
+    pub fn announce(&self, kind: EventKind, sensor: Option<&str>, message: impl Into<String>) {
+        let message = message.into();
+        tracing::info!(sensor = sensor.unwrap_or(""), kind = ?kind, "{message}");
+        let event = Event {
+            time: humantime::format_rfc3339_millis(SystemTime::now()).to_string(),
+            kind,
+            sensor: sensor.map(str::to_string),
+            message,
+        };
+        if let Some(tap) = &self.tap {
+            let _ = tap.send(Report::Event(event.clone()));
+        }
+        self.publisher.event(event);
+    }
+
+    pub(super) fn publisher(&self) -> &Publisher {
+        &self.publisher
+    }
+
+    /// Sends the terminal a snapshot (no-op without a terminal).
+    pub(super) fn tick(&self) {
+        if let Some(tap) = &self.tap {
+            let _ = tap.send(Report::Tick {
+                status: self.status(),
+                poses: self.poses(),
+            });
+        }
+    }
+
+    /// Adds a sensor whose driver is about to start; `stop` stops it.
+    pub(super) fn add_sensor(
+        &self,
+        spec: SensorSpec,
+        counters: Arc<Counters>,
+        stop: watch::Sender<bool>,
+    ) {
+        let id = spec.id.clone();
+        let mut inner = lock(&self.inner);
+        if let Some(old) = inner.sensors.remove(&id) {
+            let _ = old.stop.send(true);
+        }
+        let posed = inner.poses.contains_key(&id);
+        if !posed && let Some(survey) = &spec.survey {
+            // Shown until registration confirms or replaces it.
+            let entry = surveyed(survey, &spec.mount, SystemTime::now());
+            inner.poses.insert(id.clone(), entry);
+        }
+        let _ = self.commands.send(Command::Add {
+            id: id.clone(),
+            mount: spec.mount,
+            survey: spec.survey,
+            posed,
+        });
+        inner.sensors.insert(
+            id,
+            Slot {
+                spec,
+                state: SensorState::Connecting,
+                counters,
+                rate: RateMeter::new(RATE_WINDOW_S),
+                model: None,
+                geometry: None,
+                last_scan: None,
+                last_scan_at: None,
+                last_error_at: None,
+                unposed_reason: "waiting for a static view".into(),
+                stop,
+            },
+        );
+    }
+
+    /// Stops a sensor's driver and forgets it (and its pose).
+    pub(super) fn remove_sensor(&self, id: &str) {
+        let _ = self.commands.send(Command::Remove(id.to_string()));
+        let mut inner = lock(&self.inner);
+        if let Some(slot) = inner.sensors.remove(id) {
+            let _ = slot.stop.send(true);
+        }
+        inner.poses.remove(id);
+    }
+
+    /// Stops a sensor's driver but keeps its state (a replay that reached its end).
+    pub(super) fn stop_sensor(&self, id: &str, why: &str) {
+        {
+            let mut inner = lock(&self.inner);
+            let Some(slot) = inner.sensors.get_mut(id) else {
+                return;
+            };
+            let _ = slot.stop.send(true);
+            slot.state = SensorState::Stopped;
+        }
+        self.announce(EventKind::Disconnected, Some(id), why);
+    }
+
+    /// Stops every driver (shutdown).
+    pub(super) fn stop_all(&self) {
+        let inner = lock(&self.inner);
+        for slot in inner.sensors.values() {
+            let _ = slot.stop.send(true);
+        }
+    }
+
+    pub(super) fn sensor_ids(&self) -> Vec<String> {
+        lock(&self.inner).sensors.keys().cloned().collect()
+    }
+
+    /// Takes one driver event of sensor `id`.
+    pub fn on_driver_event(&self, id: &str, event: DriverEvent) {
+        match event {
+            DriverEvent::Connected(info) => {
+                let message = format!(
+                    "connected: {} {}",
+                    info.model,
+                    info.fields.get("SERI").map(String::as_str).unwrap_or("")
+                );
+                {
+                    let mut inner = lock(&self.inner);
+                    let Some(slot) = inner.sensors.get_mut(id) else {
+                        return;
+                    };
+                    slot.state = SensorState::Connecting;
+                    slot.model = Some(info.model.clone());
+                    slot.geometry = info.geometry;
+                }
+                self.announce(EventKind::Connected, Some(id), message.trim_end());
+            }
+            DriverEvent::Scan(scan) => {
+                let geometry = {
+                    let mut inner = lock(&self.inner);
+                    let Some(slot) = inner.sensors.get_mut(id) else {
+                        return;
+                    };
+                    slot.state = SensorState::Streaming;
+                    slot.rate.record(scan.scan.stamp_ns);
+                    slot.last_scan = Some(scan.scan.clone());
+                    slot.last_scan_at = Some(Instant::now());
+                    slot.geometry
+                };
+                // A full queue drops the oldest scan; a stopped worker only ends registration.
+                let _ = self.queue.push(WorkItem {
+                    sensor: id.to_string(),
+                    scan: scan.scan,
+                    geometry,
+                });
+            }
+            DriverEvent::Disconnected { reason } => {
+                {
+                    let mut inner = lock(&self.inner);
+                    let Some(slot) = inner.sensors.get_mut(id) else {
+                        return;
+                    };
+                    if slot.state == SensorState::Stopped {
+                        return;
+                    }
+                    slot.state = SensorState::Disconnected;
+                    slot.last_error_at = Some(Instant::now());
+                }
+                self.announce(EventKind::Disconnected, Some(id), reason);
+            }
+            DriverEvent::Raw { .. } => {}
+        }
+    }
+
+    /// Sets poses (from the worker or `poses.toml`); `None` with a reason unsets one.
+    pub(super) fn set_pose(&self, id: &str, pose: Result<PoseEntry, String>) {
+        let mut inner = lock(&self.inner);
+        match pose {
+            Ok(entry) => {
+                inner.poses.insert(id.to_string(), entry);
+            }
+            Err(reason) => {
+                inner.poses.remove(id);
+                if let Some(slot) = inner.sensors.get_mut(id) {
+                    slot.unposed_reason = reason;
+                }
+            }
+        }
+    }
+
+    pub fn pose_of(&self, id: &str) -> Option<PoseEntry> {
+        lock(&self.inner).poses.get(id).cloned()
+    }
+
+    /// The latest scan of every posed sensor, for the fuser.
+    pub(super) fn posed_scans(&self) -> Vec<PosedScan> {
+        let inner = lock(&self.inner);
+        inner
+            .sensors
+            .iter()
+            .enumerate()
+            .filter_map(|(index, (id, slot))| {
+                let pose = inner.poses.get(id)?;
+                Some(PosedScan {
+                    index: index as u16,
+                    id: id.clone(),
+                    scan: slot.last_scan.clone()?,
+                    geometry: slot.geometry,
+                    mount: slot.spec.mount,
+                    site_from_sensor: pose.site_from_sensor,
+                })
+            })
+            .collect()
+    }
+
+    pub(super) fn fuser_beat(&self) {
+        self.fuser_beat_ns.store(now_ns(), Ordering::Relaxed);
+    }
+
+    /// The pipeline is alive when the fuser ran within `max_s` (the watchdog's test).
+    pub fn alive(&self, max_s: f64) -> bool {
+        let beat = self.fuser_beat_ns.load(Ordering::Relaxed);
+        (now_ns().saturating_sub(beat) as f64) < max_s * 1e9
+    }
+
+    /// Writes poses and map files to the state directory now.
+    pub fn save_now(&self) -> Result<Saved, Refused> {
+        let _guard = lock(&self.save_lock);
+        let anchor = self.anchor.clone();
+        let (poses, grid, points) = {
+            let now = SystemTime::now();
+            let inner = lock(&self.inner);
+            let poses: Vec<(SensorPose, PoseSource, SystemTime)> = inner
+                .sensors
+                .keys()
+                .map(|id| match inner.poses.get(id) {
+                    Some(p) => {
+                        let mut pose = p.to_sensor_pose(id, now);
+                        pose.age_s = None;
+                        (pose, p.source, p.updated)
+                    }
+                    None => (
+                        SensorPose::unregistered(
+                            id.clone(),
+                            inner
+                                .sensors
+                                .get(id)
+                                .map_or(String::new(), |s| s.unposed_reason.clone()),
+                        ),
+                        PoseSource::Registered,
+                        now,
+                    ),
+                })
+                .collect();
+            drop(inner);
+            let fuser = lock(&self.fuser);
+            (poses, fuser.grid().clone(), fuser.points().to_vec())
+        };
+        let files = save_files(&self.state_dir, &anchor, &poses, &grid, &points)
+            .map_err(|e| Refused(format!("{e}; check that the state directory is writable")))?;
+        Ok(Saved {
+            dir: self.state_dir.display().to_string(),
+            files,
+        })
+    }
+}
+
+impl StatusSource for Pipeline {
+    fn status(&self) -> Status {
+        let now = now_ns();
+        let mut inner = lock(&self.inner);
+        let sensors = inner
+            .sensors
+            .iter_mut()
+            .map(|(id, slot)| {
+                let counters = slot.counters.snapshot();
+                let mut s = SensorStatus::new(id.clone(), slot.state);
+                s.connect = Some(slot.spec.connect.clone());
+                s.model = slot.model.clone();
+                s.rate_hz = slot.rate.rate_hz(now);
+                s.scans = counters.scans;
+                s.checksum_errors = counters.checksum_errors;
+                s.reconnects = counters.reconnects;
+                s.last_scan_age_s = slot.last_scan_at.map(|t| t.elapsed().as_secs_f64());
+                s.last_error = counters.last_error;
+                s.last_error_age_s = slot.last_error_at.map(|t| t.elapsed().as_secs_f64());
+                s
+            })
+            .collect();
+        Status {
+            site: self.site.clone(),
+            uptime_s: self.started.elapsed().as_secs_f64(),
+            queue_drops: self.queue.drops(),
+            sensors,
+        }
+    }
+
+    fn poses(&self) -> Poses {
+        let now = SystemTime::now();
+        let inner = lock(&self.inner);
+        let sensors = inner
+            .sensors
+            .iter()
+            .map(|(id, slot)| match inner.poses.get(id) {
+                Some(p) => p.to_sensor_pose(id, now),
+                None => SensorPose::unregistered(id.clone(), slot.unposed_reason.clone()),
+            })
+            .collect();
+        Poses {
+            anchor: self.anchor.clone(),
+            sensors,
+        }
+    }
+
+    fn reregister(&self, sensor: &str) -> Result<String, Refused> {
+        if !lock(&self.inner).sensors.contains_key(sensor) {
+            return Err(Refused(format!(
+                "no sensor {sensor:?}; the configured sensors are {}",
+                self.sensor_ids().join(", ")
+            )));
+        }
+        if sensor == self.anchor {
+            return Err(Refused(format!(
+                "{sensor:?} is the anchor: its frame is the site frame, so it has nothing to register against; re-register the others"
+            )));
+        }
+        self.commands
+            .send(Command::Reregister {
+                id: sensor.to_string(),
+                after_ns: now_ns(),
+            })
+            .map_err(|_| Refused("the registration worker has stopped; restart scanfuse".into()))?;
+        Ok(format!(
+            "re-registering {sensor} from its next scans; a re-registered event follows"
+        ))
+    }
+
+    fn save(&self) -> Result<Saved, Refused> {
+        let saved = self.save_now()?;
+        self.announce(
+            EventKind::Saved,
+            None,
+            format!("saved {} in {}", saved.files.join(", "), saved.dir),
+        );
+        Ok(saved)
+    }
+}

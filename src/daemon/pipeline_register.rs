@@ -1,0 +1,619 @@
+//! The registration worker: a std thread fed scans through the drop-oldest queue and commands
+//! through a channel. It keeps the last second of scans per sensor and, once every sensor that
+//! needs a pose has a static view (people removed by the per-beam median), runs the site
+//! registration and hands the poses to the pipeline, which saves them.
+//!
+//! [`Registrar`] is the pure part (scans and time in, poses out); [`run_worker`] the thread.
+
+use std::collections::{BTreeMap, VecDeque};
+use std::sync::Arc;
+use std::time::{Duration, SystemTime};
+
+use crossbeam_channel::{Receiver, select};
+
+use super::config::{RegistrationConfig, Survey};
+use super::pipeline::{Pipeline, PoseEntry, now_ns};
+use super::protocol::{EventKind, PoseSource};
+use super::queue::WorkerEnd;
+use crate::features::static_view;
+use crate::geometry::{Mount, Pose3, pose2};
+use crate::register::site::{Prior, SensorInput, SiteParams, register_site};
+use crate::register::{RegisterParams, ScanModel};
+use crate::scan::{Scan, ScanGeometry};
+
+/// Seconds of scans that make a static view (as `scanfuse register` uses).
+pub const STATIC_WINDOW_S: f64 = 1.0;
+/// When some sensor never streams, the others register without it after this long.
+pub const WAIT_FOR_ALL_S: f64 = 10.0;
+/// A sensor that failed to register is tried again after this long, with fresh scans.
+pub const RETRY_S: f64 = 30.0;
+/// A beam has changed when its range differs from the background by more than this (or it
+/// lost its return): well above range noise, below any real displacement of a mount.
+pub const CHANGE_TOL_M: f32 = 0.2;
+/// This many unchanged scans in a row end a streak of changed ones (a glitch, a passer-by).
+pub const UNCHANGED_TO_RESET: u32 = 3;
+
+/// One scan for the worker.
+#[derive(Debug, Clone)]
+pub struct WorkItem {
+    pub sensor: String,
+    pub scan: Scan,
+    pub geometry: Option<ScanGeometry>,
+}
+
+/// Requests to the worker.
+#[derive(Debug, Clone)]
+pub enum Command {
+    /// A sensor joined; `posed` when it already has a pose (loaded from `poses.toml`).
+    Add {
+        id: String,
+        mount: Mount,
+        survey: Option<Survey>,
+        posed: bool,
+    },
+    Remove(String),
+    /// Register `id` again from scans received after `after_ns`.
+    Reregister {
+        id: String,
+        after_ns: u64,
+    },
+    /// Stop the worker (shutdown).
+    Shutdown,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Need {
+    Nothing,
+    /// Needs a pose from scans newer than `since_ns`.
+    Pose {
+        since_ns: u64,
+        source: PoseSource,
+    },
+}
+
+#[derive(Debug)]
+struct Track {
+    mount: Mount,
+    survey: Option<Survey>,
+    geometry: Option<ScanGeometry>,
+    scans: VecDeque<Scan>,
+    need: Need,
+    /// Per-beam static ranges the sensor's scans are compared with (moved-sensor detection).
+    background: Option<Vec<f32>>,
+    /// Stamp of the first changed scan of the current streak.
+    changed_since_ns: Option<u64>,
+    unchanged_run: u32,
+}
+
+/// Share of the background's returns that `scan` no longer sees where they were; `None`
+/// when the layouts differ or the background has no returns.
+pub fn changed_fraction(background: &[f32], scan: &Scan) -> Option<f64> {
+    if background.len() != scan.ranges_m.len() {
+        return None;
+    }
+    let mut seen = 0usize;
+    let mut changed = 0usize;
+    for (&bg, &r) in background.iter().zip(&scan.ranges_m) {
+        if !(bg.is_finite() && bg > 0.0) {
+            continue;
+        }
+        seen += 1;
+        if !(r.is_finite() && r > 0.0) || (r - bg).abs() > CHANGE_TOL_M {
+            changed += 1;
+        }
+    }
+    (seen > 0).then(|| changed as f64 / seen as f64)
+}
+
+/// A sensor whose view of static structure changed consistently.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Moved {
+    pub id: String,
+    /// Stamp of the first changed scan: re-registration uses scans from here on.
+    pub since_ns: u64,
+    /// Share of the background that changed in the scan that confirmed it.
+    pub fraction: f64,
+}
+
+impl Track {
+    /// A static view's worth of scans, all newer than what the sensor needs.
+    fn ready(&self, window_s: f64) -> bool {
+        let (Some(first), Some(last)) = (self.scans.front(), self.scans.back()) else {
+            return false;
+        };
+        let since = match self.need {
+            Need::Pose { since_ns, .. } => since_ns,
+            Need::Nothing => 0,
+        };
+        first.stamp_ns >= since
+            && last.stamp_ns.saturating_sub(first.stamp_ns) as f64 >= 0.9 * window_s * 1e9
+    }
+}
+
+/// The outcome of one registration for one sensor.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Outcome {
+    pub id: String,
+    pub pose: Result<PoseEntry, String>,
+}
+
+/// The worker's state: recent scans per sensor and who needs a pose.
+#[derive(Debug)]
+pub struct Registrar {
+    anchor: String,
+    window_s: f64,
+    moved_fraction: f64,
+    moved_persist_s: f64,
+    tracks: BTreeMap<String, Track>,
+    params: RegisterParams,
+    site_params: SiteParams,
+}
+
+impl Registrar {
+    pub fn new(anchor: impl Into<String>, config: &RegistrationConfig) -> Registrar {
+        Registrar {
+            anchor: anchor.into(),
+            window_s: STATIC_WINDOW_S,
+            moved_fraction: config.moved_fraction,
+            moved_persist_s: config.moved_persist_s,
+            tracks: BTreeMap::new(),
+            params: RegisterParams::default(),
+            site_params: SiteParams::default(),
+        }
+    }
+
+    pub fn command(&mut self, command: Command, now_ns: u64) {
+        match command {
+            Command::Add {
+                id,
+                mount,
+                survey,
+                posed,
+            } => {
+                let need = if posed {
+                    Need::Nothing
+                } else {
+                    Need::Pose {
+                        since_ns: 0,
+                        source: PoseSource::Registered,
+                    }
+                };
+                self.tracks.insert(
+                    id,
+                    Track {
+                        mount,
+                        survey,
+                        geometry: None,
+                        scans: VecDeque::new(),
+                        need,
+                        background: None,
+                        changed_since_ns: None,
+                        unchanged_run: 0,
+                    },
+                );
+            }
+            Command::Remove(id) => {
+                self.tracks.remove(&id);
+            }
+            Command::Shutdown => {}
+            Command::Reregister { id, after_ns } => {
+                if let Some(t) = self.tracks.get_mut(&id) {
+                    t.scans.clear();
+                    t.background = None;
+                    t.changed_since_ns = None;
+                    t.need = Need::Pose {
+                        since_ns: after_ns.min(now_ns),
+                        source: PoseSource::ReRegistered,
+                    };
+                }
+            }
+        }
+    }
+
+    /// Keeps the scan if its sensor is known; older scans than one window are let go. A posed
+    /// sensor's scan is compared with its background; `Some` when that shows it moved (the
+    /// sensor then waits for a new pose from the scans since the change began).
+    pub fn push(&mut self, item: WorkItem) -> Option<Moved> {
+        let window_ns = (self.window_s * 1e9) as u64;
+        let window_s = self.window_s;
+        let t = self.tracks.get_mut(&item.sensor)?;
+        if item.geometry.is_some() {
+            t.geometry = item.geometry;
+        }
+        let stamp_ns = item.scan.stamp_ns;
+        let mut moved = None;
+        if t.need == Need::Nothing
+            && item.sensor != self.anchor
+            && let Some(fraction) = t
+                .background
+                .as_deref()
+                .and_then(|bg| changed_fraction(bg, &item.scan))
+        {
+            if fraction > self.moved_fraction {
+                t.unchanged_run = 0;
+                let since = *t.changed_since_ns.get_or_insert(stamp_ns);
+                if stamp_ns.saturating_sub(since) as f64 >= self.moved_persist_s * 1e9 {
+                    moved = Some(Moved {
+                        id: item.sensor.clone(),
+                        since_ns: since,
+                        fraction,
+                    });
+                    t.need = Need::Pose {
+                        since_ns: since,
+                        source: PoseSource::ReRegistered,
+                    };
+                    t.background = None;
+                    t.changed_since_ns = None;
+                    t.scans.retain(|s| s.stamp_ns >= since);
+                }
+            } else {
+                t.unchanged_run += 1;
+                if t.unchanged_run >= UNCHANGED_TO_RESET {
+                    t.changed_since_ns = None;
+                }
+            }
+        }
+        if let Need::Pose { since_ns, .. } = t.need
+            && stamp_ns < since_ns
+        {
+            return moved;
+        }
+        t.scans.push_back(item.scan);
+        while t
+            .scans
+            .front()
+            .is_some_and(|s| stamp_ns.saturating_sub(s.stamp_ns) > window_ns)
+        {
+            t.scans.pop_front();
+        }
+        // A posed sensor without a background takes its first full static view as one.
+        if t.need == Need::Nothing && t.background.is_none() && t.ready(window_s) {
+            let scans: Vec<Scan> = t.scans.iter().cloned().collect();
+            t.background = static_view(&scans, window_s).map(|v| v.ranges_m);
+        }
+        moved
+    }
+
+    /// Sensors waiting for a pose.
+    pub fn pending(&self) -> Vec<&str> {
+        self.tracks
+            .iter()
+            .filter(|(_, t)| t.need != Need::Nothing)
+            .map(|(id, _)| id.as_str())
+            .collect()
+    }
+
+    /// True when a registration should run now: a pending sensor and the anchor have static
+    /// views, and so does every other sensor (or the oldest request waited long enough).
+    pub fn due(&self, now_ns: u64) -> bool {
+        let Some(anchor) = self.tracks.get(&self.anchor) else {
+            return false;
+        };
+        if !anchor.ready(self.window_s) {
+            return false;
+        }
+        let pending: Vec<&Track> = self
+            .tracks
+            .values()
+            .filter(|t| t.need != Need::Nothing)
+            .collect();
+        if !pending.iter().any(|t| t.ready(self.window_s)) {
+            return false;
+        }
+        let all_ready = self.tracks.values().all(|t| t.ready(self.window_s));
+        let oldest_since = pending
+            .iter()
+            .filter_map(|t| match t.need {
+                Need::Pose { since_ns, .. } => Some(since_ns),
+                Need::Nothing => None,
+            })
+            .min()
+            .unwrap_or(now_ns);
+        // A request from before the first scan counts from the anchor's first view.
+        let waited_from = oldest_since.max(anchor.scans.front().map_or(now_ns, |s| s.stamp_ns));
+        all_ready || now_ns.saturating_sub(waited_from) as f64 >= WAIT_FOR_ALL_S * 1e9
+    }
+
+    /// Registers every ready sensor jointly; returns outcomes for the pending ones that took
+    /// part. A failed sensor with a surveyed pose gets that; any other waits [`RETRY_S`].
+    pub fn register(&mut self, now_ns: u64, now: SystemTime) -> Vec<Outcome> {
+        let window_s = self.window_s;
+        let ready: Vec<(&String, &Track)> = self
+            .tracks
+            .iter()
+            .filter(|(_, t)| t.ready(window_s))
+            .collect();
+        let inputs: Vec<SensorInput> = ready
+            .iter()
+            .filter_map(|(id, t)| {
+                let scans: Vec<Scan> = t.scans.iter().cloned().collect();
+                let view = static_view(&scans, window_s)?;
+                Some(SensorInput {
+                    id: (*id).clone(),
+                    model: ScanModel::from_scan(&view, t.geometry.as_ref(), &t.mount, &self.params),
+                    mount: t.mount,
+                    prior: t.survey.map(|s| Prior {
+                        anchor_from_sensor: pose2(s.x_m, s.y_m, s.yaw_rad),
+                        sigma_xy_m: s.sigma_xy_m,
+                        sigma_yaw_rad: s.sigma_yaw_rad,
+                    }),
+                })
+            })
+            .collect();
+        let Some(anchor) = inputs.iter().position(|s| s.id == self.anchor) else {
+            return Vec::new();
+        };
+        let site = register_site(&inputs, anchor, &self.params, &self.site_params);
+        let mut outcomes = Vec::new();
+        for placement in site.sensors {
+            let Some(track) = self.tracks.get_mut(&placement.id) else {
+                continue;
+            };
+            let Need::Pose { source, .. } = track.need else {
+                continue;
+            };
+            let pose = match placement.pose {
+                Ok(placed) => Ok(PoseEntry {
+                    site_from_sensor: placed.pose,
+                    sigma_x_m: Some(placed.sigma_x_m),
+                    sigma_y_m: Some(placed.sigma_y_m),
+                    sigma_yaw_rad: Some(placed.sigma_yaw_rad),
+                    source,
+                    loaded: false,
+                    updated: now,
+                }),
+                Err(reason) => match track.survey {
+                    Some(s) => Ok(surveyed(&s, &track.mount, now)),
+                    None => Err(reason),
+                },
+            };
+            track.need = match pose {
+                Ok(_) => Need::Nothing,
+                Err(_) => Need::Pose {
+                    since_ns: now_ns + (RETRY_S * 1e9) as u64,
+                    source,
+                },
+            };
+            if pose.is_err() {
+                track.scans.clear();
+            }
+            outcomes.push(Outcome {
+                id: placement.id,
+                pose,
+            });
+        }
+        outcomes
+    }
+}
+
+/// The pose an installer surveyed, as the pipeline holds it.
+pub fn surveyed(s: &Survey, mount: &Mount, now: SystemTime) -> PoseEntry {
+    PoseEntry {
+        site_from_sensor: Pose3::from_planar(
+            &pose2(s.x_m, s.y_m, s.yaw_rad),
+            mount.height_m.unwrap_or(0.0),
+            mount.pitch_rad,
+        ),
+        sigma_x_m: Some(s.sigma_xy_m),
+        sigma_y_m: Some(s.sigma_xy_m),
+        sigma_yaw_rad: Some(s.sigma_yaw_rad),
+        source: PoseSource::Surveyed,
+        loaded: false,
+        updated: now,
+    }
+}
+
+/// The worker thread: takes scans and commands until both channels close, registering when
+/// [`Registrar::due`] says so, and publishes and saves each outcome.
+pub fn run_worker(
+    pipeline: Arc<Pipeline>,
+    scans: WorkerEnd<WorkItem>,
+    commands: Receiver<Command>,
+    mut registrar: Registrar,
+) {
+    loop {
+        let now = now_ns();
+        select! {
+            recv(scans) -> item => match item {
+                Ok(item) => {
+                    if let Some(moved) = registrar.push(item) {
+                        pipeline.announce(
+                            EventKind::Moved,
+                            Some(&moved.id),
+                            format!(
+                                "{} moved: {:.0} % of its static view changed and stayed changed; re-registering it",
+                                moved.id,
+                                moved.fraction * 100.0
+                            ),
+                        );
+                    }
+                }
+                Err(_) => return,
+            },
+            recv(commands) -> command => match command {
+                Ok(Command::Shutdown) | Err(_) => return,
+                Ok(command) => registrar.command(command, now),
+            },
+            default(Duration::from_millis(200)) => {}
+        }
+        if !registrar.due(now_ns()) {
+            continue;
+        }
+        let pending = registrar.pending().join(", ");
+        pipeline.announce(
+            EventKind::Registered,
+            None,
+            format!("registering {pending} from their static views…"),
+        );
+        let outcomes = registrar.register(now_ns(), SystemTime::now());
+        for outcome in outcomes {
+            match &outcome.pose {
+                Ok(entry) => {
+                    let p = &entry.site_from_sensor;
+                    let kind = if entry.source == PoseSource::ReRegistered {
+                        EventKind::ReRegistered
+                    } else {
+                        EventKind::Registered
+                    };
+                    pipeline.announce(
+                        kind,
+                        Some(&outcome.id),
+                        format!(
+                            "{} at x {:.3} m, y {:.3} m, yaw {:.2}° ({})",
+                            outcome.id,
+                            p.x_m,
+                            p.y_m,
+                            p.yaw_rad.to_degrees(),
+                            entry.source.as_str()
+                        ),
+                    );
+                }
+                Err(reason) => pipeline.announce(
+                    EventKind::Error,
+                    Some(&outcome.id),
+                    format!(
+                        "{} not registered: {reason}; trying again in {RETRY_S:.0} s",
+                        outcome.id
+                    ),
+                ),
+            }
+            pipeline.set_pose(&outcome.id, outcome.pose);
+        }
+        if let Err(e) = pipeline.save_now() {
+            pipeline.announce(EventKind::Error, None, format!("cannot save poses: {e}"));
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scan(stamp_ns: u64) -> Scan {
+        Scan {
+            stamp_ns,
+            sensor_stamp_ms: None,
+            start_angle_rad: -1.0,
+            end_angle_rad: 1.0,
+            ranges_m: vec![2.0; 8],
+            intensities: Vec::new(),
+        }
+    }
+
+    fn add(r: &mut Registrar, id: &str, posed: bool) {
+        r.command(
+            Command::Add {
+                id: id.into(),
+                mount: Mount {
+                    height_m: None,
+                    pitch_rad: 0.0,
+                },
+                survey: None,
+                posed,
+            },
+            0,
+        );
+    }
+
+    fn feed(r: &mut Registrar, id: &str, from_s: f64, to_s: f64) {
+        let mut t = from_s;
+        while t <= to_s {
+            r.push(WorkItem {
+                sensor: id.into(),
+                scan: scan((t * 1e9) as u64),
+                geometry: None,
+            });
+            t += 0.025;
+        }
+    }
+
+    #[test]
+    fn the_changed_fraction_counts_background_returns_seen_elsewhere() {
+        let background = vec![2.0, 2.0, 2.0, 2.0, 0.0];
+        let mut s = scan(0);
+        s.ranges_m = vec![2.05, 1.0, 2.0, f32::NAN, 5.0];
+        // Beam 1 is nearer (someone in front), beam 3 lost its return; beam 4 had none.
+        assert_eq!(changed_fraction(&background, &s), Some(0.5));
+        s.ranges_m = vec![2.0; 4];
+        assert_eq!(changed_fraction(&background, &s), None, "another layout");
+    }
+
+    #[test]
+    fn one_glitchy_scan_is_not_a_move_but_a_lasting_change_is() {
+        let mut r = Registrar::new("a", &RegistrationConfig::default());
+        add(&mut r, "a", true);
+        add(&mut r, "b", true);
+        feed(&mut r, "b", 0.0, 1.0);
+        let far = |t_s: f64| {
+            let mut s = scan((t_s * 1e9) as u64);
+            s.ranges_m = vec![4.0; 8];
+            WorkItem {
+                sensor: "b".into(),
+                scan: s,
+                geometry: None,
+            }
+        };
+        assert_eq!(r.push(far(1.1)), None);
+        feed(&mut r, "b", 1.125, 1.5);
+        let mut moved = None;
+        let mut t = 2.0;
+        while moved.is_none() && t < 4.0 {
+            moved = r.push(far(t));
+            t += 0.025;
+        }
+        let moved = moved.expect("a lasting change is a move");
+        assert_eq!(
+            moved.since_ns, 2_000_000_000,
+            "from the start of the lasting change"
+        );
+        assert!((t - 2.5).abs() < 0.06, "after moved_persist_s: {t}");
+        assert_eq!(r.pending(), ["b"]);
+    }
+
+    #[test]
+    fn registration_waits_for_every_static_view() {
+        let mut r = Registrar::new("a", &RegistrationConfig::default());
+        add(&mut r, "a", false);
+        add(&mut r, "b", false);
+        feed(&mut r, "a", 1.0, 2.1);
+        assert!(!r.due(2_100_000_000), "b has no view yet");
+        feed(&mut r, "b", 1.5, 2.0);
+        assert!(!r.due(2_100_000_000), "b's view is half a second");
+        feed(&mut r, "b", 2.0, 2.6);
+        assert!(r.due(2_600_000_000));
+    }
+
+    #[test]
+    fn a_silent_sensor_stalls_the_others_only_for_a_while() {
+        let mut r = Registrar::new("a", &RegistrationConfig::default());
+        add(&mut r, "a", false);
+        add(&mut r, "b", false);
+        feed(&mut r, "a", 1.0, 2.1);
+        assert!(!r.due(5_000_000_000));
+        assert!(r.due(12_000_000_000));
+    }
+
+    #[test]
+    fn reregistration_uses_only_scans_after_the_request() {
+        let mut r = Registrar::new("a", &RegistrationConfig::default());
+        add(&mut r, "a", true);
+        add(&mut r, "b", true);
+        feed(&mut r, "a", 1.0, 3.0);
+        feed(&mut r, "b", 1.0, 3.0);
+        assert!(r.pending().is_empty());
+        assert!(!r.due(3_000_000_000), "nothing pending");
+        r.command(
+            Command::Reregister {
+                id: "b".into(),
+                after_ns: 3_000_000_000,
+            },
+            3_000_000_000,
+        );
+        assert_eq!(r.pending(), ["b"]);
+        feed(&mut r, "b", 2.0, 3.5);
+        assert!(!r.due(3_500_000_000), "half a second of new scans");
+        feed(&mut r, "b", 3.5, 4.0);
+        feed(&mut r, "a", 3.0, 4.0);
+        assert!(r.due(4_000_000_000));
+    }
+}
