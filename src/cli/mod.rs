@@ -19,10 +19,13 @@ use std::process::ExitCode;
 #[error("{0}")]
 pub struct BadInput(pub String);
 
-/// Logs go to stderr, filtered by `RUST_LOG` (default `info`).
+/// Logs go to stderr, filtered by `RUST_LOG`. The default is `info` for the journal and pipes,
+/// `warn` at a terminal, where the subcommands print their own lines for a person.
 pub fn init_logging() {
+    use std::io::IsTerminal as _;
+    let default = if std::io::stderr().is_terminal() { "warn" } else { "info" };
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
     tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
