@@ -23,7 +23,11 @@ pub struct BadInput(pub String);
 /// `warn` at a terminal, where the subcommands print their own lines for a person.
 pub fn init_logging() {
     use std::io::IsTerminal as _;
-    let default = if std::io::stderr().is_terminal() { "warn" } else { "info" };
+    let default = if std::io::stderr().is_terminal() {
+        "warn"
+    } else {
+        "info"
+    };
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
     tracing_subscriber::fmt()
