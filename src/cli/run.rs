@@ -128,7 +128,11 @@ impl Terminal {
                     let who = e.sensor.as_deref().unwrap_or("");
                     let time = e.time.get(11..19).unwrap_or(&e.time);
                     match e.kind {
-                        EventKind::Registered | EventKind::ReRegistered if who.is_empty() => {
+                        EventKind::Registering
+                        | EventKind::Registered
+                        | EventKind::ReRegistered
+                            if who.is_empty() =>
+                        {
                             println!("{time}  {}", e.message)
                         }
                         EventKind::Registered | EventKind::ReRegistered => {}

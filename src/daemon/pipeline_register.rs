@@ -441,7 +441,7 @@ pub fn run_worker(
         }
         let pending = registrar.pending().join(", ");
         pipeline.announce(
-            EventKind::Registered,
+            EventKind::Registering,
             None,
             format!("registering {pending} from their static views…"),
         );

@@ -305,6 +305,8 @@ pub struct Saved {
 pub enum EventKind {
     Connected,
     Disconnected,
+    /// Registration has started (no pose yet); `registered` follows per sensor.
+    Registering,
     Registered,
     Moved,
     ReRegistered,
