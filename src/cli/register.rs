@@ -7,6 +7,7 @@ use std::time::Instant;
 
 use anyhow::Result;
 use rayon::prelude::*;
+use scanfuse::daemon::protocol::SensorPose;
 use scanfuse::features::static_view;
 use scanfuse::geometry::Mount;
 use scanfuse::record;
@@ -34,30 +35,6 @@ pub struct Args {
 }
 
 #[derive(Serialize)]
-struct SensorOut {
-    id: String,
-    registered: bool,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    x_m: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    y_m: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    yaw_deg: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    z_m: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pitch_deg: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    sigma_x_m: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    sigma_y_m: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    sigma_yaw_deg: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    reason: Option<String>,
-}
-
-#[derive(Serialize)]
 struct PairOut {
     a: String,
     b: String,
@@ -74,7 +51,7 @@ struct PairOut {
 struct Output {
     anchor: String,
     elapsed_ms: u64,
-    sensors: Vec<SensorOut>,
+    sensors: Vec<SensorPose>,
     pairs: Vec<PairOut>,
 }
 
@@ -181,19 +158,7 @@ fn to_output(
     let sensors = prepared
         .iter()
         .map(|(info, input)| {
-            let unregistered = |reason: String| SensorOut {
-                id: info.id.clone(),
-                registered: false,
-                x_m: None,
-                y_m: None,
-                yaw_deg: None,
-                z_m: None,
-                pitch_deg: None,
-                sigma_x_m: None,
-                sigma_y_m: None,
-                sigma_yaw_deg: None,
-                reason: Some(reason),
-            };
+            let unregistered = |reason: String| SensorPose::unregistered(info.id.clone(), reason);
             if input.is_none() {
                 return unregistered("no scans in the recording".into());
             }
@@ -203,7 +168,7 @@ fn to_output(
                 .find(|p| p.id == info.id)
                 .map(|p| &p.pose)
             {
-                Some(Ok(placed)) => SensorOut {
+                Some(Ok(placed)) => SensorPose {
                     id: info.id.clone(),
                     registered: true,
                     x_m: Some(placed.pose.x_m),
@@ -215,6 +180,8 @@ fn to_output(
                     sigma_y_m: Some(placed.sigma_y_m),
                     sigma_yaw_deg: Some(placed.sigma_yaw_rad.to_degrees()),
                     reason: None,
+                    age_s: None,
+                    source: None,
                 },
                 Some(Err(reason)) => unregistered(reason.clone()),
                 None => unregistered("not registered".into()),

@@ -222,8 +222,9 @@ pub struct Poses {
     pub sensors: Vec<SensorPose>,
 }
 
-/// One sensor's pose: `scanfuse register --json`'s fields plus `age_s` and `source`.
-/// An unregistered sensor has `registered: false`, a `reason` and no pose fields.
+/// One sensor's pose, the one vocabulary of the socket and `scanfuse register --json` (which
+/// leaves `age_s` and `source` absent). An unregistered sensor has `registered: false`, a
+/// `reason` and no pose fields.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SensorPose {
     pub id: String,
