@@ -423,6 +423,13 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
     if let Err(e) = notifier.stopping() {
         tracing::warn!("{e}");
     }
+    // The fuser works on a timer: fuse the latest scans once more, so poses that arrived after
+    // its last beat (a short replay) are in the saved map.
+    {
+        let scans = pipeline.posed_scans();
+        let mut fuser = pipeline.fuser.lock().unwrap_or_else(|e| e.into_inner());
+        fuser.fuse(&scans);
+    }
     pipeline.stop_all();
     let p = Arc::clone(&pipeline);
     let saved = tokio::task::spawn_blocking(move || p.save_now())
