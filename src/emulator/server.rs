@@ -284,6 +284,16 @@ impl Emulator {
         }
     }
 
+    /// When sequence number `k` falls due, on the clock of [`Self::now_ms`].
+    fn due_on_clock_ms(&self, k: u64) -> Option<u64> {
+        let start = (*lock(&self.shared.play_start))?;
+        let offset_ms = start
+            .checked_duration_since(self.shared.boot)?
+            .as_secs_f64()
+            * 1000.0;
+        Some((offset_ms + self.shared.playback.due_ms(k)?) as u64)
+    }
+
     /// Sends the block for `next_k` (or the latest scan if this connection fell behind).
     /// Returns `false` when a fault closes the connection.
     async fn emit<W: AsyncWrite + Unpin>(
@@ -299,8 +309,13 @@ impl Emulator {
         let Some(source) = shared.playback.index(k).and_then(|i| shared.sources.get(i)) else {
             return Ok(true);
         };
+        // A real unit stamps a scan when it measures it, not when it is sent: a block sent late
+        // by a busy host keeps the time it was due.
         let now_ms = self.now_ms();
-        let Some(mut block) = unit.stream_block(source, now_ms) else {
+        let stamp_ms = self
+            .due_on_clock_ms(k)
+            .map_or(now_ms, |due| due.min(now_ms));
+        let Some(mut block) = unit.stream_block(source, stamp_ms) else {
             return Ok(true);
         };
         let faults = &shared.faults;
