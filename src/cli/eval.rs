@@ -16,6 +16,7 @@ use scanfuse::scan::SensorInfo;
 use scanfuse::sim::plan::{Model, Plan, SensorPlan};
 use scanfuse::sim::{Simulation, view_overlap};
 use std::collections::BTreeMap;
+use std::io::Write;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -42,11 +43,31 @@ pub struct Args {
     /// Parts to run: sim, site, real, classes (comma separated; default all).
     #[arg(long, value_delimiter = ',')]
     pub only: Vec<String>,
+    /// For each pair at ≥ 30 % overlap that was not registered correctly, print which stage lost
+    /// the true pose: rotation candidates, translation hypotheses, coarse ranking or refinement.
+    #[arg(long)]
+    pub diagnose: bool,
+    /// Also write one CSV row per registered pair (truth error, verdict, ambiguity, score,
+    /// estimated overlap, violation) to this file, for choosing thresholds.
+    #[arg(long)]
+    pub csv: Option<PathBuf>,
 }
 
 pub fn run(args: Args) -> Result<()> {
     let wants = |part: &str| args.only.is_empty() || args.only.iter().any(|o| o == part);
     let params = RegisterParams::default();
+    let mut csv = match &args.csv {
+        Some(path) => {
+            let mut f = std::fs::File::create(path)
+                .with_context(|| format!("{}: cannot create", path.display()))?;
+            writeln!(
+                f,
+                "set,pair,overlap,registered,reason,err_m,err_deg,ambiguity,score,est_overlap,violation,match,ms"
+            )?;
+            Some(f)
+        }
+        None => None,
+    };
     if wants("sim") || wants("site") {
         let plans = load_plans(&args.plans)?;
         if wants("sim") {
@@ -54,7 +75,17 @@ pub fn run(args: Args) -> Result<()> {
             println!(
                 "\n== Simulated pairs (fixture plans, both models, tilted units, people), success ≤ 10 cm and ≤ 1° =="
             );
-            evaluate(&cases, 0.10, 1f64.to_radians(), &params, args.seed);
+            evaluate(
+                &cases,
+                0.10,
+                1f64.to_radians(),
+                &params,
+                args.seed,
+                csv.as_mut().map(|f| ("sim", f)),
+            )?;
+            if args.diagnose {
+                diagnose(&cases, 0.10, 1f64.to_radians(), &params);
+            }
             println!(
                 "\n== ICP with point classes on vs. off (simulated pairs ≥ 30 % overlap, start 0.3 m / 3° off) =="
             );
@@ -70,7 +101,17 @@ pub fn run(args: Args) -> Result<()> {
             let cases = real_cases(&args, &params)?;
             if wants("real") {
                 println!("\n== Real data: CARMEN 180° scans, success ≤ 15 cm and ≤ 1.5° ==");
-                evaluate(&cases, 0.15, 1.5f64.to_radians(), &params, args.seed);
+                evaluate(
+                    &cases,
+                    0.15,
+                    1.5f64.to_radians(),
+                    &params,
+                    args.seed,
+                    csv.as_mut().map(|f| ("real", f)),
+                )?;
+                if args.diagnose {
+                    diagnose(&cases, 0.15, 1.5f64.to_radians(), &params);
+                }
             }
             if wants("classes") {
                 println!(
@@ -313,6 +354,46 @@ fn sites(plans: &[Plan], count: usize, seed: u64, params: &RegisterParams) -> Re
                 ok += 1;
             }
         }
+        // What placed each wrong sensor: the pairs used for it, and how wrong each was.
+        let mut why_wrong = Vec::new();
+        for (k, s) in site.sensors.iter().enumerate() {
+            if let Err(why) = &s.pose {
+                why_wrong.push(format!("    {} not placed: {why}", s.id));
+            }
+            let (Ok(p), Some(t), Some(t0)) = (&s.pose, truths.get(k), truths.first()) else {
+                continue;
+            };
+            let (dt, dyaw) = pose_error(&p.pose.planar(), &(t0.inverse() * t));
+            if dt <= 0.1 && dyaw <= 1f64.to_radians() {
+                continue;
+            }
+            for pr in site
+                .pairs
+                .iter()
+                .filter(|pr| pr.used && (pr.a == k || pr.b == k))
+            {
+                let (Some(ta), Some(tb)) = (truths.get(pr.a), truths.get(pr.b)) else {
+                    continue;
+                };
+                let (et, eyaw) = pose_error(&pr.result.a_from_b, &(ta.inverse() * tb));
+                why_wrong.push(format!(
+                    "    {} off by {:.2} m {:.1}°: pair {}–{} {} (pair error {:.2} m {:.1}°, ambiguity {:.2}, overlap {:.2})",
+                    s.id,
+                    dt,
+                    dyaw.to_degrees(),
+                    pr.a,
+                    pr.b,
+                    match &pr.result.verdict {
+                        Ok(()) => "registered".to_string(),
+                        Err(w) => format!("candidate of an unregistered pair ({w})"),
+                    },
+                    et,
+                    eyaw.to_degrees(),
+                    pr.result.ambiguity,
+                    pr.result.overlap
+                ));
+            }
+        }
         done += 1;
         println!(
             "{:<6} {:<6} {:>5}/8 {:>7}/8 {:>11.1} {:>10.2} {:>9.0}",
@@ -324,6 +405,9 @@ fn sites(plans: &[Plan], count: usize, seed: u64, params: &RegisterParams) -> Re
             max_deg,
             ms
         );
+        for w in why_wrong {
+            println!("{w}");
+        }
     }
     Ok(())
 }
@@ -425,7 +509,14 @@ fn bin_of(overlap: f64) -> usize {
 }
 
 /// Registers every case with scanfuse and the two ICP baselines and prints the tables.
-pub fn evaluate(cases: &[Case], tol_m: f64, tol_rad: f64, params: &RegisterParams, seed: u64) {
+pub fn evaluate(
+    cases: &[Case],
+    tol_m: f64,
+    tol_rad: f64,
+    params: &RegisterParams,
+    seed: u64,
+    mut csv: Option<(&str, &mut std::fs::File)>,
+) -> Result<()> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x1c9);
     let methods = ["scanfuse", "ICP from identity", "ICP from 1 m / 10° off"];
     let mut tallies = vec![vec![Tally::default(); BINS.len()]; methods.len()];
@@ -439,6 +530,31 @@ pub fn evaluate(cases: &[Case], tol_m: f64, tol_rad: f64, params: &RegisterParam
         let r = register_pair(&case.a, &case.b, params);
         times_ms[0].push(t0.elapsed().as_secs_f64() * 1e3);
         let estimate = r.registered().then_some(r.a_from_b);
+        if let Some((set, f)) = csv.as_mut() {
+            let (dt, dyaw) = pose_error(&r.a_from_b, &case.a_from_b);
+            let reason = r
+                .verdict
+                .as_ref()
+                .err()
+                .map(|w| w.to_string())
+                .unwrap_or_default();
+            writeln!(
+                f,
+                "{set},{},{:.3},{},\"{}\",{:.3},{:.2},{:.3},{:.3},{:.3},{:.3},{:.3},{:.1}",
+                case.label,
+                case.overlap,
+                r.registered(),
+                reason,
+                dt,
+                dyaw.to_degrees(),
+                r.ambiguity,
+                r.score.value,
+                r.overlap,
+                r.score.violation(),
+                r.match_score,
+                times_ms[0].last().copied().unwrap_or(0.0)
+            )?;
+        }
         if case.overlap >= 0.3 {
             recall_n += 1;
             let near = |c: &scanfuse::register::Candidate| {
@@ -542,6 +658,95 @@ pub fn evaluate(cases: &[Case], tol_m: f64, tol_rad: f64, params: &RegisterParam
             println!("  {w}");
         }
     }
+    Ok(())
+}
+
+/// Where the true pose was lost, for every pair at ≥ 30 % overlap not registered correctly.
+fn diagnose(cases: &[Case], tol_m: f64, tol_rad: f64, params: &RegisterParams) {
+    use scanfuse::register::hypotheses::{hypotheses, rotation_candidates};
+    use scanfuse::register::score::score_coarse;
+    println!("\ndiagnosis of pairs at ≥ 30 % overlap not registered correctly:");
+    println!(
+        "{:<26} {:>5} {:>6} {:>5} {:>6} {:>7} {:>5} {:>7} {:>7}  verdict",
+        "pair", "ovl", "rot°", "segs", "hyp cm", "hyp °", "rank", "of", "truth−best"
+    );
+    let mut lost = [0usize; 4];
+    for case in cases.iter().filter(|c| c.overlap >= 0.3) {
+        let r = register_pair(&case.a, &case.b, params);
+        let (dt, dyaw) = pose_error(&r.a_from_b, &case.a_from_b);
+        if r.registered() && dt <= tol_m && dyaw <= tol_rad {
+            continue;
+        }
+        let true_yaw = case.a_from_b.rotation.angle();
+        let rot_err = rotation_candidates(&case.a, &case.b, params)
+            .iter()
+            .map(|t| scanfuse::geometry::wrap_angle_rad(t - true_yaw).abs())
+            .fold(f64::INFINITY, f64::min);
+        let mut coarse: Vec<(f64, Pose2)> = hypotheses(&case.a, &case.b, params)
+            .into_iter()
+            .map(|(_, h)| (score_coarse(&case.a, &case.b, &h, params).value, h))
+            .collect();
+        coarse.sort_by(|x, y| y.0.total_cmp(&x.0));
+        let nearest = coarse
+            .iter()
+            .enumerate()
+            .map(|(k, (_, h))| (k, pose_error(h, &case.a_from_b)))
+            .min_by(|x, y| (x.1.0 + x.1.1).total_cmp(&(y.1.0 + y.1.1)));
+        let (rank, (hyp_m, hyp_rad)) = nearest.unwrap_or((usize::MAX, (f64::NAN, f64::NAN)));
+        let at_truth = scanfuse::register::icp::refine(
+            &case.a,
+            &case.b,
+            &case.a_from_b,
+            params,
+            params.class_aware,
+        );
+        let s_truth =
+            scanfuse::register::score::score(&case.a, &case.b, &at_truth.a_from_b, params);
+        let stage = if rot_err > 2f64.to_radians() {
+            0
+        } else if hyp_m > 0.3 || hyp_rad > 2f64.to_radians() {
+            1
+        } else if rank >= params.refine_best * 3 {
+            2
+        } else {
+            3
+        };
+        lost[stage] += 1;
+        let verdict = match &r.verdict {
+            Ok(()) => format!("WRONG by {:.2} m {:.1}°", dt, dyaw.to_degrees()),
+            Err(why) if dt <= tol_m && dyaw <= tol_rad => format!("(best right) {why}"),
+            Err(why) => format!("(best {:.2} m {:.1}° off) {why}", dt, dyaw.to_degrees()),
+        };
+        let dir = |d: &scanfuse::register::score::DirScore| {
+            format!("{:.2}/{:.2}/{:.2}", d.hit, d.overlap, d.violation)
+        };
+        println!(
+            "    truth: {} {} = {:.3}   best: {} {} = {:.3}",
+            dir(&s_truth.a_in_b),
+            dir(&s_truth.b_in_a),
+            s_truth.value,
+            dir(&r.score.a_in_b),
+            dir(&r.score.b_in_a),
+            r.score.value
+        );
+        println!(
+            "{:<26} {:>4.0}% {:>6.1} {:>2}/{:<2} {:>6.0} {:>7.1} {:>5} {:>7} {:>+7.3}  {verdict}",
+            case.label,
+            case.overlap * 100.0,
+            rot_err.to_degrees(),
+            case.a.features.segments.len(),
+            case.b.features.segments.len(),
+            hyp_m * 100.0,
+            hyp_rad.to_degrees(),
+            rank,
+            coarse.len(),
+            s_truth.value - r.score.value,
+        );
+    }
+    println!(
+        "lost at: rotation {}, translation {}, coarse rank {}, refinement/verdict {}",
+        lost[0], lost[1], lost[2], lost[3]
+    );
 }
 
 fn print_row(label: &str, t: &Tally) {

@@ -10,6 +10,9 @@ use nalgebra::{Point2, Rotation2, Vector2};
 use rayon::prelude::*;
 use std::f64::consts::{PI, TAU};
 
+/// Translation peaks weaker than this share of a vote's strongest are not hypotheses.
+const PEAK_FLOOR: f32 = 0.25;
+
 /// Segments used per scan for hypotheses (the longest).
 const MAX_SEGMENTS: usize = 40;
 
@@ -77,6 +80,8 @@ struct Accumulator {
     width: usize,
     height: usize,
     votes: Vec<f32>,
+    /// Cells ever voted for span columns `touched.0..=touched.1`, rows `touched.2..=touched.3`.
+    touched: (usize, usize, usize, usize),
 }
 
 impl Accumulator {
@@ -95,6 +100,16 @@ impl Accumulator {
             width,
             height,
             votes: vec![0.0; width * height],
+            touched: (usize::MAX, 0, usize::MAX, 0),
+        }
+    }
+
+    fn add(&mut self, k: usize, w: f32) {
+        if let Some(v) = self.votes.get_mut(k) {
+            *v += w;
+            let (x, y) = (k % self.width, k / self.width);
+            let t = &mut self.touched;
+            *t = (t.0.min(x), t.1.max(x), t.2.min(y), t.3.max(y));
         }
     }
 
@@ -107,7 +122,7 @@ impl Accumulator {
 
     fn point(&mut self, t: &Point2<f64>, w: f32) {
         if let Some(k) = self.cell(t) {
-            self.votes[k] += w;
+            self.add(k, w);
         }
     }
 
@@ -121,7 +136,7 @@ impl Accumulator {
             if let Some(k) = self.cell(&t)
                 && k != last
             {
-                self.votes[k] += w;
+                self.add(k, w);
                 last = k;
             }
         }
@@ -138,18 +153,61 @@ impl Accumulator {
     /// The strongest local maxima of the 3×3-summed vote, at least `min_gap` cells apart.
     fn peaks(&self, count: usize, min_gap: usize) -> Vec<(f32, Point2<f64>)> {
         let (w, h) = (self.width, self.height);
-        let mut summed = vec![0.0f32; w * h];
-        for y in 1..h.saturating_sub(1) {
-            for x in 1..w - 1 {
-                let mut s = 0.0;
-                for dy in 0..3 {
-                    let row = (y + dy - 1) * w;
-                    s += self.votes[row + x - 1] + self.votes[row + x] + self.votes[row + x + 1];
-                }
-                summed[y * w + x] = s;
+        if w < 3 || h < 3 {
+            return Vec::new();
+        }
+        // 3×3 box sum over the voted window (one cell of margin), separably: rows of three,
+        // then three rows.
+        let (x0, x1, y0, y1) = self.touched;
+        if x0 > x1 || y0 > y1 {
+            return Vec::new();
+        }
+        let (x0, x1) = (x0.max(1), x1.min(w - 2));
+        let (y0, y1) = (y0.max(1), y1.min(h - 2));
+        let mut rows = vec![0.0f32; w * h];
+        for y in y0 - 1..=y1 + 1 {
+            let row = y * w;
+            for x in x0..=x1 {
+                let k = row + x;
+                rows[k] = self.votes[k - 1] + self.votes[k] + self.votes[k + 1];
             }
         }
-        let mut order: Vec<usize> = (0..w * h).filter(|&k| summed[k] > 0.0).collect();
+        let mut summed = vec![0.0f32; w * h];
+        let mut top = 0.0f32;
+        for y in y0..=y1 {
+            for x in x0..=x1 {
+                let k = y * w + x;
+                let v = rows[k - w] + rows[k] + rows[k + w];
+                summed[k] = v;
+                top = top.max(v);
+            }
+        }
+        // Only local maxima well above nothing can be peaks: sorting just those keeps this
+        // cheap on big sites.
+        let floor = (PEAK_FLOOR * top).max(f32::MIN_POSITIVE);
+        let mut order: Vec<usize> = Vec::new();
+        for y in y0..=y1 {
+            for x in x0..=x1 {
+                let k = y * w + x;
+                let v = summed[k];
+                if v >= floor
+                    && [
+                        k - w - 1,
+                        k - w,
+                        k - w + 1,
+                        k - 1,
+                        k + 1,
+                        k + w - 1,
+                        k + w,
+                        k + w + 1,
+                    ]
+                    .iter()
+                    .all(|&j| summed[j] <= v)
+                {
+                    order.push(k);
+                }
+            }
+        }
         order.sort_unstable_by(|&i, &j| summed[j].total_cmp(&summed[i]));
         let mut out: Vec<(f32, usize)> = Vec::with_capacity(count);
         for k in order {
@@ -228,10 +286,48 @@ fn hypotheses_for(
         }
     }
     let gap = (p.same_pose_m / p.vote_res_m).round().max(1.0) as usize;
-    acc.peaks(p.peaks_per_rotation, gap)
+    let mut out: Vec<(f32, Pose2)> = acc
+        .peaks(p.peaks_per_rotation, gap)
         .into_iter()
         .map(|(v, t)| (v, pose2(t.x, t.y, theta)))
-        .collect()
+        .collect();
+    out.extend(
+        point_votes(a, b, &rot, p)
+            .peaks(p.peaks_per_rotation, gap.div_ceil(2))
+            .into_iter()
+            .map(|(v, t)| (v, pose2(t.x, t.y, theta))),
+    );
+    out
+}
+
+/// Translation vote of every point pair whose normals agree under `rot`: the translation that
+/// puts the most of B's outline onto A's gets the most votes. Sparse or cluttered scans, whose
+/// few segments may not share a wall, still vote through their points.
+fn point_votes(
+    a: &ScanModel,
+    b: &ScanModel,
+    rot: &Rotation2<f64>,
+    p: &RegisterParams,
+) -> Accumulator {
+    // Twice as coarse as the segment vote: point pairs scatter more, and the coarse scoring's
+    // slack absorbs the difference.
+    let mut acc = Accumulator::new(a, 2.0 * p.vote_res_m);
+    let (pa, pb) = (a.points(), b.points());
+    let a_side: Vec<(Point2<f64>, Vector2<f64>)> = a
+        .score_sample
+        .iter()
+        .map(|&i| (pa[i], a.normals[i]))
+        .collect();
+    for &j in &b.score_sample {
+        let q = rot * pb[j].coords;
+        let n = rot * b.normals[j];
+        for (pa_i, na_i) in &a_side {
+            if na_i.dot(&n) >= p.min_normal_agreement {
+                acc.point(&(pa_i - q), 1.0);
+            }
+        }
+    }
+    acc
 }
 
 /// All hypotheses `a_from_b` with their vote strength.

@@ -148,6 +148,23 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
             distinct.push(r);
         }
     }
+    // The guarded ICP keeps the iterate the score likes best, and the score is flat within a
+    // degree or two of the optimum: polish the winner with plain narrow-gate ICP, which
+    // settles the heading, unless that costs score (it slid off along a weak direction).
+    if let Some((first, _)) = distinct.first_mut() {
+        let narrow = RegisterParams {
+            max_correspondence_m: p.min_correspondence_m * 1.5,
+            ..p.clone()
+        };
+        let polished = super::icp::refine(a, b, &first.a_from_b, &narrow, p.class_aware);
+        let polished_score = score(a, b, &polished.a_from_b, p);
+        if polished_score.value >= first.score.value - p.polish_tolerance {
+            *first = Candidate {
+                a_from_b: polished.a_from_b,
+                score: polished_score,
+            };
+        }
+    }
     let Some((best, icp)) = distinct.first().cloned() else {
         return PairResult {
             verdict: Err(Abstain::NoHypotheses),

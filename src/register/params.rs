@@ -61,6 +61,8 @@ pub struct RegisterParams {
     /// Residual errors of neighbouring points are correlated; the ICP covariance is
     /// multiplied by this to stay honest.
     pub covariance_inflation: f64,
+    /// The winner is polished by plain ICP when that lowers its score by at most this.
+    pub polish_tolerance: f64,
     /// β of MATCH = β·SIM + (1−β)·CON (eq. 14).
     pub match_beta: f64,
     /// Abstain below this overlap estimate.
@@ -111,11 +113,12 @@ impl Default for RegisterParams {
             min_correspondence_m: 0.12,
             min_normal_agreement: 0.8,
             covariance_inflation: 4.0,
+            polish_tolerance: 0.02,
             match_beta: 0.5,
             min_overlap: 0.2,
             max_violation: 0.15,
-            max_ambiguity: 0.7,
-            min_score: 0.08,
+            max_ambiguity: 0.5,
+            min_score: 0.12,
             slide_ratio: 0.95,
             min_constraint_share: 0.005,
         }

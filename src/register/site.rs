@@ -49,6 +49,10 @@ pub struct SiteParams {
     /// Floor on edge σ, so no single edge is trusted absolutely.
     pub min_sigma_m: f64,
     pub min_sigma_rad: f64,
+    /// An edge on no cycle (a bridge) has nothing to check it: it is kept only with at least
+    /// this strength (overlap × (1 − ambiguity)); a weaker one leaves the far side to be
+    /// placed by two agreeing candidates instead.
+    pub bridge_min_strength: f64,
 }
 
 impl Default for SiteParams {
@@ -60,6 +64,7 @@ impl Default for SiteParams {
             confirm_rad: 1.5f64.to_radians(),
             min_sigma_m: 0.01,
             min_sigma_rad: 0.1f64.to_radians(),
+            bridge_min_strength: 0.2,
         }
     }
 }
@@ -128,7 +133,15 @@ pub fn register_site(
             origin.push((k, 0));
         }
     }
-    let kept = consistent_edges(n, anchor, &edges, sp);
+    let mut kept = consistent_edges(n, anchor, &edges, sp);
+    let kept_edges: Vec<Edge> = kept.iter().map(|&e| edges[e].clone()).collect();
+    let weak_bridges: Vec<usize> = bridges(n, &kept_edges)
+        .into_iter()
+        .filter(|&k| kept_edges[k].strength < sp.bridge_min_strength)
+        .map(|k| kept[k])
+        .collect();
+    let weak_links: Vec<Edge> = weak_bridges.iter().map(|&e| edges[e].clone()).collect();
+    kept.retain(|e| !weak_bridges.contains(e));
     let mut edges: Vec<Edge> = kept.iter().map(|&e| edges[e].clone()).collect();
     let mut origin: Vec<(usize, usize)> = kept.iter().map(|&e| origin[e]).collect();
 
@@ -163,31 +176,25 @@ pub fn register_site(
                 added = true;
             }
         }
-        // A sensor hanging on no edge yet: two of its ambiguous pairs' candidates that agree
-        // about where it stands place it.
-        for u in 0..n {
-            if poses[u].is_some() {
-                continue;
-            }
-            if let Some((e1, e2)) = confirm_through_two(u, &pairs, &results, &poses, p, sp) {
-                for e in [e1, e2] {
-                    let (k, ci) = e;
-                    let (a, b) = pairs[k];
-                    let r = &results[k];
-                    if let Some(c) = r.candidates.get(ci) {
-                        edges.push(Edge {
-                            a,
-                            b,
-                            a_from_b: c.a_from_b,
-                            covariance: r.covariance,
-                            strength: strength(r),
-                        });
-                        origin.push((k, ci));
-                    }
+        // A sensor, or a group of sensors registered among themselves, hanging on no trusted
+        // edge to the anchor's side: two candidates of different pairs, from different placed
+        // sensors, that agree about where the group stands place it.
+        if let Some(found) = confirm_group(n, anchor, &edges, &pairs, &results, &poses, p, sp) {
+            for (k, ci) in found {
+                let (a, b) = pairs[k];
+                let r = &results[k];
+                if let Some(c) = r.candidates.get(ci) {
+                    edges.push(Edge {
+                        a,
+                        b,
+                        a_from_b: c.a_from_b,
+                        covariance: r.covariance,
+                        strength: strength(r),
+                    });
+                    origin.push((k, ci));
                 }
-                added = true;
-                break;
             }
+            added = true;
         }
         if !added {
             break;
@@ -272,7 +279,7 @@ pub fn register_site(
                         "its only registrations put its scan in space {} saw empty",
                         sensors.get(j).map_or("another sensor", |s| s.id.as_str())
                     ),
-                    None => unplaced_reason(i, &pairs, &results),
+                    None => unplaced_reason(i, sensors, &edges, &weak_links, &pairs, &results),
                 }),
             },
         })
@@ -299,53 +306,129 @@ fn strength(r: &PairResult) -> f64 {
     r.overlap * (1.0 - r.ambiguity).max(0.05)
 }
 
-/// Finds two candidates placing sensor `u` from two different placed sensors that agree.
-fn confirm_through_two(
-    u: usize,
+/// Finds two candidates, of pairs joining the anchor's side to one unplaced group (sensors
+/// linked among themselves by kept edges, or a lone sensor), from two different placed
+/// sensors, that agree about where the group stands. Returns (pair, candidate) of both.
+#[allow(clippy::too_many_arguments)]
+fn confirm_group(
+    n: usize,
+    anchor: usize,
+    edges: &[Edge],
     pairs: &[(usize, usize)],
     results: &[PairResult],
     poses: &[Option<Pose2>],
     p: &RegisterParams,
     sp: &SiteParams,
-) -> Option<((usize, usize), (usize, usize))> {
-    // (pair, candidate, placed neighbour, u's pose in the anchor frame)
-    let mut options = Vec::new();
-    for (k, (&(a, b), r)) in pairs.iter().zip(results).enumerate() {
-        let (other, u_is_b) = if a == u {
-            (b, false)
-        } else if b == u {
-            (a, true)
-        } else {
+) -> Option<[(usize, usize); 2]> {
+    let mut grouped = vec![false; n];
+    for root in 0..n {
+        if poses[root].is_some() || grouped[root] || root == anchor {
+            continue;
+        }
+        // The group's own frame: poses relative to `root` through its kept edges.
+        let group = spanning_poses(n, root, edges);
+        for (g, pose) in group.iter().enumerate() {
+            grouped[g] |= pose.is_some();
+        }
+        // (pair, candidate, placed sensor, group member, anchor_from_root)
+        let mut options = Vec::new();
+        for (k, (&(a, b), r)) in pairs.iter().zip(results).enumerate() {
+            let (placed, member, member_is_b) = match (poses[a], group[b], poses[b], group[a]) {
+                (Some(_), Some(_), _, _) => (a, b, true),
+                (_, _, Some(_), Some(_)) => (b, a, false),
+                _ => continue,
+            };
+            let (Some(anchor_from_placed), Some(root_from_member)) = (poses[placed], group[member])
+            else {
+                continue;
+            };
+            for (ci, c) in r.candidates.iter().enumerate() {
+                if c.score.overlap() < p.min_overlap || c.score.violation() > p.max_violation {
+                    continue;
+                }
+                let placed_from_member = if member_is_b {
+                    c.a_from_b
+                } else {
+                    c.a_from_b.inverse()
+                };
+                let anchor_from_root =
+                    anchor_from_placed * placed_from_member * root_from_member.inverse();
+                options.push((k, ci, placed, member, anchor_from_root));
+            }
+        }
+        // Every placement two placed sensors agree on; a symmetric view can be confirmed
+        // twice over, both the true pose and its mirror image, and then nothing is placed.
+        let mut confirmed: Vec<([(usize, usize); 2], Pose2)> = Vec::new();
+        for (i, x) in options.iter().enumerate() {
+            for y in &options[i + 1..] {
+                // From two placed sensors: one placed sensor's symmetric view can match a
+                // whole group wrongly, consistently, through several of its members.
+                if x.2 == y.2 {
+                    continue;
+                }
+                let (dt, dyaw) = pose_error(&x.4, &y.4);
+                if dt <= sp.confirm_m && dyaw <= sp.confirm_rad {
+                    confirmed.push(([(x.0, x.1), (y.0, y.1)], x.4));
+                }
+            }
+        }
+        let Some((first, pose)) = confirmed.first() else {
             continue;
         };
-        let Some(po) = poses[other] else { continue };
-        for (ci, c) in r.candidates.iter().enumerate() {
-            if c.score.overlap() < p.min_overlap || c.score.violation() > p.max_violation {
-                continue;
-            }
-            let pu = if u_is_b {
-                po * c.a_from_b
-            } else {
-                po * c.a_from_b.inverse()
-            };
-            options.push((k, ci, other, pu));
-        }
-    }
-    for (i, x) in options.iter().enumerate() {
-        for y in &options[i + 1..] {
-            if x.2 == y.2 {
-                continue;
-            }
-            let (dt, dyaw) = pose_error(&x.3, &y.3);
-            if dt <= sp.confirm_m && dyaw <= sp.confirm_rad {
-                return Some(((x.0, x.1), (y.0, y.1)));
-            }
+        let unique = confirmed.iter().all(|(_, other)| {
+            let (dt, dyaw) = pose_error(pose, other);
+            dt <= 2.0 * sp.confirm_m && dyaw <= 2.0 * sp.confirm_rad
+        });
+        if unique {
+            return Some(*first);
         }
     }
     None
 }
 
-fn unplaced_reason(i: usize, pairs: &[(usize, usize)], results: &[PairResult]) -> String {
+fn unplaced_reason(
+    i: usize,
+    sensors: &[SensorInput],
+    edges: &[Edge],
+    weak_links: &[Edge],
+    pairs: &[(usize, usize)],
+    results: &[PairResult],
+) -> String {
+    let id = |k: usize| sensors.get(k).map_or("?", |s| s.id.as_str());
+    // Its group: the sensors its kept edges reach.
+    let group: Vec<usize> = spanning_poses(sensors.len(), i, edges)
+        .iter()
+        .enumerate()
+        .filter_map(|(k, p)| p.map(|_| k))
+        .collect();
+    if group.len() > 1 {
+        let names: Vec<&str> = group.iter().filter(|&&k| k != i).map(|&k| id(k)).collect();
+        let links: Vec<String> = weak_links
+            .iter()
+            .filter(|e| group.contains(&e.a) != group.contains(&e.b))
+            .map(|e| format!("{}–{} strength {:.2}", id(e.a), id(e.b), e.strength))
+            .collect();
+        return if links.is_empty() {
+            format!(
+                "registered with {}, but none of that group registers to the anchor's side",
+                names.join(", ")
+            )
+        } else {
+            format!(
+                "registered with {}, but that group's links to the others ({}) are single edges no cycle checks, too weak to trust",
+                names.join(", "),
+                links.join(", ")
+            )
+        };
+    }
+    if let Some(e) = weak_links.iter().find(|e| e.a == i || e.b == i) {
+        return format!(
+            "its only registration ({}–{}) is too weak to trust unchecked (strength {:.2})",
+            id(e.a),
+            id(e.b),
+            e.strength
+        );
+    }
     let best = pairs
         .iter()
         .zip(results)
@@ -411,6 +494,39 @@ pub fn consistent_edges(n: usize, anchor: usize, edges: &[Edge], sp: &SiteParams
         }
     });
     kept
+}
+
+/// Indices of the edges that lie on no cycle: removing one disconnects its two sensors.
+pub fn bridges(n: usize, edges: &[Edge]) -> Vec<usize> {
+    let connected_without = |skip: usize, from: usize, to: usize| {
+        let mut seen = vec![false; n];
+        let mut stack = vec![from];
+        while let Some(u) = stack.pop() {
+            if u == to {
+                return true;
+            }
+            if std::mem::replace(&mut seen[u], true) {
+                continue;
+            }
+            for (k, e) in edges.iter().enumerate() {
+                if k == skip {
+                    continue;
+                }
+                if e.a == u && !seen[e.b] {
+                    stack.push(e.b);
+                } else if e.b == u && !seen[e.a] {
+                    stack.push(e.a);
+                }
+            }
+        }
+        false
+    };
+    (0..edges.len())
+        .filter(|&k| {
+            let e = &edges[k];
+            e.a < n && e.b < n && !connected_without(k, e.a, e.b)
+        })
+        .collect()
 }
 
 /// Anchor-frame poses by a maximum-strength spanning tree from the anchor (Prim).
