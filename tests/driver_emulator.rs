@@ -262,3 +262,38 @@ async fn an_absent_sensor_is_retried_without_end_and_reports_why() {
     );
     driver.stop().await;
 }
+
+#[tokio::test]
+async fn stopping_the_driver_sends_qt_and_closes_the_link() {
+    let (info, scans) = recording(20);
+    let (emu, uri) = emulator(
+        &info,
+        &scans,
+        EmulatorConfig {
+            looping: true,
+            ..Default::default()
+        },
+    )
+    .await;
+    let mut driver = Harness::start(&uri, ScanMode::Me, |_| {});
+    assert_eq!(driver.scans(5, Duration::from_secs(5)).await.len(), 5);
+    let before = emu.stats();
+    // The handshake's QT (stopping a stream left by an earlier client) is the only one so far.
+    assert_eq!((before.quits, before.client_closes), (1, 0), "{before:?}");
+    driver.shutdown.send(true).unwrap();
+    tokio::time::timeout(Duration::from_secs(3), driver.task)
+        .await
+        .expect("the driver stops within its QT bound")
+        .expect("no panic");
+    // The emulator reads the QT and then the end of the stream (it may lag the driver a bit).
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(2);
+    let after = loop {
+        let s = emu.stats();
+        if s.client_closes == 1 || tokio::time::Instant::now() > deadline {
+            break s;
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    };
+    assert_eq!((after.quits, after.client_closes), (2, 1), "{after:?}");
+    assert_eq!(after.dropped, 0);
+}

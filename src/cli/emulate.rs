@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::Context as _;
-use scanfuse::emulator::{Emulator, EmulatorConfig, Faults};
+use scanfuse::emulator::{ClockSetting, Emulator, EmulatorConfig, Faults};
 use scanfuse::record;
 use serialport::SerialPort as _;
 
@@ -54,11 +54,30 @@ pub struct Args {
     /// Fault: refuse TM0 and scans (status 0M) for the first MS ms, like a booting unit.
     #[arg(long, value_name = "MS")]
     booting_ms: Option<u64>,
+    /// Sensor clock reading at start and after each reset (RS/RT/RB), ms; e.g. 16775000 puts
+    /// the 24-bit wrap (16777216) two seconds after the driver's handshake. Real units start at 0.
+    #[arg(long, value_name = "MS", default_value_t = 0)]
+    clock_start_ms: u64,
+    /// Sensor clock drift against the host, parts per million (positive runs fast).
+    #[arg(
+        long,
+        value_name = "PPM",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
+    clock_drift_ppm: f64,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     if !(args.speed.is_finite() && args.speed > 0.0) {
         return Err(BadInput(format!("--speed {} must be a positive number", args.speed)).into());
+    }
+    if !(args.clock_drift_ppm.is_finite() && args.clock_drift_ppm.abs() < 1e6) {
+        return Err(BadInput(format!(
+            "--clock-drift-ppm {} must be a number between -1000000 and 1000000",
+            args.clock_drift_ppm
+        ))
+        .into());
     }
     let recording = record::read(&args.file)?;
     let sensor = match (&args.sensor, recording.sensors.as_slice()) {
@@ -94,6 +113,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             garbage_every: args.garbage_every,
             refuse_for: args.refuse_ms.map(Duration::from_millis),
             booting_for: args.booting_ms.map(Duration::from_millis),
+        },
+        clock: ClockSetting {
+            start_ms: args.clock_start_ms,
+            drift_ppm: args.clock_drift_ppm,
         },
     };
     let scans = recording.scans_of(&sensor.id);
