@@ -719,6 +719,23 @@ mod tests {
     }
 
     #[test]
+    fn the_clock_starts_where_set_drifts_wraps_at_24_bits_and_restarts_on_reset() {
+        let start_ms = (1 << 24) - 100;
+        let mut u = unit().with_clock(ClockSetting {
+            start_ms,
+            drift_ppm: 1000.0,
+        });
+        assert_eq!(u.clock_ms(0), start_ms as u32);
+        assert_eq!(u.clock_ms(50), start_ms as u32 + 50);
+        // 1000 ppm fast: 10 s of host time are 10.01 s of sensor time, past the wrap.
+        assert_eq!(u.clock_ms(10_000), (start_ms + 10_010 - (1 << 24)) as u32);
+        assert_eq!(u.handle(b"RS", 20_000, None), b"RS\n00P\n\n");
+        assert_eq!(u.clock_ms(20_000), start_ms as u32);
+        assert_eq!(u.clock_ms(20_099), (1 << 24) - 1);
+        assert_eq!(u.clock_ms(20_100), 0);
+    }
+
+    #[test]
     fn cr_is_refused_by_the_utm_family_and_checked_against_the_speed_elsewhere() {
         let mut utm = unit();
         assert_eq!(utm.handle(b"CR00", 0, None), b"CR00\n04T\n\n");
