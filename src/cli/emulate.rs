@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::Context as _;
-use scanfuse::emulator::{ClockSetting, Emulator, EmulatorConfig, Faults};
+use scanfuse::emulator::{ClockSetting, Emulator, EmulatorConfig, Faults, SyntheticEchoes};
 use scanfuse::record;
 use serialport::SerialPort as _;
 
@@ -66,6 +66,10 @@ pub struct Args {
         allow_negative_numbers = true
     )]
     clock_drift_ppm: f64,
+    /// Make up a second echo, 500 mm behind the first, for every Nth value of multi-echo
+    /// scans (ND NE HD HE): recordings hold one echo per step. For testing clients.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
+    synthetic_echoes: Option<u32>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -118,6 +122,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             start_ms: args.clock_start_ms,
             drift_ppm: args.clock_drift_ppm,
         },
+        synthetic_echoes: args.synthetic_echoes.map(|every| SyntheticEchoes {
+            every,
+            behind_mm: SYNTHETIC_ECHO_BEHIND_MM,
+        }),
     };
     let scans = recording.scans_of(&sensor.id);
     let emulator = Emulator::new(sensor, scans, config).map_err(|e| BadInput(e.to_string()))?;
@@ -145,6 +153,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         anyhow::Ok(())
     })
 }
+
+/// How far behind the first echo `--synthetic-echoes` puts the second.
+const SYNTHETIC_ECHO_BEHIND_MM: u32 = 500;
 
 /// Time for the last bytes to reach the pty after the recording ends.
 const PTY_DRAIN: Duration = Duration::from_millis(300);

@@ -13,7 +13,7 @@ use tokio::time::Instant;
 
 use super::faults::{EmulatorStats, Faults, GARBAGE};
 use super::playback::Playback;
-use super::unit::{ClockSetting, SourceScan, Unit};
+use super::unit::{ClockSetting, SourceScan, SyntheticEchoes, Unit};
 use crate::scan::{Scan, SensorInfo};
 
 #[derive(Debug, Error)]
@@ -39,6 +39,8 @@ pub struct EmulatorConfig {
     pub faults: Faults,
     /// Where the sensor's ms clock starts and how it drifts.
     pub clock: ClockSetting,
+    /// Made-up second echoes in multi-echo scans (off by default).
+    pub synthetic_echoes: Option<SyntheticEchoes>,
 }
 
 impl Default for EmulatorConfig {
@@ -48,6 +50,7 @@ impl Default for EmulatorConfig {
             looping: false,
             faults: Faults::default(),
             clock: ClockSetting::default(),
+            synthetic_echoes: None,
         }
     }
 }
@@ -116,7 +119,8 @@ impl Emulator {
                             .booting_for
                             .map_or(0, |d| d.as_millis() as u64),
                     )
-                    .with_clock(config.clock),
+                    .with_clock(config.clock)
+                    .with_synthetic_echoes(config.synthetic_echoes),
                 sources,
                 playback,
                 faults: config.faults,

@@ -11,7 +11,7 @@ use crate::scip::command::{Command, Request, ScanRequest, TimeControl};
 use crate::scip::encoding;
 use crate::scip::info::encode_fields;
 use crate::scip::reply::{encode_status, push_line};
-use crate::scip::scan::ScipScan;
+use crate::scip::scan::{Echo, ScipScan};
 
 /// A recorded scan as the sensor measured it: integer mm and raw intensities by step.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -104,6 +104,7 @@ pub struct Unit {
     /// restart it (the spec's RS "resets the sensor's internal timer").
     clock_zero_ms: u64,
     clock: ClockSetting,
+    synthetic_echoes: Option<SyntheticEchoes>,
     /// Until this host time the unit is booting: TM0 and scans are refused (status `0M`).
     booting_until_ms: u64,
     reboot_armed_at_ms: Option<u64>,
@@ -119,6 +120,27 @@ pub struct ClockSetting {
     pub start_ms: u64,
     /// How much faster than the host's the sensor clock runs, parts per million.
     pub drift_ppm: f64,
+}
+
+/// Second echoes for multi-echo commands (ND NE HD HE), made up: a recording holds one echo
+/// per step, so without this an emulated multi-echo scan never has a second one. Every `every`th
+/// value with a range gets one echo `behind_mm` farther, with half the first echo's intensity,
+/// like light passing the edge of an object. Off unless asked for; for testing clients only.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SyntheticEchoes {
+    pub every: u32,
+    pub behind_mm: u32,
+}
+
+impl SyntheticEchoes {
+    /// The made-up echo behind value `index` whose first echo is `(range_mm, intensity)`.
+    pub fn echo(&self, index: u32, range_mm: u32, intensity: u32, max_mm: u32) -> Option<Echo> {
+        (self.every > 0 && index.is_multiple_of(self.every) && range_mm > 0).then(|| Echo {
+            index,
+            range_mm: range_mm.saturating_add(self.behind_mm).min(max_mm),
+            intensity: intensity / 2,
+        })
+    }
 }
 
 /// CR is refused (status 04) by the UTM-30LX family, per the spec's note on CR and the real
@@ -167,6 +189,7 @@ impl Unit {
             motor_speed_adjustable,
             clock_zero_ms: 0,
             clock: ClockSetting::default(),
+            synthetic_echoes: None,
             reboot_armed_at_ms: None,
             booting_until_ms: 0,
             streams_started: 0,
@@ -188,6 +211,12 @@ impl Unit {
     /// it runs against the host's.
     pub fn with_clock(mut self, clock: ClockSetting) -> Self {
         self.clock = clock;
+        self
+    }
+
+    /// Adds made-up further echoes to multi-echo scans (see [`SyntheticEchoes`]).
+    pub fn with_synthetic_echoes(mut self, echoes: Option<SyntheticEchoes>) -> Self {
+        self.synthetic_echoes = echoes;
         self
     }
 
@@ -446,7 +475,7 @@ impl Unit {
         let Some(current) = current else {
             return encode_status(line, *b"10");
         };
-        build(scan, current, self.clock_ms(now_ms)).encode(line, *b"00")
+        build(scan, current, self.clock_ms(now_ms), self.synthetic_echoes).encode(line, *b"00")
     }
 
     /// The next block of a running stream, or `None` when not streaming or when MD's scan
@@ -473,7 +502,8 @@ impl Unit {
         if let Some(digits) = echo.get_mut(13..15) {
             digits.copy_from_slice(format!("{remaining:02}").as_bytes());
         }
-        let block = build(stream.request, source, clock).encode(&echo, *b"99");
+        let block =
+            build(stream.request, source, clock, self.synthetic_echoes).encode(&echo, *b"99");
         if stream.remaining == Some(0) {
             self.mode = Mode::Idle;
             self.laser_on = false;
@@ -483,11 +513,17 @@ impl Unit {
 }
 
 /// The values a scan command asks for: its steps, clustered (minimum valid range per cluster).
-fn build(request: ScanRequest, source: &SourceScan, clock_ms: u32) -> ScipScan {
+fn build(
+    request: ScanRequest,
+    source: &SourceScan,
+    clock_ms: u32,
+    synthetic: Option<SyntheticEchoes>,
+) -> ScipScan {
     let cluster = request.cluster.max(1) as i64;
     let max = encoding::max_value(request.kind.range_width());
     let count = request.value_count();
     let mut ranges_mm = Vec::with_capacity(count);
+    let mut extra_echoes = Vec::new();
     let mut intensities = Vec::with_capacity(if request.kind.has_intensity() {
         count
     } else {
@@ -507,6 +543,14 @@ fn build(request: ScanRequest, source: &SourceScan, clock_ms: u32) -> ScipScan {
         if request.kind.has_intensity() {
             intensities.push(intensity);
         }
+        if let Some(synthetic) = synthetic.filter(|_| request.kind.is_multi_echo()) {
+            let intensity = if request.kind.has_intensity() {
+                intensity
+            } else {
+                0
+            };
+            extra_echoes.extend(synthetic.echo(v as u32, range.min(max), intensity, max));
+        }
     }
     ScipScan {
         request,
@@ -514,7 +558,7 @@ fn build(request: ScanRequest, source: &SourceScan, clock_ms: u32) -> ScipScan {
         timestamp_ms: clock_ms,
         ranges_mm,
         intensities,
-        extra_echoes: vec![],
+        extra_echoes,
     }
 }
 
