@@ -323,7 +323,11 @@ async fn multi_echo_streams_carry_the_emulators_synthetic_second_echoes() {
         assert_eq!(got.len(), 8, "{mode:?}");
         for (k, (out, src)) in got.iter().zip(&scans).enumerate() {
             let ranges = mm(&src.ranges_m);
-            assert_eq!(mm(&out.scan.ranges_m), ranges, "{mode:?} scan {k}: first echoes");
+            assert_eq!(
+                mm(&out.scan.ranges_m),
+                ranges,
+                "{mode:?} scan {k}: first echoes"
+            );
             let expected: Vec<Echo> = ranges
                 .iter()
                 .enumerate()
@@ -339,7 +343,10 @@ async fn multi_echo_streams_carry_the_emulators_synthetic_second_echoes() {
                 })
                 .collect();
             assert!(!expected.is_empty());
-            assert_eq!(out.extra_echoes, expected, "{mode:?} scan {k}: second echoes");
+            assert_eq!(
+                out.extra_echoes, expected,
+                "{mode:?} scan {k}: second echoes"
+            );
             if mode == ScanMode::Ne {
                 assert_eq!(out.scan.intensities, src.intensities);
             }
