@@ -7,7 +7,8 @@ use std::time::Duration;
 
 use driver_support::{Harness, emulator, mm, recording};
 use scanfuse::emulator::faults::GARBAGE;
-use scanfuse::emulator::{EmulatorConfig, Faults};
+use scanfuse::emulator::{EmulatorConfig, Faults, SyntheticEchoes};
+use scanfuse::scip::Echo;
 use scanfuse::sensor::ScanMode;
 
 #[tokio::test]
@@ -261,4 +262,96 @@ async fn an_absent_sensor_is_retried_without_end_and_reports_why() {
         "{c:?}"
     );
     driver.stop().await;
+}
+
+#[tokio::test]
+async fn stopping_the_driver_sends_qt_and_closes_the_link() {
+    let (info, scans) = recording(20);
+    let (emu, uri) = emulator(
+        &info,
+        &scans,
+        EmulatorConfig {
+            looping: true,
+            ..Default::default()
+        },
+    )
+    .await;
+    let mut driver = Harness::start(&uri, ScanMode::Me, |_| {});
+    assert_eq!(driver.scans(5, Duration::from_secs(5)).await.len(), 5);
+    let before = emu.stats();
+    // The handshake's QT (stopping a stream left by an earlier client) is the only one so far.
+    assert_eq!((before.quits, before.client_closes), (1, 0), "{before:?}");
+    driver.shutdown.send(true).unwrap();
+    tokio::time::timeout(Duration::from_secs(3), driver.task)
+        .await
+        .expect("the driver stops within its QT bound")
+        .expect("no panic");
+    // The emulator reads the QT and then the end of the stream (it may lag the driver a bit).
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(2);
+    let after = loop {
+        let s = emu.stats();
+        if s.client_closes == 1 || tokio::time::Instant::now() > deadline {
+            break s;
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    };
+    assert_eq!((after.quits, after.client_closes), (2, 1), "{after:?}");
+    assert_eq!(after.dropped, 0);
+}
+
+#[tokio::test]
+async fn multi_echo_streams_carry_the_emulators_synthetic_second_echoes() {
+    // Recordings hold one echo per step; the emulator makes up a second one 500 mm behind
+    // every 10th value so the ND/NE path is exercised end to end.
+    let (info, scans) = recording(8);
+    let synthetic = SyntheticEchoes {
+        every: 10,
+        behind_mm: 500,
+    };
+    for mode in [ScanMode::Nd, ScanMode::Ne] {
+        let (_emu, uri) = emulator(
+            &info,
+            &scans,
+            EmulatorConfig {
+                synthetic_echoes: Some(synthetic),
+                ..Default::default()
+            },
+        )
+        .await;
+        let mut driver = Harness::start(&uri, mode, |_| {});
+        let got = driver.scans(8, Duration::from_secs(5)).await;
+        assert_eq!(got.len(), 8, "{mode:?}");
+        for (k, (out, src)) in got.iter().zip(&scans).enumerate() {
+            let ranges = mm(&src.ranges_m);
+            assert_eq!(
+                mm(&out.scan.ranges_m),
+                ranges,
+                "{mode:?} scan {k}: first echoes"
+            );
+            let expected: Vec<Echo> = ranges
+                .iter()
+                .enumerate()
+                .filter(|(i, r)| i % 10 == 0 && **r > 0)
+                .map(|(i, &r)| Echo {
+                    index: i as u32,
+                    range_mm: r + 500,
+                    intensity: if mode == ScanMode::Ne {
+                        src.intensities[i] as u32 / 2
+                    } else {
+                        0
+                    },
+                })
+                .collect();
+            assert!(!expected.is_empty());
+            assert_eq!(
+                out.extra_echoes, expected,
+                "{mode:?} scan {k}: second echoes"
+            );
+            if mode == ScanMode::Ne {
+                assert_eq!(out.scan.intensities, src.intensities);
+            }
+        }
+        assert_eq!(driver.counters.snapshot().decode_errors, 0);
+        driver.stop().await;
+    }
 }

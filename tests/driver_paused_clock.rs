@@ -171,3 +171,47 @@ async fn tm0_refused_while_the_unit_boots_is_retried() {
     stop.send(true).unwrap();
     task.await.unwrap();
 }
+
+#[tokio::test(start_paused = true)]
+async fn shutdown_waits_for_qt_no_longer_than_its_bound() {
+    let (info, scans) = recording(20);
+    // The unit goes silent after 3 scans for a minute: it reads nothing, so QT goes unanswered.
+    let emulator = Emulator::new(
+        &info,
+        &scans,
+        EmulatorConfig {
+            looping: true,
+            faults: Faults {
+                stall: Some((3, Duration::from_secs(60))),
+                ..Faults::default()
+            },
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let attempts = Arc::new(Mutex::new(Vec::new()));
+    let mut config = config();
+    config.watchdog_periods = 10_000.0; // keep the link through the stall
+    let driver = Driver::with_connector(config, connector(emulator.clone(), 0, attempts));
+    let (tx, mut rx) = mpsc::channel(1024);
+    let (stop, stop_rx) = watch::channel(false);
+    let task = tokio::spawn(driver.run(tx, stop_rx));
+    let mut seen = 0;
+    while seen < 3 {
+        if let Some(DriverEvent::Scan(_)) = rx.recv().await {
+            seen += 1;
+        }
+    }
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    assert_eq!(emulator.stats().stalls, 1);
+    let quits = emulator.stats().quits;
+    let asked = Instant::now();
+    stop.send(true).unwrap();
+    task.await.unwrap();
+    assert_eq!(asked.elapsed(), scanfuse::sensor::QUIT_TIMEOUT);
+    assert_eq!(
+        emulator.stats().quits,
+        quits,
+        "the stalled unit never read the QT"
+    );
+}

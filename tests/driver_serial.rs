@@ -8,6 +8,7 @@ use std::time::Duration;
 use driver_support::{Harness, mm, recording};
 use scanfuse::emulator::{Emulator, EmulatorConfig, Faults};
 use scanfuse::sensor::ScanMode;
+use scanfuse::sensor::transport::connect;
 use serialport::{SerialPort, TTYPort};
 
 #[tokio::test]
@@ -35,7 +36,11 @@ async fn scans_arrive_over_a_pty_and_a_corrupted_one_is_dropped() {
             .await
     });
 
-    let mut driver = Harness::start(&format!("serial://{path}"), ScanMode::Me, |_| {});
+    // Two thread hops per direction can lag past 3 scan periods on a loaded machine; the
+    // watchdog has its own exact test (driver_paused_clock.rs), here it must not interfere.
+    let mut driver = Harness::start(&format!("serial://{path}"), ScanMode::Me, |c| {
+        c.watchdog_periods = 40.0;
+    });
     let got = driver.scans(27, Duration::from_secs(15)).await;
     assert_eq!(got.len(), 27, "every uncorrupted scan arrives over the pty");
     let expected: Vec<Vec<u32>> = scans
@@ -55,5 +60,28 @@ async fn scans_arrive_over_a_pty_and_a_corrupted_one_is_dropped() {
             .all(|w| w[1].scan.stamp_ns > w[0].scan.stamp_ns)
     );
     driver.stop().await;
+    drop(slave);
+}
+
+/// A driver that drops its serial link (watchdog, error) must be able to open the same device
+/// again at once, even when the device sends nothing: the bridge threads let go of the port.
+#[tokio::test]
+async fn a_dropped_serial_link_releases_the_port_for_the_next_open() {
+    let (_master, slave) = TTYPort::pair().expect("this system can open a pty");
+    let uri = format!("serial://{}", slave.name().expect("pty has a name"));
+    let link = connect(&uri, Duration::from_secs(1))
+        .await
+        .expect("first open");
+    drop(link);
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(3);
+    loop {
+        match connect(&uri, Duration::from_secs(1)).await {
+            Ok(_) => break,
+            Err(_) if tokio::time::Instant::now() < deadline => {
+                tokio::time::sleep(Duration::from_millis(20)).await;
+            }
+            Err(e) => panic!("the port was never released: {e}"),
+        }
+    }
     drop(slave);
 }

@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::Context as _;
-use scanfuse::emulator::{Emulator, EmulatorConfig, Faults};
+use scanfuse::emulator::{ClockSetting, Emulator, EmulatorConfig, Faults, SyntheticEchoes};
 use scanfuse::record;
 use serialport::SerialPort as _;
 
@@ -54,11 +54,34 @@ pub struct Args {
     /// Fault: refuse TM0 and scans (status 0M) for the first MS ms, like a booting unit.
     #[arg(long, value_name = "MS")]
     booting_ms: Option<u64>,
+    /// Sensor clock reading at start and after each reset (RS/RT/RB), ms; e.g. 16775000 puts
+    /// the 24-bit wrap (16777216) two seconds after the driver's handshake. Real units start at 0.
+    #[arg(long, value_name = "MS", default_value_t = 0)]
+    clock_start_ms: u64,
+    /// Sensor clock drift against the host, parts per million (positive runs fast).
+    #[arg(
+        long,
+        value_name = "PPM",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
+    clock_drift_ppm: f64,
+    /// Make up a second echo, 500 mm behind the first, for every Nth value of multi-echo
+    /// scans (ND NE HD HE): recordings hold one echo per step. For testing clients.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
+    synthetic_echoes: Option<u32>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     if !(args.speed.is_finite() && args.speed > 0.0) {
         return Err(BadInput(format!("--speed {} must be a positive number", args.speed)).into());
+    }
+    if !(args.clock_drift_ppm.is_finite() && args.clock_drift_ppm.abs() < 1e6) {
+        return Err(BadInput(format!(
+            "--clock-drift-ppm {} must be a number between -1000000 and 1000000",
+            args.clock_drift_ppm
+        ))
+        .into());
     }
     let recording = record::read(&args.file)?;
     let sensor = match (&args.sensor, recording.sensors.as_slice()) {
@@ -95,6 +118,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             refuse_for: args.refuse_ms.map(Duration::from_millis),
             booting_for: args.booting_ms.map(Duration::from_millis),
         },
+        clock: ClockSetting {
+            start_ms: args.clock_start_ms,
+            drift_ppm: args.clock_drift_ppm,
+        },
+        synthetic_echoes: args.synthetic_echoes.map(|every| SyntheticEchoes {
+            every,
+            behind_mm: SYNTHETIC_ECHO_BEHIND_MM,
+        }),
     };
     let scans = recording.scans_of(&sensor.id);
     let emulator = Emulator::new(sensor, scans, config).map_err(|e| BadInput(e.to_string()))?;
@@ -122,6 +153,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         anyhow::Ok(())
     })
 }
+
+/// How far behind the first echo `--synthetic-echoes` puts the second.
+const SYNTHETIC_ECHO_BEHIND_MM: u32 = 500;
 
 /// Time for the last bytes to reach the pty after the recording ends.
 const PTY_DRAIN: Duration = Duration::from_millis(300);

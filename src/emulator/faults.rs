@@ -34,4 +34,8 @@ pub struct EmulatorStats {
     pub garbage_bursts: u64,
     pub dropped: u64,
     pub stalls: u64,
+    /// QT commands received (clients stopping the laser).
+    pub quits: u64,
+    /// Connections the client ended (end of stream), as opposed to a fault or an error.
+    pub client_closes: u64,
 }

@@ -16,4 +16,4 @@ pub mod unit;
 pub use faults::{EmulatorStats, Faults};
 pub use playback::Playback;
 pub use server::{Emulator, EmulatorConfig, EmulatorError};
-pub use unit::{SourceScan, Unit};
+pub use unit::{ClockSetting, SourceScan, SyntheticEchoes, Unit};

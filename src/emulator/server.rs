@@ -13,7 +13,7 @@ use tokio::time::Instant;
 
 use super::faults::{EmulatorStats, Faults, GARBAGE};
 use super::playback::Playback;
-use super::unit::{SourceScan, Unit};
+use super::unit::{ClockSetting, SourceScan, SyntheticEchoes, Unit};
 use crate::scan::{Scan, SensorInfo};
 
 #[derive(Debug, Error)]
@@ -37,6 +37,10 @@ pub struct EmulatorConfig {
     /// Start over after the last scan instead of ending.
     pub looping: bool,
     pub faults: Faults,
+    /// Where the sensor's ms clock starts and how it drifts.
+    pub clock: ClockSetting,
+    /// Made-up second echoes in multi-echo scans (off by default).
+    pub synthetic_echoes: Option<SyntheticEchoes>,
 }
 
 impl Default for EmulatorConfig {
@@ -45,6 +49,8 @@ impl Default for EmulatorConfig {
             speed: 1.0,
             looping: false,
             faults: Faults::default(),
+            clock: ClockSetting::default(),
+            synthetic_echoes: None,
         }
     }
 }
@@ -106,12 +112,15 @@ impl Emulator {
         let (finished, _) = watch::channel(false);
         Ok(Emulator {
             shared: Arc::new(Shared {
-                unit: Unit::new(info, geometry).booting_until(
-                    config
-                        .faults
-                        .booting_for
-                        .map_or(0, |d| d.as_millis() as u64),
-                ),
+                unit: Unit::new(info, geometry)
+                    .booting_until(
+                        config
+                            .faults
+                            .booting_for
+                            .map_or(0, |d| d.as_millis() as u64),
+                    )
+                    .with_clock(config.clock)
+                    .with_synthetic_echoes(config.synthetic_echoes),
                 sources,
                 playback,
                 faults: config.faults,
@@ -225,6 +234,7 @@ impl Emulator {
                 n = rd.read(&mut chunk) => {
                     let n = n?;
                     if n == 0 {
+                        lock(&shared.state).stats.client_closes += 1;
                         return Ok(());
                     }
                     pending.extend_from_slice(chunk.get(..n).unwrap_or_default());
@@ -253,6 +263,9 @@ impl Emulator {
 
     fn answer(&self, unit: &mut Unit, line: &[u8]) -> Vec<u8> {
         let shared = &self.shared;
+        if line.starts_with(b"QT") {
+            lock(&shared.state).stats.quits += 1;
+        }
         let now_ms = self.now_ms();
         let current = self
             .current_k()

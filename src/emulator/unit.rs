@@ -11,7 +11,7 @@ use crate::scip::command::{Command, Request, ScanRequest, TimeControl};
 use crate::scip::encoding;
 use crate::scip::info::encode_fields;
 use crate::scip::reply::{encode_status, push_line};
-use crate::scip::scan::ScipScan;
+use crate::scip::scan::{Echo, ScipScan};
 
 /// A recorded scan as the sensor measured it: integer mm and raw intensities by step.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -98,12 +98,55 @@ pub struct Unit {
     laser_on: bool,
     high_sensitivity: bool,
     motor_code: u8,
-    /// Sensor clock = `now_ms - clock_zero_ms` (RS/RT/RB zero it).
+    /// Whether CR can change the motor speed on this model (see [`Unit::new`]).
+    motor_speed_adjustable: bool,
+    /// Sensor clock = `clock.start_ms + (now_ms - clock_zero_ms)·(1 + drift)`; RS/RT/RB
+    /// restart it (the spec's RS "resets the sensor's internal timer").
     clock_zero_ms: u64,
+    clock: ClockSetting,
+    synthetic_echoes: Option<SyntheticEchoes>,
     /// Until this host time the unit is booting: TM0 and scans are refused (status `0M`).
     booting_until_ms: u64,
     reboot_armed_at_ms: Option<u64>,
     streams_started: u64,
+}
+
+/// The emulated sensor clock. A real unit starts at 0 when powered on or reset and keeps
+/// time with its own crystal; tests start it near the 24-bit wrap (2^24 ms ≈ 4 h 40 min)
+/// instead of waiting for it, and make it drift to exercise the driver's clock model.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ClockSetting {
+    /// Clock reading at power-on and after RS/RT/RB, ms (taken modulo 2^24).
+    pub start_ms: u64,
+    /// How much faster than the host's the sensor clock runs, parts per million.
+    pub drift_ppm: f64,
+}
+
+/// Second echoes for multi-echo commands (ND NE HD HE), made up: a recording holds one echo
+/// per step, so without this an emulated multi-echo scan never has a second one. Every `every`th
+/// value with a range gets one echo `behind_mm` farther, with half the first echo's intensity,
+/// like light passing the edge of an object. Off unless asked for; for testing clients only.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SyntheticEchoes {
+    pub every: u32,
+    pub behind_mm: u32,
+}
+
+impl SyntheticEchoes {
+    /// The made-up echo behind value `index` whose first echo is `(range_mm, intensity)`.
+    pub fn echo(&self, index: u32, range_mm: u32, intensity: u32, max_mm: u32) -> Option<Echo> {
+        (self.every > 0 && index.is_multiple_of(self.every) && range_mm > 0).then(|| Echo {
+            index,
+            range_mm: range_mm.saturating_add(self.behind_mm).min(max_mm),
+            intensity: intensity / 2,
+        })
+    }
+}
+
+/// CR is refused (status 04) by the UTM-30LX family, per the spec's note on CR and the real
+/// UTM-30LX and UXM-30LX-E captures; older units such as the URG-04LX take it.
+fn motor_speed_adjustable(model: &str) -> bool {
+    !(model.starts_with("UTM-30LX") || model.starts_with("UXM-30LX"))
 }
 
 /// Bit rates SS accepts (bps).
@@ -127,6 +170,7 @@ impl Unit {
             .get("MODL")
             .cloned()
             .unwrap_or_else(|| info.model.clone());
+        let motor_speed_adjustable = motor_speed_adjustable(&model);
         Unit {
             geometry,
             version: vec![
@@ -142,7 +186,10 @@ impl Unit {
             laser_on: false,
             high_sensitivity: false,
             motor_code: 0,
+            motor_speed_adjustable,
             clock_zero_ms: 0,
+            clock: ClockSetting::default(),
+            synthetic_echoes: None,
             reboot_armed_at_ms: None,
             booting_until_ms: 0,
             streams_started: 0,
@@ -160,9 +207,30 @@ impl Unit {
         &self.geometry
     }
 
+    /// Sets where the sensor clock starts (at power-on and after each reset) and how fast
+    /// it runs against the host's.
+    pub fn with_clock(mut self, clock: ClockSetting) -> Self {
+        self.clock = clock;
+        self
+    }
+
+    /// Adds made-up further echoes to multi-echo scans (see [`SyntheticEchoes`]).
+    pub fn with_synthetic_echoes(mut self, echoes: Option<SyntheticEchoes>) -> Self {
+        self.synthetic_echoes = echoes;
+        self
+    }
+
     /// The sensor's 24-bit ms clock at host time `now_ms`.
     pub fn clock_ms(&self, now_ms: u64) -> u32 {
-        (now_ms.saturating_sub(self.clock_zero_ms) & 0xFF_FFFF) as u32
+        let elapsed_ms = now_ms.saturating_sub(self.clock_zero_ms);
+        let rate = 1.0 + self.clock.drift_ppm * 1e-6;
+        let run_ms = if self.clock.drift_ppm == 0.0 {
+            elapsed_ms
+        } else {
+            // Saturating float-to-int cast: a negative rate cannot wind the clock back.
+            (elapsed_ms as f64 * rate).round() as u64
+        };
+        (self.clock.start_ms.wrapping_add(run_ms) & 0xFF_FFFF) as u32
     }
 
     pub fn state(&self) -> State {
@@ -292,6 +360,10 @@ impl Unit {
                     encode_status(line, *b"01")
                 }
             }
+            // C-42-03320B 8.8: 04 = "incompatible with the current sensor model", which is what
+            // the UTM-30LX and UXM-30LX-E captures answer to CR00; the URG-04LX answers 03
+            // ("already running at that speed").
+            Command::MotorSpeed(_) if !self.motor_speed_adjustable => encode_status(line, *b"04"),
             Command::MotorSpeed(code) => match code {
                 c if c > 10 && c != 99 => encode_status(line, *b"02"),
                 c if c == self.motor_code => encode_status(line, *b"03"),
@@ -403,7 +475,7 @@ impl Unit {
         let Some(current) = current else {
             return encode_status(line, *b"10");
         };
-        build(scan, current, self.clock_ms(now_ms)).encode(line, *b"00")
+        build(scan, current, self.clock_ms(now_ms), self.synthetic_echoes).encode(line, *b"00")
     }
 
     /// The next block of a running stream, or `None` when not streaming or when MD's scan
@@ -430,7 +502,8 @@ impl Unit {
         if let Some(digits) = echo.get_mut(13..15) {
             digits.copy_from_slice(format!("{remaining:02}").as_bytes());
         }
-        let block = build(stream.request, source, clock).encode(&echo, *b"99");
+        let block =
+            build(stream.request, source, clock, self.synthetic_echoes).encode(&echo, *b"99");
         if stream.remaining == Some(0) {
             self.mode = Mode::Idle;
             self.laser_on = false;
@@ -440,11 +513,17 @@ impl Unit {
 }
 
 /// The values a scan command asks for: its steps, clustered (minimum valid range per cluster).
-fn build(request: ScanRequest, source: &SourceScan, clock_ms: u32) -> ScipScan {
+fn build(
+    request: ScanRequest,
+    source: &SourceScan,
+    clock_ms: u32,
+    synthetic: Option<SyntheticEchoes>,
+) -> ScipScan {
     let cluster = request.cluster.max(1) as i64;
     let max = encoding::max_value(request.kind.range_width());
     let count = request.value_count();
     let mut ranges_mm = Vec::with_capacity(count);
+    let mut extra_echoes = Vec::new();
     let mut intensities = Vec::with_capacity(if request.kind.has_intensity() {
         count
     } else {
@@ -464,6 +543,14 @@ fn build(request: ScanRequest, source: &SourceScan, clock_ms: u32) -> ScipScan {
         if request.kind.has_intensity() {
             intensities.push(intensity);
         }
+        if let Some(synthetic) = synthetic.filter(|_| request.kind.is_multi_echo()) {
+            let intensity = if request.kind.has_intensity() {
+                intensity
+            } else {
+                0
+            };
+            extra_echoes.extend(synthetic.echo(v as u32, range.min(max), intensity, max));
+        }
     }
     ScipScan {
         request,
@@ -471,14 +558,14 @@ fn build(request: ScanRequest, source: &SourceScan, clock_ms: u32) -> ScipScan {
         timestamp_ms: clock_ms,
         ranges_mm,
         intensities,
-        extra_echoes: vec![],
+        extra_echoes,
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scip::{Framer, Reply, ScipScan, info};
+    use crate::scip::{Framer, Reply, ScipScan, Status, info};
 
     fn unit() -> Unit {
         let mut info = SensorInfo::new("hall", "UTM-30LX-EW");
@@ -573,64 +660,138 @@ mod tests {
         assert_eq!(scan.ranges_mm, vec![1000, 1003, 1006, 1009]);
     }
 
-    /// The host side of the real UXM-30LX-E capture, replayed against a unit made from that
-    /// capture's VV/PP answers: the same echoes, the same statuses (CR aside, whose refusal
-    /// code differs between firmwares) and the same VV/PP fields.
-    #[test]
-    fn replaying_a_real_session_gets_the_real_units_answers() {
+    /// The host side of a real capture, replayed against a unit made from that capture's VV/PP
+    /// answers: the same echoes, the same statuses (CR included: 04 on the UTM-30LX family,
+    /// 03 on the URG-04LX), the same VV/PP fields and scans of the requested size.
+    fn replay_capture(sent: &[u8], read: &[u8], model: &str, laser_was_on: bool) {
         use crate::scip::capture::unpack;
         use crate::scip::info::fields;
-        const SENT: &[u8] = include_bytes!("../../fixtures/scip/example_uxm_30lx_e.logw");
-        const READ: &[u8] = include_bytes!("../../fixtures/scip/example_uxm_30lx_e.logr");
         let frames_of = |bytes: &[u8]| {
             let mut framer = Framer::new();
             framer.push(bytes);
             std::iter::from_fn(|| framer.next_frame()).collect::<Vec<_>>()
         };
-        let real = frames_of(&unpack(READ).unwrap());
+        let real = frames_of(&unpack(read).unwrap());
         let field_map = |echo: &[u8]| {
             let frame = real.iter().find(|f| f.echo() == echo).unwrap();
             fields(&Reply::parse(frame).unwrap()).unwrap()
         };
-        let mut info = SensorInfo::new("uxm", "UXM-30LX-E");
+        let mut info = SensorInfo::new("unit", model);
         info.fields = field_map(b"VV");
         info.fields.extend(field_map(b"PP"));
+        assert!(info.fields["MODL"].starts_with(model), "{:?}", info.fields);
         let geometry = ScanGeometry::from_fields(&info.fields).unwrap();
         let mut unit = Unit::new(&info, geometry);
+        if laser_was_on {
+            // The capture starts with the laser on from an earlier session: its BM gets 02.
+            unit.handle(b"BM", 0, None);
+        }
         let src = SourceScan {
             first_step: 0,
-            ranges_mm: vec![1234; 761],
-            intensities: vec![],
+            ranges_mm: vec![1234; geometry.amax as usize + 1],
+            intensities: vec![99; geometry.amax as usize + 1],
         };
-        let sent = unpack(SENT).unwrap();
+        let sent = unpack(sent).unwrap();
         let mut ours = Vec::new();
         for (i, line) in sent
             .split(|&b| b == b'\n')
             .filter(|l| !l.is_empty())
             .enumerate()
         {
-            ours.extend(unit.handle(line, 1000 + 10 * i as u64, Some(&src)));
+            let now_ms = 1000 + 10 * i as u64;
+            ours.extend(unit.handle(line, now_ms, Some(&src)));
+            // A one-scan ME/MD stream sends its block after the acknowledgement.
+            while let Some(block) = unit.stream_block(&src, now_ms + 5) {
+                ours.extend(block);
+            }
         }
         let ours = frames_of(&ours);
         assert_eq!(ours.len(), real.len());
+        let mut scans = 0;
         for (a, b) in ours.iter().zip(&real) {
             assert_eq!(a.echo(), b.echo());
             let (ra, rb) = (Reply::parse(a).unwrap(), Reply::parse(b).unwrap());
-            if !a.echo().starts_with(b"CR") {
-                assert_eq!(
-                    ra.status,
-                    rb.status,
-                    "{}",
-                    String::from_utf8_lossy(a.echo())
-                );
-            }
+            let echo = String::from_utf8_lossy(a.echo());
+            assert_eq!(ra.status, rb.status, "{echo}");
             if a.echo() == b"VV" || a.echo() == b"PP" {
                 assert_eq!(fields(&ra).unwrap(), fields(&rb).unwrap());
             }
-            if a.echo().starts_with(b"GD") {
-                let scan = ScipScan::decode(&ra, &mut Vec::new()).unwrap();
-                assert_eq!(scan.ranges_mm, vec![1234; 761]);
+            if rb.status == Status::SCAN_DATA
+                || (a.echo().starts_with(b"G") && rb.lines().next().is_some())
+            {
+                let (sa, sb) = (
+                    ScipScan::decode(&ra, &mut Vec::new()).unwrap(),
+                    ScipScan::decode(&rb, &mut Vec::new()).unwrap(),
+                );
+                assert_eq!(sa.ranges_mm.len(), sb.ranges_mm.len(), "{echo}");
+                assert_eq!(sa.intensities.len(), sb.intensities.len(), "{echo}");
+                assert!(sa.ranges_mm.iter().all(|&r| r == 1234), "{echo}");
+                scans += 1;
             }
         }
+        assert_eq!(scans, 1, "each capture holds one scan");
+    }
+
+    #[test]
+    fn replaying_the_uxm_30lx_e_session_gets_the_real_units_answers() {
+        replay_capture(
+            include_bytes!("../../fixtures/scip/example_uxm_30lx_e.logw"),
+            include_bytes!("../../fixtures/scip/example_uxm_30lx_e.logr"),
+            "UXM-30LX-E",
+            false,
+        );
+    }
+
+    #[test]
+    fn replaying_the_utm_30lx_session_gets_the_real_units_answers() {
+        replay_capture(
+            include_bytes!("../../fixtures/scip/example_utm_30lx.logw"),
+            include_bytes!("../../fixtures/scip/example_utm_30lx.logr"),
+            "UTM-30LX",
+            true,
+        );
+    }
+
+    #[test]
+    fn replaying_the_urg_04lx_session_gets_the_real_units_answers() {
+        replay_capture(
+            include_bytes!("../../fixtures/scip/example_urg_04lx.logw"),
+            include_bytes!("../../fixtures/scip/example_urg_04lx.logr"),
+            "URG-04LX",
+            true,
+        );
+    }
+
+    #[test]
+    fn the_clock_starts_where_set_drifts_wraps_at_24_bits_and_restarts_on_reset() {
+        let start_ms = (1 << 24) - 100;
+        let mut u = unit().with_clock(ClockSetting {
+            start_ms,
+            drift_ppm: 1000.0,
+        });
+        assert_eq!(u.clock_ms(0), start_ms as u32);
+        assert_eq!(u.clock_ms(50), start_ms as u32 + 50);
+        // 1000 ppm fast: 10 s of host time are 10.01 s of sensor time, past the wrap.
+        assert_eq!(u.clock_ms(10_000), (start_ms + 10_010 - (1 << 24)) as u32);
+        assert_eq!(u.handle(b"RS", 20_000, None), b"RS\n00P\n\n");
+        assert_eq!(u.clock_ms(20_000), start_ms as u32);
+        assert_eq!(u.clock_ms(20_099), (1 << 24) - 1);
+        assert_eq!(u.clock_ms(20_100), 0);
+    }
+
+    #[test]
+    fn cr_is_refused_by_the_utm_family_and_checked_against_the_speed_elsewhere() {
+        let mut utm = unit();
+        assert_eq!(utm.handle(b"CR00", 0, None), b"CR00\n04T\n\n");
+        assert_eq!(utm.handle(b"CR05", 0, None), b"CR05\n04T\n\n");
+        let mut info = SensorInfo::new("old", "URG-04LX");
+        info.fields
+            .insert("MODL".into(), "URG-04LX(Hokuyo Automatic Co.,Ltd.)".into());
+        let mut urg = Unit::new(&info, ScanGeometry::UTM_30LX_EW);
+        assert_eq!(urg.handle(b"CR00", 0, None), b"CR00\n03S\n\n");
+        assert_eq!(urg.handle(b"CR05", 0, None), b"CR05\n00P\n\n");
+        assert_eq!(urg.handle(b"CR05", 0, None), b"CR05\n03S\n\n");
+        assert_eq!(urg.handle(b"CR11", 0, None), b"CR11\n02R\n\n");
+        assert_eq!(urg.handle(b"CR99", 0, None), b"CR99\n00P\n\n");
     }
 }

@@ -28,7 +28,7 @@ pub enum InfoError {
 /// All fields of a VV/PP/II reply, in key order.
 pub fn fields(reply: &Reply<'_>) -> Result<BTreeMap<String, String>, InfoError> {
     let mut out = BTreeMap::new();
-    for (i, line) in reply.lines.iter().enumerate() {
+    for (i, line) in reply.lines().enumerate() {
         let text = || String::from_utf8_lossy(line).into_owned();
         let malformed = || InfoError::Malformed {
             line: i + 1,
@@ -160,8 +160,9 @@ pub fn parse_time(text: &str) -> Option<u32> {
 
 /// Time in a TM1 reply: one line of 4 characters plus checksum.
 pub fn parse_tm1(reply: &Reply<'_>) -> Option<u32> {
-    match reply.lines.as_slice() {
-        [line] => {
+    let mut lines = reply.lines();
+    match (lines.next(), lines.next()) {
+        (Some(line), None) => {
             let payload = super::checksum::verified_payload(line)?;
             if payload.len() != 4 {
                 return None;

@@ -23,15 +23,27 @@ pub struct Reply<'a> {
     /// The echoed command line.
     pub echo: &'a [u8],
     pub status: Status,
-    /// Lines after the status, each still ending in its checksum.
-    pub lines: Vec<&'a [u8]>,
+    /// The bytes after the status line's LF, without the final empty line; `None` when the
+    /// status line ends the reply. Kept whole so a scan decoder can walk its lines in one pass.
+    data: Option<&'a [u8]>,
+}
+
+/// Splits at the first LF: the line, and what follows it (`None` without an LF).
+pub(crate) fn split_line(bytes: &[u8]) -> (&[u8], Option<&[u8]>) {
+    match memchr::memchr(b'\n', bytes) {
+        Some(i) => (
+            bytes.get(..i).unwrap_or_default(),
+            Some(bytes.get(i + 1..).unwrap_or_default()),
+        ),
+        None => (bytes, None),
+    }
 }
 
 impl<'a> Reply<'a> {
     pub fn parse(frame: &'a Frame) -> Result<Reply<'a>, ReplyError> {
-        let mut lines = frame.lines();
-        let echo = lines.next().unwrap_or_default();
-        let status_line = lines.next().ok_or(ReplyError::NoStatus)?;
+        let body = frame.bytes.strip_suffix(b"\n\n").unwrap_or(&frame.bytes);
+        let (echo, rest) = split_line(body);
+        let (status_line, data) = split_line(rest.ok_or(ReplyError::NoStatus)?);
         let status = match status_line {
             [a, b, sum] if checksum(&[*a, *b]) == *sum => Status([*a, *b]),
             other => {
@@ -40,11 +52,19 @@ impl<'a> Reply<'a> {
                 ));
             }
         };
-        Ok(Reply {
-            echo,
-            status,
-            lines: lines.collect(),
-        })
+        Ok(Reply { echo, status, data })
+    }
+
+    /// Lines after the status, each still ending in its checksum.
+    pub fn lines(&self) -> impl Iterator<Item = &'a [u8]> + use<'a> {
+        self.data
+            .into_iter()
+            .flat_map(|data| data.split(|&b| b == b'\n'))
+    }
+
+    /// The lines after the status as one block (LFs included), `None` when there are none.
+    pub fn data(&self) -> Option<&'a [u8]> {
+        self.data
     }
 
     /// The two command letters of the echo (`%S` for `%ST`).
@@ -100,7 +120,7 @@ mod tests {
         };
         let reply = Reply::parse(&frame).unwrap();
         assert_eq!(
-            (reply.echo, reply.status, reply.lines.len()),
+            (reply.echo, reply.status, reply.lines().count()),
             (&b"BM"[..], Status(*b"02"), 0)
         );
         let bad = Frame {

@@ -8,6 +8,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 pub struct Counters {
     pub connects: AtomicU64,
     pub reconnects: AtomicU64,
+    /// Connection attempts that failed (refused, timed out, no such port).
+    pub connect_failures: AtomicU64,
     pub scans: AtomicU64,
     pub checksum_errors: AtomicU64,
     pub status_errors: AtomicU64,
@@ -25,6 +27,7 @@ pub struct Counters {
 pub struct CounterSnapshot {
     pub connects: u64,
     pub reconnects: u64,
+    pub connect_failures: u64,
     pub scans: u64,
     pub checksum_errors: u64,
     pub status_errors: u64,
@@ -50,6 +53,7 @@ impl Counters {
         CounterSnapshot {
             connects: get(&self.connects),
             reconnects: get(&self.reconnects),
+            connect_failures: get(&self.connect_failures),
             scans: get(&self.scans),
             checksum_errors: get(&self.checksum_errors),
             status_errors: get(&self.status_errors),

@@ -28,6 +28,9 @@ use crate::scip::{Frame, Framer, Reply};
 
 /// Shortest no-data watchdog, whatever the scan rate.
 const MIN_WATCHDOG: Duration = Duration::from_millis(50);
+/// On shutdown: how long to wait for the answer to QT (laser off) and for the link to close.
+/// A unit that does not answer in time is left as it is; shutdown never hangs on a sensor.
+pub const QUIT_TIMEOUT: Duration = Duration::from_millis(500);
 
 /// Which stream to run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -228,7 +231,10 @@ impl Driver {
             };
             let delivered = session.delivered > 0;
             let error = match result {
-                Err(DriverError::Shutdown) => return,
+                Err(DriverError::Shutdown) => {
+                    session.quit(QUIT_TIMEOUT).await;
+                    return;
+                }
                 Err(e) => e,
                 Ok(()) => DriverError::Closed,
             };
@@ -279,10 +285,17 @@ impl<'a> Session<'a> {
 
     async fn run(&mut self) -> Result<(), DriverError> {
         let config = &self.driver.config;
-        self.link = Some(match &self.driver.connector {
-            Some(connector) => connector().await?,
-            None => connect(&config.connect, config.connect_timeout).await?,
-        });
+        let opened = match &self.driver.connector {
+            Some(connector) => connector().await,
+            None => connect(&config.connect, config.connect_timeout).await,
+        };
+        match opened {
+            Ok(link) => self.link = Some(link),
+            Err(e) => {
+                Counters::add(&self.driver.counters.connect_failures, 1);
+                return Err(e.into());
+            }
+        }
         let (info, geometry) = self.handshake().await?;
         let clock = self.time_sync().await?;
         Counters::add(&self.driver.counters.connects, 1);
@@ -293,6 +306,27 @@ impl<'a> Session<'a> {
 
     fn counters(&self) -> &Counters {
         &self.driver.counters
+    }
+
+    /// Stops the laser (QT) and closes the link, waiting at most `bound` in all. Does nothing
+    /// when no link is open. A stream still running sends scans until the unit reads the QT;
+    /// they are passed over.
+    async fn quit(&mut self, bound: Duration) {
+        if self.link.is_none() {
+            return;
+        }
+        let deadline = Instant::now() + bound;
+        let request = Request::new(Command::Quit);
+        let answered = tokio::time::timeout_at(deadline, self.command(&request)).await;
+        let id = &self.driver.config.id;
+        match answered {
+            Ok(Ok(_)) => tracing::debug!(sensor = %id, "laser stopped (QT answered)"),
+            Ok(Err(e)) => tracing::debug!(sensor = %id, error = %e, "QT on shutdown failed"),
+            Err(_) => tracing::debug!(sensor = %id, ?bound, "QT on shutdown not answered in time"),
+        }
+        if let Some(mut link) = self.link.take() {
+            let _ = tokio::time::timeout_at(deadline, link.shutdown()).await;
+        }
     }
 
     async fn send(&mut self, request: &Request) -> Result<(), DriverError> {

@@ -12,5 +12,7 @@ pub mod driver;
 pub mod transport;
 
 pub use counters::{CounterSnapshot, Counters};
-pub use driver::{Connector, Driver, DriverConfig, DriverError, DriverEvent, ScanMode, SensorScan};
+pub use driver::{
+    Connector, Driver, DriverConfig, DriverError, DriverEvent, QUIT_TIMEOUT, ScanMode, SensorScan,
+};
 pub use transport::{Endpoint, Link, TransportError};

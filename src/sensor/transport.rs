@@ -208,28 +208,35 @@ pub fn bridge(port: Box<dyn serialport::SerialPort>) -> std::io::Result<DuplexSt
                 }
             }
         })?;
-    tokio::spawn(async move {
-        while let Some(bytes) = read_rx.recv().await {
-            if to_async.write_all(&bytes).await.is_err() {
-                return;
-            }
-        }
-        // The port is gone: end of stream for the async side.
-        let _ = to_async.shutdown().await;
-    });
+    // One task forwards both ways, so that whichever end goes away first ends it: when the
+    // async side is dropped it drops the channels, and both threads let go of the port (the
+    // reader within one port timeout) even if the port stays silent. Two separate tasks would
+    // leave the reader waiting for bytes that never come, holding the port's exclusive lock
+    // so that the next open of the same device fails.
     tokio::spawn(async move {
         let mut buf = vec![0u8; 4096];
         loop {
-            match from_async.read(&mut buf).await {
-                Ok(0) | Err(_) => return,
-                Ok(n) => {
-                    if write_tx
-                        .send(buf.get(..n).unwrap_or_default().to_vec())
-                        .is_err()
-                    {
+            tokio::select! {
+                bytes = read_rx.recv() => match bytes {
+                    Some(bytes) => {
+                        if to_async.write_all(&bytes).await.is_err() {
+                            return;
+                        }
+                    }
+                    None => {
+                        // The port is gone: end of stream for the async side.
+                        let _ = to_async.shutdown().await;
                         return;
                     }
-                }
+                },
+                n = from_async.read(&mut buf) => match n {
+                    Ok(0) | Err(_) => return,
+                    Ok(n) => {
+                        if write_tx.send(buf.get(..n).unwrap_or_default().to_vec()).is_err() {
+                            return;
+                        }
+                    }
+                },
             }
         }
     });
