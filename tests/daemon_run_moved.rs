@@ -99,7 +99,14 @@ fn play(
         }
         if r.due(now) {
             let when = SystemTime::UNIX_EPOCH + Duration::from_nanos(now);
-            runs.push((now, r.register(now, when)));
+            let started = std::time::Instant::now();
+            let outcomes = r.register(now, when);
+            println!(
+                "registration at {:.2} s of stream: {:.0} ms of compute",
+                now as f64 / 1e9,
+                started.elapsed().as_secs_f64() * 1e3
+            );
+            runs.push((now, outcomes));
         }
     }
     (moved, runs)

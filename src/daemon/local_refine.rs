@@ -9,19 +9,25 @@
 //!   registration would require;
 //! - every fitting neighbour agrees with the best one within [`SiteParams`]' `confirm_m` /
 //!   `confirm_rad` (one neighbour's local minimum cannot pass alone when others see it);
-//! - the pose lies within `radius_m` / `yaw_rad` of the old pose (else it was no local move).
+//! - the pose lies within `radius_m` / `yaw_rad` of the old pose, plus one step of the seed
+//!   grid (else it was no local move).
 
 use nalgebra::{Matrix2, Matrix3};
 
 use crate::geometry::{Pose2, pose_error, pose2, yaw_rad};
 use crate::register::icp::refine_guarded;
-use crate::register::score::{PoseScore, score};
+use rayon::prelude::*;
+
+use crate::register::score::{PoseScore, score, score_coarse};
 use crate::register::site::SiteParams;
 use crate::register::{RegisterParams, ScanModel};
 
-/// Headings tried around the old one, as fractions of the allowed yaw: ICP's capture range in
-/// heading is a few degrees, a knocked mount turns by more.
-const YAW_SEEDS: [f64; 5] = [0.0, -0.5, 0.5, -1.0, 1.0];
+/// Spacing of the local search's seed grid: the true pose is at most 18 cm and 1.25° from
+/// some seed, within ICP's capture range (its first correspondence gate is 40 cm).
+const SEED_STEP_M: f64 = 0.25;
+const SEED_STEP_RAD: f64 = 2.5 * std::f64::consts::PI / 180.0;
+/// Distinct best seeds refined by ICP per neighbour.
+const REFINED_SEEDS: usize = 4;
 
 /// Another posed sensor, as the moved one is aligned against it.
 pub struct Neighbour<'a> {
@@ -101,7 +107,8 @@ pub fn refine_locally(
         ));
     }
     let (shift_m, turn_rad) = pose_error(&best.site_from_sensor, old);
-    if shift_m > bounds.radius_m || turn_rad > bounds.yaw_rad {
+    // ICP from a seed on the edge of the search may end up to a seed step beyond it.
+    if shift_m > bounds.radius_m + SEED_STEP_M || turn_rad > bounds.yaw_rad + SEED_STEP_RAD {
         return Err(format!(
             "the fit is {shift_m:.2} m, {:.1}° from the old pose, beyond the local search",
             turn_rad.to_degrees()
@@ -124,7 +131,9 @@ fn passes(s: &PoseScore, p: &RegisterParams) -> bool {
     s.overlap() >= p.min_overlap && s.value >= p.min_score && s.violation() <= p.max_violation
 }
 
-/// Guarded ICP from the old pose at each seed heading; the best-scoring result.
+/// The local search against one neighbour: every pose on a grid around the old one (within
+/// the bounds) scored coarsely, the best few distinct ones refined by guarded ICP; the
+/// best-scoring result. ICP alone captures a few centimetres and degrees; a knock is more.
 fn best_fit(
     moved: &ScanModel,
     old: &Pose2,
@@ -133,18 +142,52 @@ fn best_fit(
     p: &RegisterParams,
 ) -> Option<Fit> {
     let a = n.model;
-    let guard = |pose: &Pose2| score(a, moved, pose, p).value;
     let site_from_a = n.site_from_sensor;
-    YAW_SEEDS
-        .iter()
-        .map(|k| {
-            let seed = pose2(
-                old.translation.x,
-                old.translation.y,
-                yaw_rad(old) + k * bounds.yaw_rad,
-            );
-            let init = site_from_a.inverse() * seed;
-            let icp = refine_guarded(a, moved, &init, p, p.class_aware, Some(&guard));
+    let a_from_site = site_from_a.inverse();
+    let steps_xy = (bounds.radius_m / SEED_STEP_M).ceil() as i32;
+    let steps_yaw = (bounds.yaw_rad / SEED_STEP_RAD).ceil() as i32;
+    let old_yaw = yaw_rad(old);
+    let mut seeds: Vec<Pose2> = Vec::new();
+    for ix in -steps_xy..=steps_xy {
+        for iy in -steps_xy..=steps_xy {
+            let (dx, dy) = (f64::from(ix) * SEED_STEP_M, f64::from(iy) * SEED_STEP_M);
+            if dx.hypot(dy) > bounds.radius_m + 1e-9 {
+                continue;
+            }
+            for k in -steps_yaw..=steps_yaw {
+                let dyaw = (f64::from(k) * SEED_STEP_RAD).clamp(-bounds.yaw_rad, bounds.yaw_rad);
+                let seed = pose2(
+                    old.translation.x + dx,
+                    old.translation.y + dy,
+                    old_yaw + dyaw,
+                );
+                seeds.push(a_from_site * seed);
+            }
+        }
+    }
+    let mut coarse: Vec<(f64, Pose2)> = seeds
+        .into_par_iter()
+        .map(|init| (score_coarse(a, moved, &init, p).value, init))
+        .collect();
+    coarse.sort_by(|x, y| y.0.total_cmp(&x.0));
+    let mut best_seeds: Vec<Pose2> = Vec::new();
+    for (_, pose) in coarse {
+        if best_seeds.len() >= REFINED_SEEDS {
+            break;
+        }
+        let apart = |s: &Pose2| {
+            let (dt, dyaw) = pose_error(s, &pose);
+            dt >= p.seed_gap_m || dyaw >= p.seed_gap_rad
+        };
+        if best_seeds.iter().all(apart) {
+            best_seeds.push(pose);
+        }
+    }
+    let guard = |pose: &Pose2| score(a, moved, pose, p).value;
+    best_seeds
+        .par_iter()
+        .map(|init| {
+            let icp = refine_guarded(a, moved, init, p, p.class_aware, Some(&guard));
             let s = score(a, moved, &icp.a_from_b, p);
             (s, icp)
         })

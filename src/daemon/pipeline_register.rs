@@ -97,6 +97,9 @@ struct Track {
     /// Its static view once posed: the scans are compared with it beam by beam (moved-sensor
     /// detection), and a moved neighbour is aligned against it.
     background: Option<Scan>,
+    /// `background` prepared for registration, made once (a moved neighbour's local
+    /// refinement aligns against it, and should not wait for it to be built).
+    background_model: Option<ScanModel>,
     /// Why the last local refinement was refused (reported with the global outcome).
     local_refused: Option<String>,
     /// Stamp of the first changed scan of the current streak.
@@ -104,8 +107,11 @@ struct Track {
     unchanged_run: u32,
 }
 
-/// Share of the background's returns that `scan` no longer sees where they were; `None`
-/// when the layouts differ or the background has no returns.
+/// Share of the background's returns that `scan` now sees beyond (by more than
+/// [`CHANGE_TOL_M`]) or no longer sees at all; `None` when the layouts differ or the
+/// background has no returns. Nearer returns do not count: something in front of the
+/// background (a person, a trolley) shortens beams, only a sensor that moved or turned looks
+/// past where its static structure was.
 pub fn changed_fraction(background: &[f32], scan: &Scan) -> Option<f64> {
     if background.len() != scan.ranges_m.len() {
         return None;
@@ -117,7 +123,7 @@ pub fn changed_fraction(background: &[f32], scan: &Scan) -> Option<f64> {
             continue;
         }
         seen += 1;
-        if !(r.is_finite() && r > 0.0) || (r - bg).abs() > CHANGE_TOL_M {
+        if !(r.is_finite() && r > 0.0) || r - bg > CHANGE_TOL_M {
             changed += 1;
         }
     }
@@ -216,6 +222,7 @@ impl Registrar {
                         need,
                         pose,
                         background: None,
+                        background_model: None,
                         local_refused: None,
                         changed_since_ns: None,
                         unchanged_run: 0,
@@ -230,6 +237,7 @@ impl Registrar {
                 if let Some(t) = self.tracks.get_mut(&id) {
                     t.scans.clear();
                     t.background = None;
+                    t.background_model = None;
                     t.changed_since_ns = None;
                     t.need = Need::Pose {
                         since_ns: after_ns.min(now_ns),
@@ -247,6 +255,7 @@ impl Registrar {
     pub fn push(&mut self, item: WorkItem) -> Option<Moved> {
         let window_ns = (self.window_s * 1e9) as u64;
         let window_s = self.window_s;
+        let params = &self.params;
         let t = self.tracks.get_mut(&item.sensor)?;
         if item.geometry.is_some() {
             t.geometry = item.geometry;
@@ -275,6 +284,7 @@ impl Registrar {
                         refine_from: t.pose,
                     };
                     t.background = None;
+                    t.background_model = None;
                     t.changed_since_ns = None;
                     t.scans.retain(|s| s.stamp_ns >= since);
                 }
@@ -302,6 +312,10 @@ impl Registrar {
         if t.need == Need::Nothing && t.background.is_none() && t.ready(window_s) {
             let scans: Vec<Scan> = t.scans.iter().cloned().collect();
             t.background = static_view(&scans, window_s);
+            t.background_model = t
+                .background
+                .as_ref()
+                .map(|bg| ScanModel::from_scan(bg, t.geometry.as_ref(), &t.mount, params));
         }
         moved
     }
@@ -371,23 +385,16 @@ impl Registrar {
         let view = static_view(&scans, self.window_s).ok_or("no static view")?;
         let model =
             ScanModel::from_scan(&view, track.geometry.as_ref(), &track.mount, &self.params);
-        let others: Vec<(&str, Pose3, ScanModel)> = self
+        let neighbours: Vec<Neighbour<'_>> = self
             .tracks
             .iter()
             .filter(|(other, t)| other.as_str() != id && t.need == Need::Nothing)
             .filter_map(|(other, t)| {
-                let pose = t.pose?;
-                let bg = t.background.as_ref()?;
-                let model = ScanModel::from_scan(bg, t.geometry.as_ref(), &t.mount, &self.params);
-                Some((other.as_str(), pose, model))
-            })
-            .collect();
-        let neighbours: Vec<Neighbour<'_>> = others
-            .iter()
-            .map(|(other, pose, model)| Neighbour {
-                id: other,
-                site_from_sensor: pose.planar(),
-                model,
+                Some(Neighbour {
+                    id: other,
+                    site_from_sensor: t.pose?.planar(),
+                    model: t.background_model.as_ref()?,
+                })
             })
             .collect();
         refine_locally(
@@ -570,7 +577,7 @@ pub fn run_worker(
                             EventKind::Moved,
                             Some(&moved.id),
                             format!(
-                                "{} moved: {:.0} % of its static view changed and stayed changed; re-registering it",
+                                "{} moved: it sees past or no longer sees {:.0} % of its static view, and kept doing so; re-registering it",
                                 moved.id,
                                 moved.fraction * 100.0
                             ),
@@ -684,11 +691,12 @@ mod tests {
     }
 
     #[test]
-    fn the_changed_fraction_counts_background_returns_seen_elsewhere() {
+    fn the_changed_fraction_counts_returns_seen_past_the_background_or_lost() {
         let background = vec![2.0, 2.0, 2.0, 2.0, 0.0];
         let mut s = scan(0);
-        s.ranges_m = vec![2.05, 1.0, 2.0, f32::NAN, 5.0];
-        // Beam 1 is nearer (someone in front), beam 3 lost its return; beam 4 had none.
+        s.ranges_m = vec![2.05, 1.0, 2.5, f32::NAN, 5.0];
+        // Beam 1 is nearer (someone in front: no change), beam 2 sees past the background,
+        // beam 3 lost its return; beam 4 had none.
         assert_eq!(changed_fraction(&background, &s), Some(0.5));
         s.ranges_m = vec![2.0; 4];
         assert_eq!(changed_fraction(&background, &s), None, "another layout");
@@ -724,6 +732,28 @@ mod tests {
         );
         assert!((t - 2.5).abs() < 0.06, "after moved_persist_s: {t}");
         assert_eq!(r.pending(), ["b"]);
+    }
+
+    #[test]
+    fn someone_standing_in_front_for_seconds_is_not_a_move() {
+        let mut r = Registrar::new("a", &RegistrationConfig::default());
+        add(&mut r, "a", true);
+        add(&mut r, "b", true);
+        feed(&mut r, "b", 0.0, 1.0);
+        let mut t = 1.1;
+        while t < 4.0 {
+            let mut s = scan((t * 1e9) as u64);
+            // Three quarters of the view blocked by someone half a metre away.
+            s.ranges_m = vec![0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 2.0, 2.0];
+            let moved = r.push(WorkItem {
+                sensor: "b".into(),
+                scan: s,
+                geometry: None,
+            });
+            assert_eq!(moved, None, "at {t:.2} s");
+            t += 0.025;
+        }
+        assert!(r.pending().is_empty());
     }
 
     #[test]
