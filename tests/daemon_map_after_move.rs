@@ -148,6 +148,10 @@ fn no_cell_only_the_old_pose_explained_survives_the_move() {
             .unwrap();
     let s = stream(&rec);
     let bench = s.bench;
+    assert!(
+        s.stale_from_ns + 2_000_000_000 < s.new_from_ns,
+        "bench is fused under its stale pose for seconds"
+    );
 
     // What the daemon's map ends as: bench under its old pose, stale after the move, then new.
     let fused = fuse(&s, u64::MAX, |j, t| {
