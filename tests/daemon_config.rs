@@ -55,7 +55,7 @@ fn the_example_sets_every_key() {
         "refine_yaw_deg", // [registration]
         "map_cell_m",
         "save_interval_s",
-        "frame_rate_hz",
+        "map_rate_hz",
         "watch_backlog",
         "occupied_thresh",
         "free_thresh", // [publish]

@@ -1,12 +1,14 @@
 //! Moved-sensor refresh on the fixtures, through the registration worker's core
 //! ([`Registrar`]) fed the recordings' scans in time order: on `moved`, `bench` is found moved
-//! and re-registered within 10 cm / 1° of its pose after the move, within 2 s of stream time;
+//! and re-registered within 10 cm / 1° of its pose after the move, within 2 s of stream time,
+//! by local refinement from its old pose (and, with the local search bounded below the move,
+//! by the global search after local refinement is refused);
 //! on `lab` and `hall` (played twice over), no sensor is ever called moved.
 
 use std::time::{Duration, SystemTime};
 
 use scanfuse::daemon::config::RegistrationConfig;
-use scanfuse::daemon::pipeline_register::{Command, Registrar, WorkItem};
+use scanfuse::daemon::pipeline_register::{Command, Method, Registrar, WorkItem};
 use scanfuse::daemon::protocol::PoseSource;
 use scanfuse::geometry::{Mount, pose_error, pose2};
 use scanfuse::record::{self, Recording};
@@ -57,7 +59,11 @@ fn items(rec: &Recording, passes: u64) -> Vec<WorkItem> {
 }
 
 fn registrar(rec: &Recording, anchor: &str) -> Registrar {
-    let mut r = Registrar::new(anchor, &RegistrationConfig::default());
+    registrar_with(rec, anchor, &RegistrationConfig::default())
+}
+
+fn registrar_with(rec: &Recording, anchor: &str, config: &RegistrationConfig) -> Registrar {
+    let mut r = Registrar::new(anchor, config);
     for info in &rec.sensors {
         r.command(
             Command::Add {
@@ -67,7 +73,7 @@ fn registrar(rec: &Recording, anchor: &str) -> Registrar {
                     pitch_rad: info.pitch_deg.unwrap_or(0.0).to_radians(),
                 },
                 survey: None,
-                posed: false,
+                pose: None,
             },
             0,
         );
@@ -93,17 +99,25 @@ fn play(
         }
         if r.due(now) {
             let when = SystemTime::UNIX_EPOCH + Duration::from_nanos(now);
-            runs.push((now, r.register(now, when)));
+            let started = std::time::Instant::now();
+            let outcomes = r.register(now, when);
+            println!(
+                "registration at {:.2} s of stream: {:.0} ms of compute",
+                now as f64 / 1e9,
+                started.elapsed().as_secs_f64() * 1e3
+            );
+            runs.push((now, outcomes));
         }
     }
     (moved, runs)
 }
 
-#[test]
-fn a_knocked_sensor_is_found_moved_and_re_registered_within_target() {
+/// Plays `moved` and checks the move is found and bench re-registered within target; returns
+/// how its new pose was found and why local refinement was refused, if it was.
+fn knocked(config: &RegistrationConfig) -> (Method, Option<String>) {
     let rec = fixture("moved.mcap");
     let anchor = "entrance";
-    let mut r = registrar(&rec, anchor);
+    let mut r = registrar_with(&rec, anchor, config);
     let (moved, runs) = play(&mut r, items(&rec, 1));
     assert_eq!(moved.len(), 1, "{moved:?}");
     assert_eq!(moved[0].id, "bench");
@@ -141,6 +155,36 @@ fn a_knocked_sensor_is_found_moved_and_re_registered_within_target() {
         "bench after the move: {err_m:.3} m, {:.2}°",
         err_rad.to_degrees()
     );
+    println!(
+        "bench: {:?} ({:?}), {latency_s:.2} s after the move, {err_m:.3} m, {:.2}°",
+        outcomes[0].method,
+        outcomes[0].local_refused,
+        err_rad.to_degrees()
+    );
+    (outcomes[0].method, outcomes[0].local_refused.clone())
+}
+
+#[test]
+fn a_knocked_sensor_is_found_moved_and_refined_locally_within_target() {
+    let (method, refused) = knocked(&RegistrationConfig::default());
+    assert_eq!(
+        method,
+        Method::Local,
+        "local refinement refused: {refused:?}"
+    );
+}
+
+#[test]
+fn a_move_beyond_the_local_search_falls_back_to_the_global_search_within_target() {
+    // bench moved 0.5 m and 10°; a local search of 10 cm / 2° cannot reach that.
+    let config = RegistrationConfig {
+        refine_radius_m: 0.1,
+        refine_yaw_deg: 2.0,
+        ..RegistrationConfig::default()
+    };
+    let (method, refused) = knocked(&config);
+    assert_eq!(method, Method::Global);
+    assert!(refused.is_some(), "local refinement was tried first");
 }
 
 #[test]

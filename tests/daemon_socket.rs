@@ -407,3 +407,61 @@ async fn a_watcher_that_closes_its_sending_side_keeps_receiving() {
     server.shutdown().await;
     assert_eq!(w.line().await, None);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_socket_never_appears_with_another_mode_than_configured() {
+    let dir = tempfile::tempdir().unwrap();
+    let sock = dir.path().join("s.sock");
+    // A mode no umask gives: a socket seen at the path with any other was made there first
+    // and chmod-ed after.
+    let opts = ServerOptions {
+        socket_mode: 0o604,
+        ..options()
+    };
+    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+    let stop = std::sync::Arc::new(AtomicBool::new(false));
+    let looks = std::sync::Arc::new(AtomicUsize::new(0));
+    let watcher = {
+        let (sock, stop, looks) = (sock.clone(), stop.clone(), looks.clone());
+        std::thread::spawn(move || {
+            let mut seen = std::collections::BTreeSet::new();
+            while !stop.load(Ordering::Relaxed) {
+                if let Ok(meta) = std::fs::symlink_metadata(&sock) {
+                    seen.insert(meta.permissions().mode() & 0o777);
+                    looks.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+            seen
+        })
+    };
+    let site = std::sync::Arc::new(daemon_common::MemorySite::two_sensors(dir.path()));
+    let started = std::time::Instant::now();
+    let mut binds = 0;
+    // Bind over and over while the watcher looks, until it has looked often enough.
+    while binds < 200
+        || (looks.load(Ordering::Relaxed) < 1000 && started.elapsed() < Duration::from_secs(10))
+    {
+        binds += 1;
+        let publisher = scanfuse::daemon::socket::Publisher::new(8);
+        let server = StatusServer::bind(&sock, site.clone(), publisher, opts).unwrap();
+        drop(server);
+        // Dropped unserved, the file stays; a stale socket is replaced by the next bind.
+    }
+    stop.store(true, Ordering::Relaxed);
+    let seen = watcher.join().unwrap();
+    assert!(
+        looks.load(Ordering::Relaxed) > 0,
+        "the watcher saw the socket"
+    );
+    assert_eq!(
+        seen.into_iter().collect::<Vec<_>>(),
+        [0o604],
+        "modes seen at the path"
+    );
+    let left: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.contains("tmp"))
+        .collect();
+    assert!(left.is_empty(), "temporary names left behind: {left:?}");
+}

@@ -117,3 +117,44 @@ fn write_atomic_writes_exactly_the_bytes() {
     );
     assert!(others(dir.path(), "map.yaml").is_empty());
 }
+
+/// `SavedPose` stays a separate struct from the socket's `SensorPose` (the file refuses
+/// unknown keys, which serde's `flatten` would switch off, and its `source` is required), so
+/// this pins the two vocabularies together: every socket field but `age_s` is in the file,
+/// under the same name and with the same value, plus `updated`.
+#[test]
+fn the_file_and_the_socket_use_one_pose_vocabulary() {
+    let mut pose = SensorPose::unregistered("b", "a caveat");
+    pose.registered = true;
+    pose.x_m = Some(1.5);
+    pose.y_m = Some(-2.0);
+    pose.yaw_deg = Some(30.0);
+    pose.z_m = Some(1.1);
+    pose.pitch_deg = Some(-2.0);
+    pose.sigma_x_m = Some(0.01);
+    pose.sigma_y_m = Some(0.02);
+    pose.sigma_yaw_deg = Some(0.1);
+    pose.age_s = Some(3.0);
+    pose.source = Some(PoseSource::ReRegistered);
+    let socket = serde_json::to_value(&pose).unwrap();
+    let saved = SavedPose::from_pose(&pose, PoseSource::ReRegistered, UNIX_EPOCH);
+    let file = serde_json::to_value(&saved).unwrap();
+    let (socket, file) = (socket.as_object().unwrap(), file.as_object().unwrap());
+    for (key, value) in socket {
+        if key == "age_s" {
+            assert!(!file.contains_key(key), "age_s is the socket's alone");
+        } else {
+            assert_eq!(file.get(key), Some(value), "{key}");
+        }
+    }
+    let extra: Vec<&String> = file.keys().filter(|k| !socket.contains_key(*k)).collect();
+    assert_eq!(extra, ["updated"]);
+    // And back: the socket form of a saved pose says where it came from.
+    let back = saved.to_pose(UNIX_EPOCH + Duration::from_secs(5));
+    assert_eq!(back.source, Some(PoseSource::Saved));
+    assert_eq!(back.age_s, Some(5.0));
+    assert_eq!(
+        (back.x_m, back.sigma_yaw_deg),
+        (pose.x_m, pose.sigma_yaw_deg)
+    );
+}

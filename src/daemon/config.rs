@@ -258,8 +258,9 @@ pub struct PublishConfig {
     /// Map files and `poses.toml` are written this often (and on `save` and at shutdown);
     /// 0 writes only on `save` and at shutdown.
     pub save_interval_s: f64,
-    /// Fused frames per second streamed to `watch` clients with `map` on.
-    pub frame_rate_hz: f64,
+    /// The fused cloud and occupancy grid take the latest scans this often (the `watch` map
+    /// stream is not paced: every posed scan is sent as it arrives).
+    pub map_rate_hz: f64,
     /// Messages a watcher may fall behind before it is dropped.
     pub watch_backlog: usize,
     /// `map.yaml`: cells at least this likely occupied are drawn occupied (ROS default 0.65).
@@ -273,7 +274,7 @@ impl Default for PublishConfig {
         PublishConfig {
             map_cell_m: 0.05,
             save_interval_s: 60.0,
-            frame_rate_hz: 10.0,
+            map_rate_hz: 10.0,
             watch_backlog: 256,
             occupied_thresh: 0.65,
             free_thresh: 0.196,
@@ -916,7 +917,7 @@ fn check_publish(p: &PublishConfig) -> Result<(), (&'static str, String)> {
             "must be 0 (only on save and shutdown) or 1–86400 seconds".into(),
         ));
     }
-    positive("frame_rate_hz", p.frame_rate_hz, 100.0)?;
+    positive("map_rate_hz", p.map_rate_hz, 100.0)?;
     if !(8..=65_536).contains(&p.watch_backlog) {
         return Err(("watch_backlog", "must be 8–65536 messages".into()));
     }

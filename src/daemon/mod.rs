@@ -5,11 +5,13 @@
 //! - [`pipeline`]: shared state (drivers' status, latest scans, poses) and the real
 //!   [`socket::StatusSource`];
 //! - [`pipeline_register`]: the registration worker thread and moved-sensor detection;
+//! - [`local_refine`]: a moved sensor aligned from its old pose before any global search;
 //! - [`pipeline_fuse`]: fused frames, the occupancy grid and the map files;
 //! - [`run`]: the lifecycle (emulators for `replay:`, driver tasks, socket, systemd, signals).
 
 pub mod config;
 pub mod lines;
+pub mod local_refine;
 pub mod notify;
 pub mod pipeline;
 pub mod pipeline_fuse;

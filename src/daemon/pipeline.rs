@@ -1,8 +1,9 @@
 //! The running pipeline's shared state: every sensor's driver status, the latest scan of each,
 //! the current poses and the occupancy grid; and the [`StatusSource`] the socket asks.
 //!
-//! Driver tasks write scans in ([`Pipeline::on_driver_event`]), the registration worker
-//! (`pipeline_register`) writes poses, the fuser (`pipeline_fuse`) reads both. Each lock is held
+//! Driver tasks write scans in ([`Pipeline::on_driver_event`], which also sends each posed
+//! scan to `watch` clients as a frame at once), the registration worker (`pipeline_register`)
+//! writes poses, the fuser (`pipeline_fuse`) integrates both into the map in batches. Each lock is held
 //! only for a copy or a small update, so no stage waits on another's work.
 
 use std::collections::BTreeMap;
@@ -15,15 +16,16 @@ use crossbeam_channel::Sender;
 use tokio::sync::watch;
 
 use super::config::{Config, Connect, ScanMode as ConfigMode, SensorConfig, Survey};
-use super::pipeline_fuse::{Fuser, save_files};
+use super::pipeline_fuse::{Fuser, save_files, scan_frame};
 use super::pipeline_register::{Command, WorkItem, surveyed};
 use super::protocol::{
-    Event, EventKind, PoseSource, Poses, Saved, SensorPose, SensorState, SensorStatus, Status,
+    Event, EventKind, Frame, PoseSource, Poses, Saved, SensorPose, SensorState, SensorStatus,
+    Status,
 };
 use super::queue::DropOldestSender;
 use super::rate::RateMeter;
 use super::socket::{Publisher, Refused, StatusSource};
-use crate::geometry::{Mount, Pose3};
+use crate::geometry::{Mount, Pose3, ProjectParams};
 use crate::scan::{Scan, ScanGeometry};
 use crate::sensor::{Counters, DriverEvent, ScanMode};
 
@@ -167,6 +169,8 @@ pub struct Pipeline {
     publisher: Publisher,
     tap: Option<std::sync::mpsc::Sender<Report>>,
     pub(super) fuser: Mutex<Fuser>,
+    /// Projection of scans into `watch` frames (the fuser's own, copied).
+    project: ProjectParams,
     /// Serializes file writes (`save` requests, the periodic save, shutdown).
     save_lock: Mutex<()>,
     /// Host time of the fuser's last pass, ns since the epoch (watchdog liveness).
@@ -203,6 +207,7 @@ impl Pipeline {
             publisher,
             tap,
             fuser: Mutex::new(Fuser::new(&config.publish)),
+            project: *Fuser::new(&config.publish).project_params(),
             save_lock: Mutex::new(()),
             fuser_beat_ns: AtomicU64::new(now_ns()),
         }
@@ -232,10 +237,6 @@ impl Pipeline {
         self.publisher.event(event);
     }
 
-    pub(super) fn publisher(&self) -> &Publisher {
-        &self.publisher
-    }
-
     /// Sends the terminal a snapshot (no-op without a terminal).
     pub(super) fn tick(&self) {
         if let Some(tap) = &self.tap {
@@ -258,8 +259,10 @@ impl Pipeline {
         if let Some(old) = inner.sensors.remove(&id) {
             let _ = old.stop.send(true);
         }
-        let posed = inner.poses.contains_key(&id);
-        if !posed && let Some(survey) = &spec.survey {
+        let pose = inner.poses.get(&id).map(|p| p.site_from_sensor);
+        if pose.is_none()
+            && let Some(survey) = &spec.survey
+        {
             // Shown until registration confirms or replaces it.
             let entry = surveyed(survey, &spec.mount, SystemTime::now());
             inner.poses.insert(id.clone(), entry);
@@ -268,7 +271,7 @@ impl Pipeline {
             id: id.clone(),
             mount: spec.mount,
             survey: spec.survey,
-            posed,
+            pose,
         });
         inner.sensors.insert(
             id,
@@ -344,8 +347,12 @@ impl Pipeline {
                 self.announce(EventKind::Connected, Some(id), message.trim_end());
             }
             DriverEvent::Scan(scan) => {
-                let geometry = {
-                    let mut inner = lock(&self.inner);
+                let watched = self.publisher.frame_watchers() > 0;
+                let (geometry, posed) = {
+                    let mut guard = lock(&self.inner);
+                    let inner = &mut *guard;
+                    let pose = inner.poses.get(id).map(|p| p.site_from_sensor);
+                    let index = inner.sensors.keys().position(|k| k == id);
                     let Some(slot) = inner.sensors.get_mut(id) else {
                         return;
                     };
@@ -353,8 +360,27 @@ impl Pipeline {
                     slot.rate.record(scan.scan.stamp_ns);
                     slot.last_scan = Some(scan.scan.clone());
                     slot.last_scan_at = Some(Instant::now());
-                    slot.geometry
+                    let posed = match (watched, pose, index) {
+                        (true, Some(site_from_sensor), Some(index)) => Some(PosedScan {
+                            index: index as u16,
+                            id: id.to_string(),
+                            scan: scan.scan.clone(),
+                            geometry: slot.geometry,
+                            mount: slot.spec.mount,
+                            site_from_sensor,
+                        }),
+                        _ => None,
+                    };
+                    (slot.geometry, posed)
                 };
+                // The fused stream is event-driven: the scan goes to watchers now, outside
+                // the lock; the grid takes it on the fuser's next pass.
+                if let Some(posed) = posed {
+                    self.publisher.frame(Frame {
+                        stamp_ns: posed.scan.stamp_ns,
+                        scans: vec![scan_frame(&posed, &self.project)],
+                    });
+                }
                 // A full queue drops the oldest scan; a stopped worker only ends registration.
                 let _ = self.queue.push(WorkItem {
                     sensor: id.to_string(),
@@ -462,7 +488,7 @@ impl Pipeline {
                 .collect();
             drop(inner);
             let fuser = lock(&self.fuser);
-            (poses, fuser.grid().clone(), fuser.points().to_vec())
+            (poses, fuser.grid(), fuser.points())
         };
         let files = save_files(&self.state_dir, &anchor, &poses, &grid, &points)
             .map_err(|e| Refused(format!("{e}; check that the state directory is writable")))?;

@@ -1,7 +1,11 @@
-//! The fuser: the latest scan of each posed sensor × its current pose → one fused frame of
-//! site-frame points (streamed to `watch` clients), the fused cloud (`map.ply`) and the
-//! log-odds occupancy grid (`map.pgm` + `map.yaml`); and the atomic writing of those files.
+//! The fuser. The `watch` stream is event-driven: each scan of a posed sensor becomes a frame
+//! of site-frame points the moment it arrives ([`scan_frame`], called on the driver's task).
+//! The fused cloud (`map.ply`) and the log-odds occupancy grid (`map.pgm` + `map.yaml`) are
+//! integrated in batches by [`Fuser`], one grid per sensor so that what a sensor saw under a
+//! pose it no longer has can be dropped without touching the others'. Also the atomic
+//! writing of those files.
 
+use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::SystemTime;
 
@@ -9,96 +13,140 @@ use nalgebra::Point3;
 
 use super::config::PublishConfig;
 use super::pipeline::PosedScan;
-use super::protocol::{Frame, FrameScan, PoseSource, SensorPose};
+use super::protocol::{FrameScan, PoseSource, SensorPose};
 use super::state::{POSES_FILE, PosesFile, SavedPose, StateError, write_atomic};
 use crate::fuse::{GridParams, OccupancyGrid, TaggedPoint, map_yaml, pgm, ply};
-use crate::geometry::{ProjectParams, project_scan};
+use crate::geometry::{Pose3, ProjectParams, pose_error, project_scan};
 
 /// Rays enter the grid at most this often per sensor: a static map needs no 40 Hz updates,
 /// and a ray costs one cell per 5 cm of range.
 pub const GRID_UPDATE_S: f64 = 0.5;
+/// A pose that changes by more than this (half a default cell, a fifth of a degree) makes
+/// the sensor's grid start again: its old cells were drawn from where it no longer is.
+pub const REPOSE_M: f64 = 0.025;
+pub const REPOSE_RAD: f64 = 0.2 * std::f64::consts::PI / 180.0;
 
 pub const MAP_PGM: &str = "map.pgm";
 pub const MAP_YAML: &str = "map.yaml";
 pub const MAP_PLY: &str = "map.ply";
 
-/// The fused map state.
-pub struct Fuser {
+/// One posed sensor's scan as a `watch` frame entry: its points in the site frame.
+pub fn scan_frame(s: &PosedScan, project: &ProjectParams) -> FrameScan {
+    let site_from_sensor = s.site_from_sensor.planar();
+    let points = project_scan(&s.scan, s.geometry.as_ref(), &s.mount, project);
+    let mut xy_m = Vec::with_capacity(points.len() * 2);
+    for p in &points {
+        let site = site_from_sensor * p.p;
+        if site.x.is_finite() && site.y.is_finite() {
+            xy_m.push(site.x as f32);
+            xy_m.push(site.y as f32);
+        }
+    }
+    FrameScan {
+        sensor: s.id.clone(),
+        stamp_ns: s.scan.stamp_ns,
+        xy_m,
+    }
+}
+
+/// What one sensor contributed to the map, under the pose it had.
+struct SensorMap {
+    site_from_sensor: Pose3,
     grid: OccupancyGrid,
-    /// The latest fused cloud, every posed sensor's latest scan.
+    /// Stamp of the last scan whose rays entered `grid`.
+    grid_stamp_ns: Option<u64>,
+    /// Its latest scan's points (the sensor's part of the fused cloud).
     points: Vec<TaggedPoint>,
-    /// Last scan stamp that entered the grid, per sensor.
-    grid_stamps_ns: std::collections::BTreeMap<String, u64>,
+}
+
+/// The fused map state: per-sensor grids and clouds, combined when asked.
+pub struct Fuser {
+    params: GridParams,
+    sensors: BTreeMap<String, SensorMap>,
     project: ProjectParams,
 }
 
 impl Fuser {
     pub fn new(publish: &PublishConfig) -> Fuser {
         Fuser {
-            grid: OccupancyGrid::new(GridParams {
+            params: GridParams {
                 cell_m: publish.map_cell_m,
                 occupied_above: publish.occupied_thresh,
                 free_below: publish.free_thresh,
                 ..GridParams::default()
-            }),
-            points: Vec::new(),
-            grid_stamps_ns: Default::default(),
+            },
+            sensors: BTreeMap::new(),
             project: ProjectParams::default(),
         }
     }
 
-    pub fn grid(&self) -> &OccupancyGrid {
-        &self.grid
+    pub fn project_params(&self) -> &ProjectParams {
+        &self.project
     }
 
-    pub fn points(&self) -> &[TaggedPoint] {
-        &self.points
+    /// The occupancy grid of every sensor's rays.
+    pub fn grid(&self) -> OccupancyGrid {
+        OccupancyGrid::combined(self.params, self.sensors.values().map(|m| &m.grid))
     }
 
-    /// Fuses the latest scans: returns the frame and updates the cloud and (at most every
-    /// [`GRID_UPDATE_S`] per sensor) the grid.
-    pub fn fuse(&mut self, scans: &[PosedScan]) -> Frame {
-        let mut frame = Frame {
-            stamp_ns: 0,
-            scans: Vec::with_capacity(scans.len()),
-        };
-        self.points.clear();
+    /// The fused cloud: every posed sensor's latest scan.
+    pub fn points(&self) -> Vec<TaggedPoint> {
+        self.sensors
+            .values()
+            .flat_map(|m| m.points.iter().copied())
+            .collect()
+    }
+
+    /// Takes the latest scan of every posed sensor: refreshes the cloud and (at most every
+    /// [`GRID_UPDATE_S`] per sensor) the grid. A sensor whose pose changed starts a new grid;
+    /// a sensor absent from `scans` (removed, or no longer posed) leaves the map.
+    pub fn integrate(&mut self, scans: &[PosedScan]) {
+        self.sensors
+            .retain(|id, _| scans.iter().any(|s| &s.id == id));
         for s in scans {
-            let site_from_sensor = s.site_from_sensor.planar();
-            let origin = site_from_sensor.translation.vector.into();
-            let points = project_scan(&s.scan, s.geometry.as_ref(), &s.mount, &self.project);
-            let due = self
-                .grid_stamps_ns
-                .get(&s.id)
-                .is_none_or(|&t| s.scan.stamp_ns.saturating_sub(t) as f64 >= GRID_UPDATE_S * 1e9);
+            let map = match self.sensors.get_mut(&s.id) {
+                Some(map) => {
+                    let (moved_m, moved_rad) =
+                        pose_error(&s.site_from_sensor.planar(), &map.site_from_sensor.planar());
+                    if moved_m > REPOSE_M || moved_rad > REPOSE_RAD {
+                        tracing::debug!(sensor = %s.id, moved_m, "new pose: its grid starts again");
+                        map.site_from_sensor = s.site_from_sensor;
+                        map.grid = OccupancyGrid::new(self.params);
+                        map.grid_stamp_ns = None;
+                    }
+                    map
+                }
+                None => self.sensors.entry(s.id.clone()).or_insert(SensorMap {
+                    site_from_sensor: s.site_from_sensor,
+                    grid: OccupancyGrid::new(self.params),
+                    grid_stamp_ns: None,
+                    points: Vec::new(),
+                }),
+            };
+            let due = map
+                .grid_stamp_ns
+                .is_none_or(|t| s.scan.stamp_ns.saturating_sub(t) as f64 >= GRID_UPDATE_S * 1e9);
             if due {
-                self.grid_stamps_ns.insert(s.id.clone(), s.scan.stamp_ns);
+                map.grid_stamp_ns = Some(s.scan.stamp_ns);
             }
-            let mut xy_m = Vec::with_capacity(points.len() * 2);
-            for p in &points {
+            let site_from_sensor = map.site_from_sensor.planar();
+            let origin = site_from_sensor.translation.vector.into();
+            map.points.clear();
+            for p in project_scan(&s.scan, s.geometry.as_ref(), &s.mount, &self.project) {
                 let site = site_from_sensor * p.p;
                 if !(site.x.is_finite() && site.y.is_finite()) {
                     continue;
                 }
-                xy_m.push(site.x as f32);
-                xy_m.push(site.y as f32);
                 let z_m = p.z_m.or(s.mount.height_m).unwrap_or(0.0);
-                self.points.push(TaggedPoint {
+                map.points.push(TaggedPoint {
                     site: Point3::new(site.x, site.y, z_m),
                     sensor: s.index,
                 });
                 if due {
-                    self.grid.insert_ray(origin, site, true);
+                    map.grid.insert_ray(origin, site, true);
                 }
             }
-            frame.stamp_ns = frame.stamp_ns.max(s.scan.stamp_ns);
-            frame.scans.push(FrameScan {
-                sensor: s.id.clone(),
-                stamp_ns: s.scan.stamp_ns,
-                xy_m,
-            });
         }
-        frame
     }
 }
 
@@ -163,7 +211,7 @@ mod tests {
     fn points_land_where_the_pose_puts_them() {
         let mut fuser = Fuser::new(&PublishConfig::default());
         let pose = Pose3::from_planar(&pose2(1.0, 2.0, std::f64::consts::FRAC_PI_2), 1.0, 0.0);
-        let frame = fuser.fuse(&[PosedScan {
+        let posed = PosedScan {
             index: 0,
             id: "a".into(),
             scan: wall_scan(),
@@ -173,8 +221,12 @@ mod tests {
                 pitch_rad: 0.0,
             },
             site_from_sensor: pose,
-        }]);
-        let xy = &frame.scans[0].xy_m;
+        };
+        let frame = scan_frame(&posed, &ProjectParams::default());
+        assert_eq!(frame.sensor, "a");
+        assert_eq!(frame.stamp_ns, 1_000_000_000);
+        fuser.integrate(&[posed]);
+        let xy = &frame.xy_m;
         assert_eq!(xy.len(), 6);
         // The middle beam looks along the sensor's +x, which is the site's +y.
         assert!(
@@ -185,11 +237,73 @@ mod tests {
         assert!(fuser.grid().size().0 > 0, "the rays entered the grid");
     }
 
+    fn posed(id: &str, index: u16, range_m: f32, stamp_s: f64, x_m: f64, y_m: f64) -> PosedScan {
+        let mut scan = wall_scan();
+        scan.ranges_m = vec![range_m; 3];
+        scan.stamp_ns = (stamp_s * 1e9) as u64;
+        PosedScan {
+            index,
+            id: id.into(),
+            scan,
+            geometry: None,
+            mount: Mount::default(),
+            site_from_sensor: Pose3::from_planar(&pose2(x_m, y_m, 0.0), 0.0, 0.0),
+        }
+    }
+
+    #[test]
+    fn a_sensor_with_a_new_pose_takes_its_old_cells_out_of_the_map() {
+        use crate::fuse::Cell;
+        use nalgebra::Point2;
+        let mut fuser = Fuser::new(&PublishConfig::default());
+        for k in 0..6 {
+            let t = k as f64 * GRID_UPDATE_S;
+            fuser.integrate(&[
+                posed("a", 0, 2.0, t, 0.0, 0.0),
+                posed("b", 1, 3.0, t, 0.0, 5.0),
+            ]);
+        }
+        let before = fuser.grid();
+        assert_eq!(before.cell_at(Point2::new(2.0, 0.0)), Cell::Occupied);
+        assert_eq!(before.cell_at(Point2::new(3.0, 5.0)), Cell::Occupied);
+        // b moved 3 m north and was re-registered there; it still sees a wall 3 m ahead.
+        for k in 6..12 {
+            let t = k as f64 * GRID_UPDATE_S;
+            fuser.integrate(&[
+                posed("a", 0, 2.0, t, 0.0, 0.0),
+                posed("b", 1, 3.0, t, 0.0, 8.0),
+            ]);
+        }
+        let after = fuser.grid();
+        assert_eq!(after.cell_at(Point2::new(3.0, 8.0)), Cell::Occupied);
+        assert_eq!(
+            after.cell_at(Point2::new(3.0, 5.0)),
+            Cell::Unknown,
+            "only b's old pose explained this cell"
+        );
+        assert_eq!(after.cell_at(Point2::new(1.5, 5.0)), Cell::Unknown);
+        assert_eq!(
+            after.cell_at(Point2::new(2.0, 0.0)),
+            Cell::Occupied,
+            "a keeps its cells"
+        );
+        // A pose refined by less than half a cell keeps what the sensor drew.
+        fuser.integrate(&[
+            posed("a", 0, 2.0, 6.5, 0.01, 0.0),
+            posed("b", 1, 3.0, 6.5, 0.0, 8.0),
+        ]);
+        assert_eq!(fuser.grid().cell_at(Point2::new(2.0, 0.0)), Cell::Occupied);
+        // A sensor no longer posed (or removed) leaves the map and the cloud.
+        fuser.integrate(&[posed("a", 0, 2.0, 7.0, 0.0, 0.0)]);
+        assert_eq!(fuser.grid().cell_at(Point2::new(3.0, 8.0)), Cell::Unknown);
+        assert!(fuser.points().iter().all(|p| p.sensor == 0));
+    }
+
     #[test]
     fn saved_files_are_complete_and_parse() {
         let dir = tempfile::tempdir().unwrap();
         let mut fuser = Fuser::new(&PublishConfig::default());
-        fuser.fuse(&[PosedScan {
+        fuser.integrate(&[PosedScan {
             index: 0,
             id: "a".into(),
             scan: wall_scan(),
@@ -210,8 +324,8 @@ mod tests {
             dir.path(),
             "a",
             &[(pose, PoseSource::Registered, SystemTime::now())],
-            fuser.grid(),
-            fuser.points(),
+            &fuser.grid(),
+            &fuser.points(),
         )
         .unwrap();
         assert_eq!(files, ["poses.toml", "map.pgm", "map.yaml", "map.ply"]);

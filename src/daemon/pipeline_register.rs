@@ -1,7 +1,9 @@
 //! The registration worker: a std thread fed scans through the drop-oldest queue and commands
 //! through a channel. It keeps the last second of scans per sensor and, once every sensor that
 //! needs a pose has a static view (people removed by the per-beam median), runs the site
-//! registration and hands the poses to the pipeline, which saves them.
+//! registration and hands the poses to the pipeline, which saves them. A sensor found moved
+//! is first refined locally from its old pose ([`super::local_refine`]); the global search
+//! runs only when that fit is not clearly good.
 //!
 //! [`Registrar`] is the pure part (scans and time in, poses out); [`run_worker`] the thread.
 
@@ -12,6 +14,7 @@ use std::time::{Duration, SystemTime};
 use crossbeam_channel::{Receiver, select};
 
 use super::config::{RegistrationConfig, Survey};
+use super::local_refine::{LocalBounds, Neighbour, refine_locally};
 use super::pipeline::{Pipeline, PoseEntry, now_ns};
 use super::protocol::{EventKind, PoseSource};
 use super::queue::WorkerEnd;
@@ -44,12 +47,12 @@ pub struct WorkItem {
 /// Requests to the worker.
 #[derive(Debug, Clone)]
 pub enum Command {
-    /// A sensor joined; `posed` when it already has a pose (loaded from `poses.toml`).
+    /// A sensor joined; `pose` when it already has one (loaded from `poses.toml`).
     Add {
         id: String,
         mount: Mount,
         survey: Option<Survey>,
-        posed: bool,
+        pose: Option<Pose3>,
     },
     Remove(String),
     /// Register `id` again from scans received after `after_ns`.
@@ -64,11 +67,22 @@ pub enum Command {
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Need {
     Nothing,
-    /// Needs a pose from scans newer than `since_ns`.
+    /// Needs a pose from scans newer than `since_ns`; `refine_from` is the pose to refine
+    /// locally before any global search (a moved sensor's old pose).
     Pose {
         since_ns: u64,
         source: PoseSource,
+        refine_from: Option<Pose3>,
     },
+}
+
+/// How a pose was found.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Method {
+    /// Aligned from its old pose against the others' static views.
+    Local,
+    /// The site registration (global search).
+    Global,
 }
 
 #[derive(Debug)]
@@ -78,15 +92,26 @@ struct Track {
     geometry: Option<ScanGeometry>,
     scans: VecDeque<Scan>,
     need: Need,
-    /// Per-beam static ranges the sensor's scans are compared with (moved-sensor detection).
-    background: Option<Vec<f32>>,
+    /// The pose it has (from the pipeline at start, then from each registration).
+    pose: Option<Pose3>,
+    /// Its static view once posed: the scans are compared with it beam by beam (moved-sensor
+    /// detection), and a moved neighbour is aligned against it.
+    background: Option<Scan>,
+    /// `background` prepared for registration, made once (a moved neighbour's local
+    /// refinement aligns against it, and should not wait for it to be built).
+    background_model: Option<ScanModel>,
+    /// Why the last local refinement was refused (reported with the global outcome).
+    local_refused: Option<String>,
     /// Stamp of the first changed scan of the current streak.
     changed_since_ns: Option<u64>,
     unchanged_run: u32,
 }
 
-/// Share of the background's returns that `scan` no longer sees where they were; `None`
-/// when the layouts differ or the background has no returns.
+/// Share of the background's returns that `scan` now sees beyond (by more than
+/// [`CHANGE_TOL_M`]) or no longer sees at all; `None` when the layouts differ or the
+/// background has no returns. Nearer returns do not count: something in front of the
+/// background (a person, a trolley) shortens beams, only a sensor that moved or turned looks
+/// past where its static structure was.
 pub fn changed_fraction(background: &[f32], scan: &Scan) -> Option<f64> {
     if background.len() != scan.ranges_m.len() {
         return None;
@@ -98,7 +123,7 @@ pub fn changed_fraction(background: &[f32], scan: &Scan) -> Option<f64> {
             continue;
         }
         seen += 1;
-        if !(r.is_finite() && r > 0.0) || (r - bg).abs() > CHANGE_TOL_M {
+        if !(r.is_finite() && r > 0.0) || r - bg > CHANGE_TOL_M {
             changed += 1;
         }
     }
@@ -135,6 +160,9 @@ impl Track {
 pub struct Outcome {
     pub id: String,
     pub pose: Result<PoseEntry, String>,
+    pub method: Method,
+    /// Why local refinement was not accepted, when it was tried first.
+    pub local_refused: Option<String>,
 }
 
 /// The worker's state: recent scans per sensor and who needs a pose.
@@ -145,6 +173,7 @@ pub struct Registrar {
     moved_fraction: f64,
     moved_persist_s: f64,
     tracks: BTreeMap<String, Track>,
+    bounds: LocalBounds,
     params: RegisterParams,
     site_params: SiteParams,
 }
@@ -157,6 +186,10 @@ impl Registrar {
             moved_fraction: config.moved_fraction,
             moved_persist_s: config.moved_persist_s,
             tracks: BTreeMap::new(),
+            bounds: LocalBounds {
+                radius_m: config.refine_radius_m,
+                yaw_rad: config.refine_yaw_deg.to_radians(),
+            },
             params: RegisterParams::default(),
             site_params: SiteParams::default(),
         }
@@ -168,14 +201,15 @@ impl Registrar {
                 id,
                 mount,
                 survey,
-                posed,
+                pose,
             } => {
-                let need = if posed {
+                let need = if pose.is_some() {
                     Need::Nothing
                 } else {
                     Need::Pose {
                         since_ns: 0,
                         source: PoseSource::Registered,
+                        refine_from: None,
                     }
                 };
                 self.tracks.insert(
@@ -186,7 +220,10 @@ impl Registrar {
                         geometry: None,
                         scans: VecDeque::new(),
                         need,
+                        pose,
                         background: None,
+                        background_model: None,
+                        local_refused: None,
                         changed_since_ns: None,
                         unchanged_run: 0,
                     },
@@ -200,10 +237,12 @@ impl Registrar {
                 if let Some(t) = self.tracks.get_mut(&id) {
                     t.scans.clear();
                     t.background = None;
+                    t.background_model = None;
                     t.changed_since_ns = None;
                     t.need = Need::Pose {
                         since_ns: after_ns.min(now_ns),
                         source: PoseSource::ReRegistered,
+                        refine_from: None,
                     };
                 }
             }
@@ -216,6 +255,7 @@ impl Registrar {
     pub fn push(&mut self, item: WorkItem) -> Option<Moved> {
         let window_ns = (self.window_s * 1e9) as u64;
         let window_s = self.window_s;
+        let params = &self.params;
         let t = self.tracks.get_mut(&item.sensor)?;
         if item.geometry.is_some() {
             t.geometry = item.geometry;
@@ -226,8 +266,8 @@ impl Registrar {
             && item.sensor != self.anchor
             && let Some(fraction) = t
                 .background
-                .as_deref()
-                .and_then(|bg| changed_fraction(bg, &item.scan))
+                .as_ref()
+                .and_then(|bg| changed_fraction(&bg.ranges_m, &item.scan))
         {
             if fraction > self.moved_fraction {
                 t.unchanged_run = 0;
@@ -241,8 +281,10 @@ impl Registrar {
                     t.need = Need::Pose {
                         since_ns: since,
                         source: PoseSource::ReRegistered,
+                        refine_from: t.pose,
                     };
                     t.background = None;
+                    t.background_model = None;
                     t.changed_since_ns = None;
                     t.scans.retain(|s| s.stamp_ns >= since);
                 }
@@ -269,7 +311,11 @@ impl Registrar {
         // A posed sensor without a background takes its first full static view as one.
         if t.need == Need::Nothing && t.background.is_none() && t.ready(window_s) {
             let scans: Vec<Scan> = t.scans.iter().cloned().collect();
-            t.background = static_view(&scans, window_s).map(|v| v.ranges_m);
+            t.background = static_view(&scans, window_s);
+            t.background_model = t
+                .background
+                .as_ref()
+                .map(|bg| ScanModel::from_scan(bg, t.geometry.as_ref(), &t.mount, params));
         }
         moved
     }
@@ -283,9 +329,26 @@ impl Registrar {
             .collect()
     }
 
-    /// True when a registration should run now: a pending sensor and the anchor have static
-    /// views, and so does every other sensor (or the oldest request waited long enough).
+    /// True when a registration should run now: a moved sensor has a new static view to
+    /// refine locally, or a pending sensor and the anchor have static views, and so does every
+    /// other sensor (or the oldest request waited long enough).
     pub fn due(&self, now_ns: u64) -> bool {
+        self.due_local() || self.due_global(now_ns)
+    }
+
+    fn due_local(&self) -> bool {
+        self.tracks.values().any(|t| {
+            matches!(
+                t.need,
+                Need::Pose {
+                    refine_from: Some(_),
+                    ..
+                }
+            ) && t.ready(self.window_s)
+        })
+    }
+
+    fn due_global(&self, now_ns: u64) -> bool {
         let Some(anchor) = self.tracks.get(&self.anchor) else {
             return false;
         };
@@ -314,9 +377,97 @@ impl Registrar {
         all_ready || now_ns.saturating_sub(waited_from) as f64 >= WAIT_FOR_ALL_S * 1e9
     }
 
+    /// Aligns moved sensor `id`'s new static view from its old pose against every other
+    /// posed sensor's static view.
+    fn refine_moved(&self, id: &str, old: &Pose3) -> Result<super::local_refine::LocalFit, String> {
+        let track = self.tracks.get(id).ok_or("not a sensor")?;
+        let scans: Vec<Scan> = track.scans.iter().cloned().collect();
+        let view = static_view(&scans, self.window_s).ok_or("no static view")?;
+        let model =
+            ScanModel::from_scan(&view, track.geometry.as_ref(), &track.mount, &self.params);
+        let neighbours: Vec<Neighbour<'_>> = self
+            .tracks
+            .iter()
+            .filter(|(other, t)| other.as_str() != id && t.need == Need::Nothing)
+            .filter_map(|(other, t)| {
+                Some(Neighbour {
+                    id: other,
+                    site_from_sensor: t.pose?.planar(),
+                    model: t.background_model.as_ref()?,
+                })
+            })
+            .collect();
+        refine_locally(
+            &model,
+            &old.planar(),
+            &neighbours,
+            self.bounds,
+            &self.params,
+            &self.site_params,
+        )
+    }
+
     /// Registers every ready sensor jointly; returns outcomes for the pending ones that took
     /// part. A failed sensor with a surveyed pose gets that; any other waits [`RETRY_S`].
     pub fn register(&mut self, now_ns: u64, now: SystemTime) -> Vec<Outcome> {
+        let mut outcomes = Vec::new();
+        // Moved sensors first, locally from their old poses.
+        let moved: Vec<(String, Pose3, PoseSource)> = self
+            .tracks
+            .iter()
+            .filter(|(_, t)| t.ready(self.window_s))
+            .filter_map(|(id, t)| match t.need {
+                Need::Pose {
+                    refine_from: Some(old),
+                    source,
+                    ..
+                } => Some((id.clone(), old, source)),
+                _ => None,
+            })
+            .collect();
+        for (id, old, source) in moved {
+            let fit = self.refine_moved(&id, &old);
+            let Some(track) = self.tracks.get_mut(&id) else {
+                continue;
+            };
+            match fit {
+                Ok(fit) => {
+                    let pose = Pose3::from_planar(&fit.site_from_sensor, old.z_m, old.pitch_rad);
+                    track.need = Need::Nothing;
+                    track.pose = Some(pose);
+                    outcomes.push(Outcome {
+                        id,
+                        pose: Ok(PoseEntry {
+                            site_from_sensor: pose,
+                            sigma_x_m: Some(fit.sigma_x_m),
+                            sigma_y_m: Some(fit.sigma_y_m),
+                            sigma_yaw_rad: Some(fit.sigma_yaw_rad),
+                            source,
+                            loaded: false,
+                            updated: now,
+                        }),
+                        method: Method::Local,
+                        local_refused: None,
+                    });
+                }
+                Err(reason) => {
+                    // The global search takes over, from the same scans.
+                    if let Need::Pose { refine_from, .. } = &mut track.need {
+                        *refine_from = None;
+                    }
+                    track.local_refused = Some(reason);
+                }
+            }
+        }
+        if !self.due_global(now_ns) {
+            return outcomes;
+        }
+        outcomes.extend(self.register_globally(now_ns, now));
+        outcomes
+    }
+
+    /// The site registration of every ready sensor; outcomes for the pending ones.
+    fn register_globally(&mut self, now_ns: u64, now: SystemTime) -> Vec<Outcome> {
         let window_s = self.window_s;
         let ready: Vec<(&String, &Track)> = self
             .tracks
@@ -372,14 +523,19 @@ impl Registrar {
                 Err(_) => Need::Pose {
                     since_ns: now_ns + (RETRY_S * 1e9) as u64,
                     source,
+                    refine_from: None,
                 },
             };
-            if pose.is_err() {
+            if let Ok(entry) = &pose {
+                track.pose = Some(entry.site_from_sensor);
+            } else {
                 track.scans.clear();
             }
             outcomes.push(Outcome {
                 id: placement.id,
                 pose,
+                method: Method::Global,
+                local_refused: track.local_refused.take(),
             });
         }
         outcomes
@@ -421,7 +577,7 @@ pub fn run_worker(
                             EventKind::Moved,
                             Some(&moved.id),
                             format!(
-                                "{} moved: {:.0} % of its static view changed and stayed changed; re-registering it",
+                                "{} moved: it sees past or no longer sees {:.0} % of its static view, and kept doing so; re-registering it",
                                 moved.id,
                                 moved.fraction * 100.0
                             ),
@@ -455,11 +611,18 @@ pub fn run_worker(
                     } else {
                         EventKind::Registered
                     };
+                    let how = match (outcome.method, &outcome.local_refused) {
+                        (Method::Local, _) => "; refined locally from its old pose".to_string(),
+                        (Method::Global, Some(why)) => {
+                            format!("; global search, as local refinement was refused: {why}")
+                        }
+                        (Method::Global, None) => String::new(),
+                    };
                     pipeline.announce(
                         kind,
                         Some(&outcome.id),
                         format!(
-                            "{} at x {:.3} m, y {:.3} m, yaw {:.2}° ({})",
+                            "{} at x {:.3} m, y {:.3} m, yaw {:.2}° ({}{how})",
                             outcome.id,
                             p.x_m,
                             p.y_m,
@@ -509,7 +672,7 @@ mod tests {
                     pitch_rad: 0.0,
                 },
                 survey: None,
-                posed,
+                pose: posed.then(|| Pose3::from_planar(&pose2(0.0, 0.0, 0.0), 0.0, 0.0)),
             },
             0,
         );
@@ -528,11 +691,12 @@ mod tests {
     }
 
     #[test]
-    fn the_changed_fraction_counts_background_returns_seen_elsewhere() {
+    fn the_changed_fraction_counts_returns_seen_past_the_background_or_lost() {
         let background = vec![2.0, 2.0, 2.0, 2.0, 0.0];
         let mut s = scan(0);
-        s.ranges_m = vec![2.05, 1.0, 2.0, f32::NAN, 5.0];
-        // Beam 1 is nearer (someone in front), beam 3 lost its return; beam 4 had none.
+        s.ranges_m = vec![2.05, 1.0, 2.5, f32::NAN, 5.0];
+        // Beam 1 is nearer (someone in front: no change), beam 2 sees past the background,
+        // beam 3 lost its return; beam 4 had none.
         assert_eq!(changed_fraction(&background, &s), Some(0.5));
         s.ranges_m = vec![2.0; 4];
         assert_eq!(changed_fraction(&background, &s), None, "another layout");
@@ -568,6 +732,28 @@ mod tests {
         );
         assert!((t - 2.5).abs() < 0.06, "after moved_persist_s: {t}");
         assert_eq!(r.pending(), ["b"]);
+    }
+
+    #[test]
+    fn someone_standing_in_front_for_seconds_is_not_a_move() {
+        let mut r = Registrar::new("a", &RegistrationConfig::default());
+        add(&mut r, "a", true);
+        add(&mut r, "b", true);
+        feed(&mut r, "b", 0.0, 1.0);
+        let mut t = 1.1;
+        while t < 4.0 {
+            let mut s = scan((t * 1e9) as u64);
+            // Three quarters of the view blocked by someone half a metre away.
+            s.ranges_m = vec![0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 2.0, 2.0];
+            let moved = r.push(WorkItem {
+                sensor: "b".into(),
+                scan: s,
+                geometry: None,
+            });
+            assert_eq!(moved, None, "at {t:.2} s");
+            t += 0.025;
+        }
+        assert!(r.pending().is_empty());
     }
 
     #[test]

@@ -328,8 +328,9 @@ pub struct Event {
     pub message: String,
 }
 
-/// One fused frame, streamed to watchers with `map` on: the latest scan of each sensor as
-/// points in the site frame.
+/// One fused frame, streamed to watchers with `map` on: scans as points in the site frame.
+/// The daemon sends each posed sensor's scan in a frame of its own the moment it arrives
+/// (lowest latency); a watcher that wants the whole site keeps the latest frame per sensor.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Frame {
     /// Host time of the newest scan in the frame, ns since the Unix epoch.

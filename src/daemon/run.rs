@@ -286,17 +286,18 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
     let fuser_thread = {
         let pipeline = Arc::clone(&pipeline);
         let stop = Arc::clone(&fuser_stop);
-        let period = Duration::from_secs_f64(1.0 / config.publish.frame_rate_hz.clamp(0.1, 100.0));
+        let period = Duration::from_secs_f64(1.0 / config.publish.map_rate_hz.clamp(0.1, 100.0));
         std::thread::Builder::new()
             .name("fuser".into())
             .spawn(move || {
+                // Frames go to watchers as scans arrive; this pass only feeds the map.
                 while !stop.load(Ordering::Relaxed) {
                     let scans = pipeline.posed_scans();
-                    let frame = {
-                        let mut fuser = pipeline.fuser.lock().unwrap_or_else(|e| e.into_inner());
-                        fuser.fuse(&scans)
-                    };
-                    pipeline.publisher().frame(frame);
+                    pipeline
+                        .fuser
+                        .lock()
+                        .unwrap_or_else(|e| e.into_inner())
+                        .integrate(&scans);
                     pipeline.fuser_beat();
                     std::thread::sleep(period);
                 }
@@ -423,12 +424,12 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
     if let Err(e) = notifier.stopping() {
         tracing::warn!("{e}");
     }
-    // The fuser works on a timer: fuse the latest scans once more, so poses that arrived after
-    // its last beat (a short replay) are in the saved map.
+    // The map is integrated on a timer: take the latest scans once more, so poses that arrived
+    // after its last pass (a short replay) are in the saved map.
     {
         let scans = pipeline.posed_scans();
         let mut fuser = pipeline.fuser.lock().unwrap_or_else(|e| e.into_inner());
-        fuser.fuse(&scans);
+        fuser.integrate(&scans);
     }
     pipeline.stop_all();
     let p = Arc::clone(&pipeline);

@@ -148,6 +148,12 @@ impl Publisher {
     }
 }
 
+/// A name next to `path` to bind before renaming into place: short (socket paths are limited
+/// to 107 bytes) and this process's own.
+fn temp_socket_path(path: &Path) -> PathBuf {
+    path.with_file_name(format!(".sf{}.tmp", std::process::id()))
+}
+
 /// A bound status socket, ready to [`run`](StatusServer::run).
 pub struct StatusServer<S> {
     listener: UnixListener,
@@ -176,13 +182,25 @@ impl<S: StatusSource> StatusServer<S> {
         if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
             std::fs::create_dir_all(parent).map_err(bind_err)?;
         }
-        let listener = UnixListener::bind(path).map_err(bind_err)?;
-        std::fs::set_permissions(path, std::fs::Permissions::from_mode(options.socket_mode))
-            .map_err(|source| SocketError::Mode {
+        // Bound under a temporary name, given its mode, then renamed into place: the socket
+        // never appears at `path` with the umask's mode.
+        let temp = temp_socket_path(path);
+        let _ = std::fs::remove_file(&temp);
+        let listener = UnixListener::bind(&temp).map_err(bind_err)?;
+        if let Err(source) =
+            std::fs::set_permissions(&temp, std::fs::Permissions::from_mode(options.socket_mode))
+        {
+            let _ = std::fs::remove_file(&temp);
+            return Err(SocketError::Mode {
                 path: path.to_path_buf(),
                 mode: options.socket_mode,
                 source,
-            })?;
+            });
+        }
+        if let Err(source) = std::fs::rename(&temp, path) {
+            let _ = std::fs::remove_file(&temp);
+            return Err(bind_err(source));
+        }
         let meta = std::fs::symlink_metadata(path).map_err(bind_err)?;
         Ok(StatusServer {
             listener,

@@ -152,6 +152,57 @@ impl OccupancyGrid {
         }
     }
 
+    /// The grids combined into one: every observed cell's log-odds summed over the grids
+    /// (clamped), as if their rays had gone into one grid. Lets each sensor keep its own
+    /// grid, so one sensor's cells can be dropped (it moved) without touching the others'.
+    /// Grids with another cell size than `params.cell_m` are skipped.
+    pub fn combined<'a>(
+        params: GridParams,
+        grids: impl IntoIterator<Item = &'a OccupancyGrid>,
+    ) -> OccupancyGrid {
+        let mut out = OccupancyGrid::new(params);
+        let c = params.cell_m;
+        let grids: Vec<&OccupancyGrid> = grids
+            .into_iter()
+            .filter(|g| g.width > 0 && (g.params.cell_m - c).abs() < 1e-12)
+            .collect();
+        let corners: Vec<Point2<f64>> = grids
+            .iter()
+            .flat_map(|g| {
+                // Cell centres of the corner cells, so rounding cannot push a corner outside.
+                let lo = Point2::new(g.origin.x + 0.5 * c, g.origin.y + 0.5 * c);
+                let hi = Point2::new(
+                    g.origin.x + (g.width as f64 - 0.5) * c,
+                    g.origin.y + (g.height as f64 - 0.5) * c,
+                );
+                [lo, hi]
+            })
+            .collect();
+        if corners.is_empty() || !out.fit(&corners) {
+            return out;
+        }
+        let clamp = params.clamp_log_odds;
+        for g in grids {
+            for y in 0..g.height {
+                for x in 0..g.width {
+                    let Some(&l) = g.log_odds.get(y * g.width + x) else {
+                        continue;
+                    };
+                    if l == 0.0 {
+                        continue;
+                    }
+                    let centre = Point2::new(
+                        g.origin.x + (x as f64 + 0.5) * c,
+                        g.origin.y + (y as f64 + 0.5) * c,
+                    );
+                    let (tx, ty) = out.cell_of(centre);
+                    out.add(tx, ty, l, clamp);
+                }
+            }
+        }
+        out
+    }
+
     fn add(&mut self, x: i64, y: i64, delta: f32, clamp: f32) {
         if let Some(l) = self.index(x, y).and_then(|i| self.log_odds.get_mut(i)) {
             *l = (*l + delta).clamp(-clamp, clamp);
@@ -286,6 +337,39 @@ mod tests {
         assert_eq!(g.cell_at(p(-20.0, -15.0)), Cell::Occupied);
         assert_eq!(g.cell_at(p(30.0, 12.0)), Cell::Occupied);
         assert_eq!(g.cell_at(p(0.5, 0.5)), Cell::Free);
+    }
+
+    #[test]
+    fn combined_grids_sum_what_each_saw_wherever_their_origins_are() {
+        let mut a = OccupancyGrid::new(GridParams::default());
+        let mut b = OccupancyGrid::new(GridParams::default());
+        for _ in 0..5 {
+            a.insert_ray(p(0.0, 0.0), p(3.0, 1.0), true);
+            b.insert_ray(p(10.0, -4.0), p(12.0, -4.0), true);
+        }
+        // A cell both saw free twice: each alone is undecided, together they call it free.
+        for _ in 0..2 {
+            a.insert_ray(p(0.0, 0.0), p(0.0, 8.0), false);
+            b.insert_ray(p(-4.0, 6.0), p(4.0, 6.0), false);
+        }
+        assert_eq!(a.cell_at(p(0.0, 6.0)), Cell::Unknown);
+        assert_eq!(b.cell_at(p(0.0, 6.0)), Cell::Unknown);
+        let both = OccupancyGrid::combined(GridParams::default(), [&a, &b]);
+        assert_eq!(both.cell_at(p(3.0, 1.0)), Cell::Occupied);
+        assert_eq!(both.cell_at(p(12.0, -4.0)), Cell::Occupied);
+        assert_eq!(both.cell_at(p(1.5, 0.5)), Cell::Free);
+        assert_eq!(both.cell_at(p(11.0, -4.0)), Cell::Free);
+        assert_eq!(both.cell_at(p(1.5, 2.5)), Cell::Unknown);
+        assert_eq!(both.cell_at(p(0.0, 6.0)), Cell::Free);
+        let only_a = OccupancyGrid::combined(GridParams::default(), [&a]);
+        assert_eq!(
+            only_a.cell_at(p(12.0, -4.0)),
+            Cell::Unknown,
+            "b's cells went with b"
+        );
+        assert_eq!(only_a.cell_at(p(3.0, 1.0)), Cell::Occupied);
+        let none = OccupancyGrid::combined(GridParams::default(), []);
+        assert_eq!(none.size(), (0, 0));
     }
 
     #[test]

@@ -10,8 +10,10 @@ use std::time::{Duration, Instant};
 
 use scanfuse::daemon::protocol::{Message, Poses, Status};
 
-pub fn bin() -> &'static str {
-    env!("CARGO_BIN_EXE_scanfuse")
+/// The `scanfuse` binary under test: this build's, or `SCANFUSE_BIN` (e.g. a release build,
+/// to see the timing figures an installation would have).
+pub fn bin() -> String {
+    std::env::var("SCANFUSE_BIN").unwrap_or_else(|_| env!("CARGO_BIN_EXE_scanfuse").to_string())
 }
 
 pub fn fixture(name: &str) -> PathBuf {
