@@ -1,7 +1,8 @@
 //! The daemon against failures, with real processes: `scanfuse emulate` units over TCP and
 //! `scanfuse run`. An emulator killed mid-stream → that sensor shows disconnected while the
 //! others keep their rates, and it reconnects when the emulator returns. Kills during saves
-//! leave `poses.toml` whole (the old or the new file, never a partial one).
+//! leave `poses.toml` whole (the old or the new file, never a partial one). A stopping daemon
+//! stops every laser (QT) before it closes the links.
 
 mod daemon_run_common;
 
@@ -20,7 +21,8 @@ fn a_killed_emulator_disconnects_one_sensor_only_and_it_reconnects() {
     let mut emulators = Vec::new();
     let mut sensors = Vec::new();
     for id in LAB {
-        let (proc, addr) = start_emulator(&lab, id, "127.0.0.1:0");
+        let log = dir.path().join(format!("{id}.emulator.log"));
+        let (proc, addr) = start_emulator_logged(&lab, id, "127.0.0.1:0", Some(&log));
         sensors.push((id, format!("tcp://{addr}"), ""));
         emulators.push((proc, addr));
     }
@@ -76,6 +78,14 @@ fn a_killed_emulator_disconnects_one_sensor_only_and_it_reconnects() {
     assert!(north.reconnects >= 1, "{north:?}");
     daemon.signal("TERM");
     assert!(daemon.wait_exit(Duration::from_secs(30)).success());
+    // On the way out every driver stopped its laser (QT) before closing.
+    for id in ["entrance", "bench", "east"] {
+        let log = std::fs::read_to_string(dir.path().join(format!("{id}.emulator.log"))).unwrap();
+        assert!(
+            log.contains("QT while streaming"),
+            "{id}'s emulator never saw the laser stopped:\n{log}"
+        );
+    }
 }
 
 #[test]

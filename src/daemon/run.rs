@@ -26,7 +26,7 @@ use super::state::PosesFile;
 use crate::emulator::{Emulator, EmulatorConfig, EmulatorError};
 use crate::geometry::{Pose3, pose2};
 use crate::record::{self, RecordError};
-use crate::sensor::{Driver, DriverConfig};
+use crate::sensor::{Driver, DriverConfig, QUIT_TIMEOUT};
 
 /// Scans a driver may hand over before its forwarding task takes them.
 const DRIVER_CHANNEL: usize = 256;
@@ -100,11 +100,13 @@ pub struct RunSummary {
     pub saved: Result<Saved, String>,
 }
 
-/// In-process emulators for `replay:` sensors, each on its own loopback port.
+/// In-process emulators for `replay:` sensors, each on its own loopback port; and every
+/// driver task, awaited at shutdown so each can stop its laser (QT) first.
 #[derive(Default)]
 struct Emulators {
     recordings: BTreeMap<PathBuf, Arc<record::Recording>>,
     running: BTreeMap<String, (Emulator, JoinHandle<()>)>,
+    drivers: Vec<JoinHandle<()>>,
 }
 
 impl Emulators {
@@ -205,7 +207,10 @@ async fn start_sensor(
     let (stop_tx, stop_rx) = watch::channel(false);
     pipeline.add_sensor(spec, driver.counters(), stop_tx);
     let (tx, mut rx) = mpsc::channel(DRIVER_CHANNEL);
-    tokio::spawn(driver.run(tx, stop_rx));
+    emulators.drivers.retain(|d| !d.is_finished());
+    emulators
+        .drivers
+        .push(tokio::spawn(driver.run(tx, stop_rx)));
     let p = Arc::clone(pipeline);
     let id = sensor.id.clone();
     tokio::spawn(async move {
@@ -432,6 +437,14 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
         fuser.integrate(&scans);
     }
     pipeline.stop_all();
+    // Each driver sends QT and closes on its stop; its own bound keeps this short.
+    let drivers_done = tokio::time::Instant::now() + QUIT_TIMEOUT + Duration::from_millis(200);
+    for driver in emulators.drivers.drain(..) {
+        if tokio::time::timeout_at(drivers_done, driver).await.is_err() {
+            tracing::warn!("a driver did not stop its laser in time; leaving it");
+            break;
+        }
+    }
     let p = Arc::clone(&pipeline);
     let saved = tokio::task::spawn_blocking(move || p.save_now())
         .await

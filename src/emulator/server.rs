@@ -265,6 +265,10 @@ impl Emulator {
         let shared = &self.shared;
         if line.starts_with(b"QT") {
             lock(&shared.state).stats.quits += 1;
+            if unit.is_streaming() {
+                // A client that stops the laser before leaving says so in the log.
+                tracing::info!("QT while streaming: the client stopped the laser");
+            }
         }
         let now_ms = self.now_ms();
         let current = self

@@ -97,12 +97,26 @@ pub fn start_daemon(config: &Path, dir: &Path) -> Proc {
 
 /// `scanfuse emulate FILE --sensor ID --loop --listen ADDR`; returns it and its address.
 pub fn start_emulator(file: &Path, sensor: &str, listen: &str) -> (Proc, String) {
+    start_emulator_logged(file, sensor, listen, None)
+}
+
+/// `start_emulator` with its log (stderr, `info` level) written to `log`.
+pub fn start_emulator_logged(
+    file: &Path,
+    sensor: &str,
+    listen: &str,
+    log: Option<&Path>,
+) -> (Proc, String) {
+    let stderr = match log {
+        Some(path) => Stdio::from(std::fs::File::create(path).expect("emulator log file")),
+        None => Stdio::null(),
+    };
     let mut child = Command::new(bin())
         .arg("emulate")
         .arg(file)
         .args(["--sensor", sensor, "--loop", "--listen", listen])
         .stdout(Stdio::piped())
-        .stderr(Stdio::null())
+        .stderr(stderr)
         .spawn()
         .expect("start scanfuse emulate");
     let addr = if listen.ends_with(":0") {
