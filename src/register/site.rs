@@ -668,12 +668,17 @@ pub fn solve(
                 prior.sigma_yaw_rad.powi(-2),
             ));
             let z = prior.anchor_from_sensor;
-            add(
-                &[i],
-                &|x: &[Pose2]| edge_residual(&Pose2::identity(), &x[0], &z),
-                &w,
-                &poses,
-            );
+            // A survey's σ is about the sensor's own position and heading, so its residual is
+            // too (an edge's left perturbation would rotate about the anchor instead).
+            let survey_residual = |x: &[Pose2]| {
+                let d = x[0].translation.vector - z.translation.vector;
+                [
+                    d.x,
+                    d.y,
+                    wrap_angle_rad(x[0].rotation.angle() - z.rotation.angle()),
+                ]
+            };
+            add(&[i], &survey_residual, &w, &poses);
         }
         if dim == 0 {
             break;
@@ -777,6 +782,59 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn surveyed_priors_place_an_unreached_sensor_and_weigh_against_edges() {
+        let truth = [
+            pose2(0.0, 0.0, 0.0),
+            pose2(5.0, 1.0, 0.5),
+            pose2(3.0, 6.0, -1.0),
+        ];
+        let model = ScanModel::new(&[], 0.25f64.to_radians(), &RegisterParams::default());
+        let input = |i: usize, prior: Option<Prior>| SensorInput {
+            id: format!("s{i}"),
+            mount: crate::geometry::Mount::default(),
+            model: model.clone(),
+            prior,
+        };
+        // Sensor 1: its edge (σ² 1e-4 plus the 1 cm floor: 2e-4) and a survey 20 cm off along
+        // x (σ² 1e-4) meet at the weighted mean, 2/3 of the way to the survey. Sensor 2: no
+        // edge, only a survey; it stands where surveyed, with the survey's σ.
+        let sensors = [
+            input(0, None),
+            input(
+                1,
+                Some(Prior {
+                    anchor_from_sensor: pose2(0.2, 0.0, 0.0) * truth[1],
+                    sigma_xy_m: 0.01,
+                    sigma_yaw_rad: 0.01,
+                }),
+            ),
+            input(
+                2,
+                Some(Prior {
+                    anchor_from_sensor: truth[2],
+                    sigma_xy_m: 0.05,
+                    sigma_yaw_rad: 0.02,
+                }),
+            ),
+        ];
+        let edges = vec![edge(0, 1, &truth, Pose2::identity())];
+        let solution = solve(3, 0, &edges, &sensors, &SiteParams::default());
+        let (one, _) = solution[1].expect("sensor 1 placed");
+        let (dx, dy) = (
+            one.translation.x - truth[1].translation.x,
+            one.translation.y - truth[1].translation.y,
+        );
+        assert!(
+            (dx - 0.2 * 2.0 / 3.0).abs() < 0.01 && dy.abs() < 0.01,
+            "weighted mean expected: {dx} {dy}"
+        );
+        let (two, sigma) = solution[2].expect("sensor 2 placed by its survey");
+        let (dt, dyaw) = pose_error(&two, &truth[2]);
+        assert!(dt < 1e-6 && dyaw < 1e-6, "{dt} {dyaw}");
+        assert!((sigma[0] - 0.05).abs() < 0.01, "σx {}", sigma[0]);
     }
 
     #[test]
