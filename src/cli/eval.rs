@@ -576,15 +576,7 @@ pub fn evaluate(
             if (dt > tol_m || dyaw > tol_rad) && wrong_examples.len() < 12 {
                 // Would the truth have won? The score of the refined true pose tells recall
                 // failures (truth scores higher) from scoring failures (it scores lower).
-                let at_truth = scanfuse::register::icp::refine(
-                    &case.a,
-                    &case.b,
-                    &case.a_from_b,
-                    params,
-                    params.class_aware,
-                );
-                let s_truth =
-                    scanfuse::register::score::score(&case.a, &case.b, &at_truth.a_from_b, params);
+                let s_truth = score_at_truth(case, params);
                 wrong_examples.push(format!(
                     "{}: overlap {:.0} %, error {:.2} m {:.1}°, ambiguity {:.2}, est. overlap {:.2}, violation {:.3}, score {:.3} vs {:.3} at truth (violation {:.3})",
                     case.label,
@@ -661,6 +653,19 @@ pub fn evaluate(
     Ok(())
 }
 
+/// The score of the true pose after refinement: higher than the answer's means the search
+/// missed it, lower means the scans themselves prefer the answer.
+fn score_at_truth(case: &Case, params: &RegisterParams) -> scanfuse::register::score::PoseScore {
+    let at_truth = scanfuse::register::icp::refine(
+        &case.a,
+        &case.b,
+        &case.a_from_b,
+        params,
+        params.class_aware,
+    );
+    scanfuse::register::score::score(&case.a, &case.b, &at_truth.a_from_b, params)
+}
+
 /// Where the true pose was lost, for every pair at ≥ 30 % overlap not registered correctly.
 fn diagnose(cases: &[Case], tol_m: f64, tol_rad: f64, params: &RegisterParams) {
     use scanfuse::register::hypotheses::{hypotheses, rotation_candidates};
@@ -693,15 +698,7 @@ fn diagnose(cases: &[Case], tol_m: f64, tol_rad: f64, params: &RegisterParams) {
             .map(|(k, (_, h))| (k, pose_error(h, &case.a_from_b)))
             .min_by(|x, y| (x.1.0 + x.1.1).total_cmp(&(y.1.0 + y.1.1)));
         let (rank, (hyp_m, hyp_rad)) = nearest.unwrap_or((usize::MAX, (f64::NAN, f64::NAN)));
-        let at_truth = scanfuse::register::icp::refine(
-            &case.a,
-            &case.b,
-            &case.a_from_b,
-            params,
-            params.class_aware,
-        );
-        let s_truth =
-            scanfuse::register::score::score(&case.a, &case.b, &at_truth.a_from_b, params);
+        let s_truth = score_at_truth(case, params);
         let stage = if rot_err > 2f64.to_radians() {
             0
         } else if hyp_m > 0.3 || hyp_rad > 2f64.to_radians() {

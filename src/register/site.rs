@@ -121,15 +121,11 @@ pub fn register_site(
 
     let mut edges = Vec::new();
     let mut origin = Vec::new(); // (pair index, candidate index) per edge
-    for (k, (&(a, b), r)) in pairs.iter().zip(&results).enumerate() {
-        if r.registered() {
-            edges.push(Edge {
-                a,
-                b,
-                a_from_b: r.a_from_b,
-                covariance: r.covariance,
-                strength: strength(r),
-            });
+    for (k, (&pair, r)) in pairs.iter().zip(&results).enumerate() {
+        if r.registered()
+            && let Some(edge) = candidate_edge(pair, r, 0)
+        {
+            edges.push(edge);
             origin.push((k, 0));
         }
     }
@@ -164,14 +160,10 @@ pub fn register_site(
                     && dt <= sp.confirm_m
                     && dyaw <= sp.confirm_rad
             });
-            if let Some((ci, c)) = confirmed {
-                edges.push(Edge {
-                    a,
-                    b,
-                    a_from_b: c.a_from_b,
-                    covariance: r.covariance,
-                    strength: strength(r),
-                });
+            if let Some((ci, _)) = confirmed
+                && let Some(edge) = candidate_edge((a, b), r, ci)
+            {
+                edges.push(edge);
                 origin.push((k, ci));
                 added = true;
             }
@@ -181,16 +173,8 @@ pub fn register_site(
         // sensors, that agree about where the group stands place it.
         if let Some(found) = confirm_group(n, anchor, &edges, &pairs, &results, &poses, p, sp) {
             for (k, ci) in found {
-                let (a, b) = pairs[k];
-                let r = &results[k];
-                if let Some(c) = r.candidates.get(ci) {
-                    edges.push(Edge {
-                        a,
-                        b,
-                        a_from_b: c.a_from_b,
-                        covariance: r.covariance,
-                        strength: strength(r),
-                    });
+                if let Some(edge) = candidate_edge(pairs[k], &results[k], ci) {
+                    edges.push(edge);
                     origin.push((k, ci));
                 }
             }
@@ -300,6 +284,17 @@ pub fn register_site(
         sensors: placements,
         pairs: reports,
     }
+}
+
+/// The edge a pair's candidate `ci` makes (candidate 0 is the pair's own answer).
+fn candidate_edge(pair: (usize, usize), r: &PairResult, ci: usize) -> Option<Edge> {
+    Some(Edge {
+        a: pair.0,
+        b: pair.1,
+        a_from_b: r.candidates.get(ci)?.a_from_b,
+        covariance: r.covariance,
+        strength: strength(r),
+    })
 }
 
 fn strength(r: &PairResult) -> f64 {
