@@ -224,7 +224,8 @@ pub struct Survey {
 pub struct RegistrationConfig {
     /// Scans queued for the registration worker; when full the oldest is dropped and counted.
     pub queue_scans: usize,
-    /// A sensor's view must stay unchanged this long before it is used to register.
+    /// Seconds of scans whose per-beam median is a sensor's static view (people walking by
+    /// drop out); registration and moved detection wait for this much.
     pub static_view_s: f64,
     /// Fraction of a sensor's static background that must change for it to count as moved.
     pub moved_fraction: f64,
@@ -240,7 +241,7 @@ impl Default for RegistrationConfig {
     fn default() -> Self {
         RegistrationConfig {
             queue_scans: 256,
-            static_view_s: 2.0,
+            static_view_s: 1.0,
             moved_fraction: 0.3,
             moved_persist_s: 0.5,
             refine_radius_m: 0.5,

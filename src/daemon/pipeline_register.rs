@@ -24,8 +24,6 @@ use crate::register::site::{Prior, SensorInput, SiteParams, register_site};
 use crate::register::{RegisterParams, ScanModel};
 use crate::scan::{Scan, ScanGeometry};
 
-/// Seconds of scans that make a static view (as `scanfuse register` uses).
-pub const STATIC_WINDOW_S: f64 = 1.0;
 /// When some sensor never streams, the others register without it after this long.
 pub const WAIT_FOR_ALL_S: f64 = 10.0;
 /// A sensor that failed to register is tried again after this long, with fresh scans.
@@ -182,7 +180,7 @@ impl Registrar {
     pub fn new(anchor: impl Into<String>, config: &RegistrationConfig) -> Registrar {
         Registrar {
             anchor: anchor.into(),
-            window_s: STATIC_WINDOW_S,
+            window_s: config.static_view_s,
             moved_fraction: config.moved_fraction,
             moved_persist_s: config.moved_persist_s,
             tracks: BTreeMap::new(),
