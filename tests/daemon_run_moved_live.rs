@@ -134,7 +134,7 @@ fn a_knocked_sensor_is_refreshed_live_within_two_seconds_of_stream_time() {
     let _daemon = start_daemon(&config, dir.path());
     let socket = dir.path().join("s.sock");
     let mut client = Client::connect(&socket, Duration::from_secs(30));
-    let events = watch_events(&socket);
+    let events_rx = watch_events(&socket);
 
     let truth_of = |x: f64, y: f64, yaw_deg: f64| pose2(x, y, yaw_deg.to_radians());
     let world_from_anchor = {
@@ -197,16 +197,26 @@ fn a_knocked_sensor_is_refreshed_live_within_two_seconds_of_stream_time() {
         bench.yaw_deg.unwrap().to_radians(),
     );
     let (err_m, err_rad) = pose_error(&est, &after);
-    let events: Vec<(Instant, Event)> = events.try_iter().collect();
+    // The event travels on the watch stream, apart from the poses reply: give it a moment.
+    let mut events: Vec<(Instant, Event)> = events_rx.try_iter().collect();
+    let is_refresh =
+        |e: &Event| e.kind == EventKind::ReRegistered && e.sensor.as_deref() == Some("bench");
+    let patience = Instant::now() + Duration::from_secs(5);
+    while !events.iter().any(|(_, e)| is_refresh(e)) {
+        let Some(left) = patience.checked_duration_since(Instant::now()) else {
+            break;
+        };
+        match events_rx.recv_timeout(left) {
+            Ok(event) => events.push(event),
+            Err(_) => break,
+        }
+    }
     let moved: Vec<&Event> = events
         .iter()
         .map(|(_, e)| e)
         .filter(|e| e.kind == EventKind::Moved)
         .collect();
-    let refresh = events
-        .iter()
-        .map(|(_, e)| e)
-        .find(|e| e.kind == EventKind::ReRegistered && e.sensor.as_deref() == Some("bench"));
+    let refresh = events.iter().map(|(_, e)| e).find(|e| is_refresh(e));
     println!(
         "bench refreshed {latency_s:.2} s of stream time after the move (target {TARGET_S} s), {err_m:.3} m / {:.2}° from truth; {}",
         err_rad.to_degrees(),
