@@ -13,22 +13,11 @@ use scanfuse::daemon::state::PosesFile;
 use scanfuse::geometry::{pose_error, pose2};
 use scanfuse::record;
 
-const HALL: [(&str, &str); 5] = [
-    ("gate", "height_m = 1.1"),
-    ("dock", "height_m = 1.1"),
-    ("mezz", "height_m = 1.0"),
-    ("tough", "height_m = 1.2"),
-    ("tilt", "height_m = 2.5\npitch_deg = -20.0"),
-];
-
 #[test]
 fn the_demo_site_streams_registers_to_truth_and_saves_whole_files() {
     let dir = tempfile::tempdir().unwrap();
     let hall = fixture("hall.mcap");
-    let sensors: Vec<(&str, String, &str)> = HALL
-        .iter()
-        .map(|(id, extra)| (*id, format!("replay:{}#{id}", hall.display()), *extra))
-        .collect();
+    let sensors = replay_sensors(&hall, &HALL);
     let config = write_config(dir.path(), "gate", &sensors, "save_interval_s = 2.0");
     let mut daemon = start_daemon(&config, dir.path());
     let mut client = Client::connect(&dir.path().join("s.sock"), Duration::from_secs(30));

@@ -43,14 +43,6 @@ const LAB: [(&str, &str); 4] = [
     ("east", "height_m = 1.1"),
 ];
 
-const HALL: [(&str, &str); 5] = [
-    ("gate", "height_m = 1.1"),
-    ("dock", "height_m = 1.1"),
-    ("mezz", "height_m = 1.0"),
-    ("tough", "height_m = 1.2"),
-    ("tilt", "height_m = 2.5\npitch_deg = -20.0"),
-];
-
 /// A second connection that watches events; each arrives with the time it was read.
 fn watch_events(socket: &Path) -> mpsc::Receiver<(Instant, Event)> {
     let stream = UnixStream::connect(socket).expect("connect the watcher");
@@ -126,10 +118,7 @@ fn a_knocked_sensor_is_refreshed_live_within_two_seconds_of_stream_time() {
         "the move is {MOVE_AT_S} s in"
     );
 
-    let sensors: Vec<(&str, String, &str)> = LAB
-        .iter()
-        .map(|(id, extra)| (*id, format!("replay:{}#{id}", file.display()), *extra))
-        .collect();
+    let sensors = replay_sensors(&file, &LAB);
     let config = write_config(dir.path(), "entrance", &sensors, "save_interval_s = 0");
     let _daemon = start_daemon(&config, dir.path());
     let socket = dir.path().join("s.sock");
@@ -247,10 +236,7 @@ fn a_knocked_sensor_is_refreshed_live_within_two_seconds_of_stream_time() {
 fn no_sensor_is_called_moved_live_on_the_hall() {
     let dir = tempfile::tempdir().unwrap();
     let hall = fixture("hall.mcap");
-    let sensors: Vec<(&str, String, &str)> = HALL
-        .iter()
-        .map(|(id, extra)| (*id, format!("replay:{}#{id}", hall.display()), *extra))
-        .collect();
+    let sensors = replay_sensors(&hall, &HALL);
     let config = write_config(dir.path(), "gate", &sensors, "save_interval_s = 0");
     let _daemon = start_daemon(&config, dir.path());
     let socket = dir.path().join("s.sock");

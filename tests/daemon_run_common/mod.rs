@@ -58,6 +58,26 @@ impl Proc {
     }
 }
 
+/// The hall fixture's sensors and their mounts, as `[[sensor]]` extra lines.
+pub const HALL: [(&str, &str); 5] = [
+    ("gate", "height_m = 1.1"),
+    ("dock", "height_m = 1.1"),
+    ("mezz", "height_m = 1.0"),
+    ("tough", "height_m = 1.2"),
+    ("tilt", "height_m = 2.5\npitch_deg = -20.0"),
+];
+
+/// `write_config` sensors replaying `file`: each (id, extra lines) as `replay:FILE#id`.
+pub fn replay_sensors<'a>(
+    file: &Path,
+    sensors: &[(&'a str, &'a str)],
+) -> Vec<(&'a str, String, &'a str)> {
+    sensors
+        .iter()
+        .map(|(id, extra)| (*id, format!("replay:{}#{id}", file.display()), *extra))
+        .collect()
+}
+
 /// `[[sensor]]` tables: (id, connect, extra lines).
 pub fn write_config(
     dir: &Path,
