@@ -141,3 +141,52 @@ fn registration_is_deterministic() {
     assert_eq!(r1.verdict, r2.verdict);
     let _ = Point2::<f64>::origin();
 }
+
+/// A 180° scan at 1° steps, like the SICK units of the CARMEN logs (no PP geometry).
+fn sparse_model(
+    walls: &[Wall],
+    site_from_sensor: &Pose2,
+    seed: u64,
+    p: &RegisterParams,
+) -> ScanModel {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let angles: Vec<f64> = (0..180).map(|k| (-90.0 + k as f64).to_radians()).collect();
+    let scan = Scan {
+        stamp_ns: 0,
+        sensor_stamp_ms: None,
+        start_angle_rad: angles[0],
+        end_angle_rad: angles[179],
+        ranges_m: scan_ranges(walls, site_from_sensor, &angles, 30.0)
+            .into_iter()
+            .map(|r| {
+                if r > 0.0 {
+                    r + rng.random_range(-0.03f32..0.03)
+                } else {
+                    0.0
+                }
+            })
+            .collect(),
+        intensities: vec![],
+    };
+    ScanModel::from_scan(&scan, None, &Mount::default(), p)
+}
+
+#[test]
+fn noisy_sparse_180_degree_scans_are_registered_within_5_cm_and_half_a_degree() {
+    // The CARMEN-like case: few points per wall, ±3 cm range noise, no PP geometry.
+    let p = RegisterParams::default();
+    let walls = hall();
+    let site_from_a = pose2(1.5, 4.0, -0.3);
+    let site_from_b = pose2(12.0, 1.5, 2.6);
+    let a = sparse_model(&walls, &site_from_a, 1, &p);
+    let b = sparse_model(&walls, &site_from_b, 2, &p);
+    let r = register_pair(&a, &b, &p);
+    let truth = site_from_a.inverse() * site_from_b;
+    let (dt, dyaw) = pose_error(&r.a_from_b, &truth);
+    assert!(r.registered(), "{:?}", r.verdict);
+    assert!(
+        dt < 0.05 && dyaw < 0.5f64.to_radians(),
+        "error {dt} m {} deg",
+        dyaw.to_degrees()
+    );
+}

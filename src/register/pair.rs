@@ -7,7 +7,7 @@ use super::icp::{IcpResult, refine_guarded};
 use super::matching::match_score;
 use super::score::{PoseScore, score, score_coarse};
 use super::{RegisterParams, ScanModel};
-use crate::geometry::{Pose2, pose_error};
+use crate::geometry::{Pose2, pose_error, pose2};
 use nalgebra::Matrix3;
 use rayon::prelude::*;
 use std::fmt;
@@ -149,18 +149,18 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         }
     }
     // The guarded ICP keeps the iterate the score likes best, and the score is flat within a
-    // degree or two of the optimum: polish the winner with plain narrow-gate ICP, which
+    // degree or two of the optimum: polish the winner with plain narrow-gate ICP, both ways, which
     // settles the heading, unless that costs score (it slid off along a weak direction).
     if let Some((first, _)) = distinct.first_mut() {
         let narrow = RegisterParams {
             max_correspondence_m: p.min_correspondence_m * 1.5,
             ..p.clone()
         };
-        let polished = super::icp::refine(a, b, &first.a_from_b, &narrow, p.class_aware);
-        let polished_score = score(a, b, &polished.a_from_b, p);
+        let polished = symmetric_refine(a, b, &first.a_from_b, &narrow);
+        let polished_score = score(a, b, &polished, p);
         if polished_score.value >= first.score.value - p.polish_tolerance {
             *first = Candidate {
-                a_from_b: polished.a_from_b,
+                a_from_b: polished,
                 score: polished_score,
             };
         }
@@ -227,6 +227,20 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         hypotheses: hypotheses_count,
         icp_iterations: icp.iterations,
     }
+}
+
+/// Point-to-line ICP aligns B's points onto A's lines; with sparse scans each direction alone
+/// leans its heading towards the denser side. The mean of both directions is fairer.
+fn symmetric_refine(a: &ScanModel, b: &ScanModel, init: &Pose2, p: &RegisterParams) -> Pose2 {
+    let forward = super::icp::refine(a, b, init, p, p.class_aware).a_from_b;
+    let backward = super::icp::refine(b, a, &init.inverse(), p, p.class_aware)
+        .a_from_b
+        .inverse();
+    let yaw = forward.rotation.angle()
+        + 0.5
+            * crate::geometry::wrap_angle_rad(backward.rotation.angle() - forward.rotation.angle());
+    let t = 0.5 * (forward.translation.vector + backward.translation.vector);
+    pose2(t.x, t.y, yaw)
 }
 
 /// ICP cannot see along `axis_deg` (every matched surface is parallel to it); the free-space
