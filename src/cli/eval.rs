@@ -62,7 +62,7 @@ pub fn run(args: Args) -> Result<()> {
                 .with_context(|| format!("{}: cannot create", path.display()))?;
             writeln!(
                 f,
-                "set,pair,overlap,registered,reason,err_m,err_deg,ambiguity,score,est_overlap,violation,match,ms"
+                "set,pair,overlap,registered,reason,err_m,err_deg,ambiguity,score,est_overlap,violation,match,sigma_m,sigma_yaw_deg,ms"
             )?;
             Some(f)
         }
@@ -540,7 +540,7 @@ pub fn evaluate(
                 .unwrap_or_default();
             writeln!(
                 f,
-                "{set},{},{:.3},{},\"{}\",{:.3},{:.2},{:.3},{:.3},{:.3},{:.3},{:.3},{:.1}",
+                "{set},{},{:.3},{},\"{}\",{:.3},{:.2},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.2},{:.1}",
                 case.label,
                 case.overlap,
                 r.registered(),
@@ -552,6 +552,8 @@ pub fn evaluate(
                 r.overlap,
                 r.score.violation(),
                 r.match_score,
+                r.covariance[(0, 0)].max(r.covariance[(1, 1)]).sqrt(),
+                r.covariance[(2, 2)].sqrt().to_degrees(),
                 times_ms[0].last().copied().unwrap_or(0.0)
             )?;
         }

@@ -23,6 +23,8 @@ pub enum Abstain {
     WeakMatch { score: f64 },
     /// The best pose puts too many points in space the other sensor saw empty.
     ContradictsFreeSpace { violation: f64 },
+    /// The scans pin the pose only loosely: its own standard deviation exceeds the limits.
+    Uncertain { sigma_m: f64, sigma_yaw_deg: f64 },
     /// A clearly different pose scores nearly as well (a symmetric corridor, a repeated room).
     Ambiguous { ratio: f64, other: Pose2 },
     /// The geometry does not fix the position along one direction (a corridor seen lengthwise).
@@ -50,6 +52,13 @@ impl fmt::Display for Abstain {
                 other.translation.vector.norm(),
                 other.rotation.angle().to_degrees(),
                 ratio * 100.0
+            ),
+            Abstain::Uncertain {
+                sigma_m,
+                sigma_yaw_deg,
+            } => write!(
+                f,
+                "too uncertain (σ {sigma_m:.2} m / {sigma_yaw_deg:.1}°): too few points fix it"
             ),
             Abstain::Degenerate { weak_axis_deg } => {
                 write!(
@@ -206,6 +215,11 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         })
     } else if let Some(weak_axis_deg) = weak.filter(|deg| slides_freely(a, b, &best, *deg, p)) {
         Err(Abstain::Degenerate { weak_axis_deg })
+    } else if let Some((sigma_m, sigma_rad)) = too_uncertain(&covariance, p) {
+        Err(Abstain::Uncertain {
+            sigma_m,
+            sigma_yaw_deg: sigma_rad.to_degrees(),
+        })
     } else if ambiguity > p.max_ambiguity {
         let other = runner_up.map_or(Pose2::identity(), |r| best.a_from_b.inverse() * r.a_from_b);
         Err(Abstain::Ambiguous {
@@ -266,14 +280,34 @@ fn slides_freely(
     ratios.iter().any(|r| *r > p.slide_ratio)
 }
 
+/// The position σ (along the worst direction, m) and heading σ (rad) when either exceeds its
+/// limit: a pose whose own uncertainty is wider than the accuracy promised is not reported.
+fn too_uncertain(covariance: &Matrix3<f64>, p: &RegisterParams) -> Option<(f64, f64)> {
+    let xy = covariance.fixed_view::<2, 2>(0, 0).into_owned();
+    let sigma_m = xy.symmetric_eigen().eigenvalues.max().max(0.0).sqrt();
+    let sigma_rad = covariance[(2, 2)].max(0.0).sqrt();
+    let within = sigma_m <= p.max_sigma_m && sigma_rad <= p.max_sigma_rad;
+    (!within).then_some((sigma_m, sigma_rad))
+}
+
 /// Covariance σ²·(JᵀWJ)⁻¹, inflated for correlated residuals, and the direction (deg) of a
 /// translation the scans do not constrain, if any.
 fn covariance_of(icp: &IcpResult, p: &RegisterParams) -> (Matrix3<f64>, Option<f64>) {
     let h = icp.hessian;
-    let sigma = icp.rms_m.clamp(0.01, 1.0);
-    let covariance = h.try_inverse().map_or(Matrix3::identity() * 1e6, |inv| {
-        inv * sigma * sigma * p.covariance_inflation
-    });
+    let sigma = if icp.rms_m.is_finite() {
+        icp.rms_m.clamp(0.01, 1.0)
+    } else {
+        1.0
+    };
+    // Inverted through its eigenvalues, floored, so a nearly singular system gives a huge
+    // variance along its weak direction rather than a negative or NaN one.
+    let full = h.symmetric_eigen();
+    let floor = 1e-9 * full.eigenvalues.max().max(1e-12);
+    let inv_eig = full.eigenvalues.map(|l| 1.0 / l.max(floor));
+    let covariance = full.eigenvectors
+        * Matrix3::from_diagonal(&inv_eig)
+        * full.eigenvectors.transpose()
+        * (sigma * sigma * p.covariance_inflation);
     let tt = h.fixed_view::<2, 2>(0, 0).into_owned();
     let eig = tt.symmetric_eigen();
     let (k_min, k_max) = if eig.eigenvalues[0] <= eig.eigenvalues[1] {
@@ -288,4 +322,48 @@ fn covariance_of(icp: &IcpResult, p: &RegisterParams) -> (Matrix3<f64>, Option<f
         v[1].atan2(v[0]).to_degrees().rem_euclid(180.0)
     });
     (covariance, weak)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn icp_with(hessian: Matrix3<f64>, rms_m: f64) -> IcpResult {
+        IcpResult {
+            a_from_b: Pose2::identity(),
+            iterations: 1,
+            hessian,
+            rms_m,
+            correspondences: 100,
+        }
+    }
+
+    #[test]
+    fn a_singular_system_gives_a_huge_finite_variance_and_is_too_uncertain() {
+        let p = RegisterParams::default();
+        // Only x and yaw constrained (a corridor along y); inverting directly gives garbage.
+        let h = Matrix3::from_diagonal(&nalgebra::Vector3::new(1e4, 0.0, 1e4));
+        let (cov, _) = covariance_of(&icp_with(h, 0.02), &p);
+        assert!(cov.iter().all(|v| v.is_finite()));
+        assert!((0..3).all(|k| cov[(k, k)] >= 0.0));
+        assert!(cov[(1, 1)] > 1.0 && cov[(0, 0)] < 1e-4);
+        let (sigma_m, _) = too_uncertain(&cov, &p).expect("a free direction is too uncertain");
+        assert!(sigma_m > p.max_sigma_m);
+    }
+
+    #[test]
+    fn a_well_constrained_pose_passes_and_a_loose_heading_does_not() {
+        let p = RegisterParams::default();
+        let tight = Matrix3::from_diagonal(&nalgebra::Vector3::new(1e4, 1e4, 1e4));
+        let (cov, _) = covariance_of(&icp_with(tight, 0.02), &p);
+        assert_eq!(too_uncertain(&cov, &p), None);
+        // Heading barely constrained: σ_yaw = 0.02·2/√0.5 rad ≈ 3°.
+        let loose = Matrix3::from_diagonal(&nalgebra::Vector3::new(1e4, 1e4, 0.5));
+        let (cov, _) = covariance_of(&icp_with(loose, 0.02), &p);
+        let (_, sigma_rad) = too_uncertain(&cov, &p).expect("loose heading");
+        assert!(sigma_rad > p.max_sigma_rad);
+        // A NaN residual (no correspondences) must not make a NaN covariance.
+        let (cov, _) = covariance_of(&icp_with(tight, f64::NAN), &p);
+        assert!(cov.iter().all(|v| v.is_finite()));
+    }
 }

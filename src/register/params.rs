@@ -69,6 +69,11 @@ pub struct RegisterParams {
     pub min_overlap: f64,
     /// Abstain above this violation fraction at the best pose.
     pub max_violation: f64,
+    /// Abstain when the pose's own standard deviation (covariance above, worst translation
+    /// direction; heading) exceeds these: "registered" promises ~10 cm / 1°, and a pose the
+    /// scans fix only to ±15 cm / ±2° (a few sparse points on short walls) cannot keep it.
+    pub max_sigma_m: f64,
+    pub max_sigma_rad: f64,
     /// Abstain when the runner-up (a different pose) scores at least this fraction of the best.
     pub max_ambiguity: f64,
     /// Abstain when the best score (hit share minus weighted violations) is below this.
@@ -118,6 +123,8 @@ impl Default for RegisterParams {
             min_overlap: 0.2,
             max_violation: 0.15,
             max_ambiguity: 0.5,
+            max_sigma_m: 0.1,
+            max_sigma_rad: 1f64.to_radians(),
             min_score: 0.12,
             slide_ratio: 0.95,
             min_constraint_share: 0.005,
