@@ -9,30 +9,75 @@ use scanfuse::geometry::{Mount, Pose2, pose_error, pose2, project_scan};
 use scanfuse::register::{RegisterParams, ScanModel, register_pair};
 use scanfuse::scan::{Scan, ScanGeometry};
 
-fn model(walls: &[Wall], site_from_sensor: &Pose2, seed: u64, p: &RegisterParams) -> ScanModel {
-    let g = ScanGeometry::UTM_30LX_EW;
-    let angles: Vec<f64> = (g.amin..=g.amax).map(|s| g.angle_of_step_rad(s)).collect();
+/// Ranges ray-cast at `angles` with uniform noise of ±`noise_m`.
+fn noisy_scan(
+    walls: &[Wall],
+    site_from_sensor: &Pose2,
+    angles: &[f64],
+    noise_m: f32,
+    seed: u64,
+) -> Scan {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let ranges_m = scan_ranges(walls, site_from_sensor, &angles, 30.0)
+    let ranges_m = scan_ranges(walls, site_from_sensor, angles, 30.0)
         .into_iter()
         .map(|r| {
             if r > 0.0 {
-                r + rng.random_range(-0.01f32..0.01)
+                r + rng.random_range(-noise_m..noise_m)
             } else {
                 0.0
             }
         })
         .collect();
-    let scan = Scan {
+    Scan {
         stamp_ns: 0,
         sensor_stamp_ms: None,
-        start_angle_rad: g.angle_of_step_rad(g.amin),
-        end_angle_rad: g.angle_of_step_rad(g.amax),
+        start_angle_rad: angles.first().copied().unwrap_or(0.0),
+        end_angle_rad: angles.last().copied().unwrap_or(0.0),
         ranges_m,
         intensities: vec![],
-    };
+    }
+}
+
+/// A UTM-30LX-EW scan (0.25°, 270°, ±1 cm).
+fn model(walls: &[Wall], site_from_sensor: &Pose2, seed: u64, p: &RegisterParams) -> ScanModel {
+    let g = ScanGeometry::UTM_30LX_EW;
+    let angles: Vec<f64> = (g.amin..=g.amax).map(|s| g.angle_of_step_rad(s)).collect();
+    let scan = noisy_scan(walls, site_from_sensor, &angles, 0.01, seed);
     let points = project_scan(&scan, Some(&g), &Mount::default(), &p.project);
     ScanModel::new(&points, g.step_rad(), p)
+}
+
+/// A 180° scan at 1° steps with ±3 cm noise, like the SICK units of the CARMEN logs (no PP
+/// geometry).
+fn sparse_model(
+    walls: &[Wall],
+    site_from_sensor: &Pose2,
+    seed: u64,
+    p: &RegisterParams,
+) -> ScanModel {
+    let angles: Vec<f64> = (0..180).map(|k| (-90.0 + k as f64).to_radians()).collect();
+    let scan = noisy_scan(walls, site_from_sensor, &angles, 0.03, seed);
+    ScanModel::from_scan(&scan, None, &Mount::default(), p)
+}
+
+/// Registers B against A and checks the verdict and the error against the truth.
+fn assert_registered_within(
+    a: &ScanModel,
+    b: &ScanModel,
+    truth: &Pose2,
+    tol_m: f64,
+    tol_deg: f64,
+    p: &RegisterParams,
+) -> scanfuse::register::PairResult {
+    let r = register_pair(a, b, p);
+    let (dt, dyaw) = pose_error(&r.a_from_b, truth);
+    assert!(r.registered(), "{:?}", r.verdict);
+    assert!(
+        dt < tol_m && dyaw < tol_deg.to_radians(),
+        "error {dt} m {} deg",
+        dyaw.to_degrees()
+    );
+    r
 }
 
 /// An L-shaped hall with a pillar, a cabinet and a door recess.
@@ -64,15 +109,8 @@ fn pair_in_hall_is_registered_within_tolerance() {
     let site_from_b = pose2(9.0, 3.0, 2.5);
     let a = model(&walls, &site_from_a, 1, &p);
     let b = model(&walls, &site_from_b, 2, &p);
-    let r = register_pair(&a, &b, &p);
     let truth = site_from_a.inverse() * site_from_b;
-    let (dt, dyaw) = pose_error(&r.a_from_b, &truth);
-    assert!(r.registered(), "{:?}", r.verdict);
-    assert!(
-        dt < 0.05 && dyaw < 0.5f64.to_radians(),
-        "error {dt} m {} deg",
-        dyaw.to_degrees()
-    );
+    let r = assert_registered_within(&a, &b, &truth, 0.05, 0.5, &p);
     assert!(r.overlap > 0.3 && r.ambiguity < 0.8 && r.match_score > 0.0);
     assert!(r.covariance[(0, 0)] > 0.0 && r.covariance[(0, 0)].sqrt() < 0.05);
 }
@@ -142,35 +180,6 @@ fn registration_is_deterministic() {
     let _ = Point2::<f64>::origin();
 }
 
-/// A 180° scan at 1° steps, like the SICK units of the CARMEN logs (no PP geometry).
-fn sparse_model(
-    walls: &[Wall],
-    site_from_sensor: &Pose2,
-    seed: u64,
-    p: &RegisterParams,
-) -> ScanModel {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let angles: Vec<f64> = (0..180).map(|k| (-90.0 + k as f64).to_radians()).collect();
-    let scan = Scan {
-        stamp_ns: 0,
-        sensor_stamp_ms: None,
-        start_angle_rad: angles[0],
-        end_angle_rad: angles[179],
-        ranges_m: scan_ranges(walls, site_from_sensor, &angles, 30.0)
-            .into_iter()
-            .map(|r| {
-                if r > 0.0 {
-                    r + rng.random_range(-0.03f32..0.03)
-                } else {
-                    0.0
-                }
-            })
-            .collect(),
-        intensities: vec![],
-    };
-    ScanModel::from_scan(&scan, None, &Mount::default(), p)
-}
-
 #[test]
 fn noisy_sparse_180_degree_scans_are_registered_within_5_cm_and_half_a_degree() {
     // The CARMEN-like case: few points per wall, ±3 cm range noise, no PP geometry.
@@ -180,13 +189,12 @@ fn noisy_sparse_180_degree_scans_are_registered_within_5_cm_and_half_a_degree() 
     let site_from_b = pose2(12.0, 1.5, 2.6);
     let a = sparse_model(&walls, &site_from_a, 1, &p);
     let b = sparse_model(&walls, &site_from_b, 2, &p);
-    let r = register_pair(&a, &b, &p);
-    let truth = site_from_a.inverse() * site_from_b;
-    let (dt, dyaw) = pose_error(&r.a_from_b, &truth);
-    assert!(r.registered(), "{:?}", r.verdict);
-    assert!(
-        dt < 0.05 && dyaw < 0.5f64.to_radians(),
-        "error {dt} m {} deg",
-        dyaw.to_degrees()
+    assert_registered_within(
+        &a,
+        &b,
+        &(site_from_a.inverse() * site_from_b),
+        0.05,
+        0.5,
+        &p,
     );
 }
