@@ -430,8 +430,15 @@ const BINS: [(f64, f64, &str); 5] = [
     (0.5, 1.01, "50–100 %"),
 ];
 
-/// Share of `b`'s points within 10 cm of `a`'s under `a_from_b`.
+/// Share of each scan's points within 10 cm of the other's under `a_from_b`, the smaller of
+/// the two: the same definition as the simulator's `view_overlap`, so "≥ 30 % overlap" means
+/// the same in the simulated and the real tables.
 pub fn true_overlap(a: &ScanModel, b: &ScanModel, a_from_b: &Pose2) -> f64 {
+    share_near(a, b, a_from_b).min(share_near(b, a, &a_from_b.inverse()))
+}
+
+/// Share of `b`'s points within 10 cm of `a`'s under `a_from_b`.
+fn share_near(a: &ScanModel, b: &ScanModel, a_from_b: &Pose2) -> f64 {
     let grid = NearestGrid::new(a.points(), 0.05, 0.1);
     let pts = b.points();
     if pts.is_empty() {
