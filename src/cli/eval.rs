@@ -394,6 +394,48 @@ fn sites(plans: &[Plan], count: usize, seed: u64, params: &RegisterParams) -> Re
                 ));
             }
         }
+        // For each sensor not placed right: was the truth among its pairs' candidates at all?
+        // (With both ends known: "truth #c/n of pair a–b" means the site solve had it to pick.)
+        for (k, s) in site.sensors.iter().enumerate() {
+            let (Some(t), Some(t0)) = (truths.get(k), truths.first()) else {
+                continue;
+            };
+            let right = s.pose.as_ref().is_ok_and(|p| {
+                let (dt, dyaw) = pose_error(&p.pose.planar(), &(t0.inverse() * t));
+                dt <= 0.1 && dyaw <= 1f64.to_radians()
+            });
+            if right || k == 0 {
+                continue;
+            }
+            let found: Vec<String> = site
+                .pairs
+                .iter()
+                .filter(|pr| pr.a == k || pr.b == k)
+                .filter_map(|pr| {
+                    let truth = truths.get(pr.a)?.inverse() * truths.get(pr.b)?;
+                    let c = pr.result.candidates.iter().position(|c| {
+                        let (dt, dyaw) = pose_error(&c.a_from_b, &truth);
+                        dt <= 0.1 && dyaw <= 1f64.to_radians()
+                    })?;
+                    Some(format!(
+                        "{}–{} #{}/{}",
+                        pr.a,
+                        pr.b,
+                        c,
+                        pr.result.candidates.len()
+                    ))
+                })
+                .collect();
+            why_wrong.push(if found.is_empty() {
+                format!("    {}: the truth is no pair's candidate", s.id)
+            } else {
+                format!(
+                    "    {}: the truth is a candidate of {}",
+                    s.id,
+                    found.join(", ")
+                )
+            });
+        }
         done += 1;
         println!(
             "{:<6} {:<6} {:>5}/8 {:>7}/8 {:>11.1} {:>10.2} {:>9.0}",
