@@ -431,8 +431,8 @@ enum Refusal {
     /// Every proposed placement puts a scan in space a placed sensor saw empty (or the
     /// reverse); the best-scoring one contradicts `with` on this share of points.
     Contradicts { with: usize, violation: f64 },
-    /// The best-scoring placement fits every placed sensor but for one member's scan, which
-    /// contradicts one's free space: the group is weighed again without it (never reported).
+    /// The best-scoring placement fits every placed sensor but for a few members' scans, which
+    /// contradict one's free space: the group is weighed again without this one.
     MemberContradicts { member: usize },
     /// The best placement shares too little view with the placed sensors, or fits it poorly.
     TooLittle { overlap: f64, value: f64 },
@@ -619,9 +619,11 @@ impl JoinContext<'_> {
             })
             .collect();
         let by_value = |x: &&Proposal, y: &&Proposal| x.joint.value.total_cmp(&y.joint.value);
+        // A minority of members contradicting the placed sensors where the rest fit best is
+        // split off (one at a time); a majority contradicting means the placement is wrong.
         if let Some(top) = scored.iter().max_by(by_value)
-            && group.len() > 1
-            && let [member] = top.joint.violating[..]
+            && let Some(&member) = top.joint.violating.first()
+            && top.joint.violating.len() * 2 < group.len()
         {
             return Err(Refusal::MemberContradicts { member });
         }
