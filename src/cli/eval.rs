@@ -307,8 +307,11 @@ fn sim_cases(
 fn sites(plans: &[Plan], count: usize, seed: u64, params: &RegisterParams) -> Result<()> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5173);
     println!(
-        "{:<6} {:<6} {:>7} {:>9} {:>11} {:>10} {:>9}",
-        "site", "plan", "placed", "≤10cm/1°", "max err cm", "max err °", "time ms"
+        "{:<6} {:<6} {:>7} {:>9} {:>11} {:>10} {:>9} {:>9}",
+        "site", "plan", "placed", "≤10cm/1°", "max err cm", "max err °", "time ms", "reachable"
+    );
+    println!(
+        "(reachable: sensors joined to s0 by pairs whose candidates include the truth, an upper bound on what choosing among candidates can place)"
     );
     let mut done = 0;
     let mut attempts = 0;
@@ -436,16 +439,44 @@ fn sites(plans: &[Plan], count: usize, seed: u64, params: &RegisterParams) -> Re
                 )
             });
         }
+        // Sensors joined to s0 through pairs that had the truth among their candidates.
+        let mut reachable = vec![false; site.sensors.len()];
+        if let Some(r) = reachable.first_mut() {
+            *r = true;
+        }
+        loop {
+            let mut grew = false;
+            for pr in &site.pairs {
+                let (Some(ta), Some(tb)) = (truths.get(pr.a), truths.get(pr.b)) else {
+                    continue;
+                };
+                let truth = ta.inverse() * tb;
+                let has_truth = pr.result.candidates.iter().any(|c| {
+                    let (dt, dyaw) = pose_error(&c.a_from_b, &truth);
+                    dt <= 0.1 && dyaw <= 1f64.to_radians()
+                });
+                let (ra, rb) = (reachable[pr.a], reachable[pr.b]);
+                if has_truth && ra != rb {
+                    reachable[pr.a] = true;
+                    reachable[pr.b] = true;
+                    grew = true;
+                }
+            }
+            if !grew {
+                break;
+            }
+        }
         done += 1;
         println!(
-            "{:<6} {:<6} {:>5}/8 {:>7}/8 {:>11.1} {:>10.2} {:>9.0}",
+            "{:<6} {:<6} {:>5}/8 {:>7}/8 {:>11.1} {:>10.2} {:>9.0} {:>7}/8",
             done,
             plan.name,
             placed,
             ok,
             max_m * 100.0,
             max_deg,
-            ms
+            ms,
+            reachable.iter().filter(|r| **r).count()
         );
         for w in why_wrong {
             println!("{w}");
