@@ -434,8 +434,10 @@ enum Refusal {
     /// The best-scoring placement fits every placed sensor but for a few members' scans, which
     /// contradict one's free space: the group is weighed again without this one.
     MemberContradicts { member: usize },
-    /// The best placement shares too little view with the placed sensors, or fits it poorly.
-    TooLittle { overlap: f64, value: f64 },
+    /// The best placement shares too little view with the placed sensors.
+    TooLittle { overlap: f64 },
+    /// It shares view, but free-space violations outweigh the hits.
+    Outweighed { value: f64 },
     /// Shared view and the rival's score together leave too thin a margin.
     Weak { overlap: f64, ambiguity: f64 },
     /// A clearly different placement fits the placed sensors nearly as well.
@@ -464,9 +466,12 @@ impl Refusal {
                 id(*with),
                 violation * 100.0
             ),
-            Refusal::TooLittle { overlap, value } => format!(
-                "its best placement shares {:.0} % of its view with the placed sensors and fits them with score {value:.2}, too little to place it; {HELP}",
+            Refusal::TooLittle { overlap } => format!(
+                "its best placement shares only {:.0} % of its view with the placed sensors, too little to place it; {HELP}",
                 overlap * 100.0
+            ),
+            Refusal::Outweighed { value } => format!(
+                "at its best placement, points in the placed sensors' free space outweigh the shared view (score {value:.2}); {HELP}"
             ),
             Refusal::Weak { overlap, ambiguity } => format!(
                 "its best placement shares {:.0} % of its view with the placed sensors and another scores {:.0} % as well, too thin a margin to place it; {HELP}",
@@ -641,11 +646,13 @@ impl JoinContext<'_> {
             });
         };
         let joint = &best.joint;
-        if joint.overlap < self.p.min_overlap || joint.value < self.p.min_score {
+        if joint.overlap < self.p.min_overlap {
             return Err(Refusal::TooLittle {
                 overlap: joint.overlap,
-                value: joint.value,
             });
+        }
+        if joint.value < self.p.min_score {
+            return Err(Refusal::Outweighed { value: joint.value });
         }
         // The strongest rival: a viable placement that is not the same answer.
         let rival = viable
@@ -1316,6 +1323,46 @@ mod tests {
         assert!(
             why.contains("mirror image") && why.contains("survey it"),
             "{why}"
+        );
+    }
+
+    #[test]
+    fn a_sensor_seen_only_along_a_corridor_is_not_placed() {
+        // Two 60 m walls 3 m apart and no end in sight: sliding along them changes nothing.
+        let walls = vec![
+            Wall::new(-30.0, -1.5, 30.0, -1.5),
+            Wall::new(-30.0, 1.5, 30.0, 1.5),
+        ];
+        let truth = [pose2(0.0, 0.0, 0.0), pose2(3.0, 0.2, 0.4)];
+        let sensors: Vec<SensorInput> = truth
+            .iter()
+            .enumerate()
+            .map(|(i, pose)| sensor_at(&walls, *pose, 270f64.to_radians(), &format!("s{i}")))
+            .collect();
+        let pairs = vec![(0, 1)];
+        let results = vec![undecided_pair(
+            &sensors[0],
+            &sensors[1],
+            &[truth[0].inverse() * truth[1]],
+        )];
+        let (p, sp) = (RegisterParams::default(), SiteParams::default());
+        let ctx = JoinContext {
+            sensors: &sensors,
+            placed: vec![(0, Pose2::identity())],
+            pairs: &pairs,
+            results: &results,
+            p: &p,
+            sp: &sp,
+        };
+        let s1 = [(1, Pose2::identity())];
+        // One proposal, no rival: only the slide test can refuse it.
+        let join = ctx.weigh(&s1).expect("a lone proposal that fits");
+        let Some(Refusal::Slides { axis_deg }) = ctx.slides(&s1, &join) else {
+            panic!("a placement free to slide along the corridor was accepted");
+        };
+        assert!(
+            !(20.0..=160.0).contains(&axis_deg),
+            "slides along {axis_deg}°, not along the corridor"
         );
     }
 
