@@ -654,10 +654,11 @@ impl JoinContext<'_> {
         if joint.value < self.p.min_score {
             return Err(Refusal::Outweighed { value: joint.value });
         }
-        // The strongest rival: a viable placement that is not the same answer.
-        let rival = viable
+        // The strongest rival: any placement that is not the same answer. One that contradicts
+        // a placed sensor yet fits the rest so well that it nearly matches the best (its
+        // violations are already charged in its score) means the evidence conflicts.
+        let rival = scored
             .iter()
-            .copied()
             .filter(|c| {
                 let (dt, dyaw) = pose_error(&c.anchor_from_root, &best.anchor_from_root);
                 dt >= self.p.same_pose_m || dyaw >= self.p.same_pose_rad
