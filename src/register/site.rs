@@ -434,6 +434,8 @@ enum Refusal {
     /// The best-scoring placement fits every placed sensor but for a few members' scans, which
     /// contradict one's free space: the group is weighed again without this one.
     MemberContradicts { member: usize },
+    /// The best placement is proposed only by pairs that share too little view or fit poorly.
+    NoPairStands,
     /// The best placement shares too little view with the placed sensors.
     TooLittle { overlap: f64 },
     /// It shares view, but free-space violations outweigh the hits.
@@ -465,6 +467,9 @@ impl Refusal {
                 "every placement its pairs propose puts a scan in space {} saw empty ({:.0} % of points); {HELP}",
                 id(*with),
                 violation * 100.0
+            ),
+            Refusal::NoPairStands => format!(
+                "its best placement rests only on pairs with too little shared view or a poor fit; {HELP}"
             ),
             Refusal::TooLittle { overlap } => format!(
                 "its best placement shares only {:.0} % of its view with the placed sensors, too little to place it; {HELP}",
@@ -646,6 +651,19 @@ impl JoinContext<'_> {
             });
         };
         let joint = &best.joint;
+        // Third sensors settle which of a pair's answers is right; they do not make a placement
+        // out of scraps: one proposal must stand on its own pair's shared view and fit.
+        let stands_alone = best.sources.iter().any(|&(k, ci)| {
+            self.results
+                .get(k)
+                .and_then(|r| r.candidates.get(ci))
+                .is_some_and(|c| {
+                    c.score.overlap() >= self.p.min_overlap && c.score.value >= self.p.min_score
+                })
+        });
+        if !stands_alone {
+            return Err(Refusal::NoPairStands);
+        }
         if joint.overlap < self.p.min_overlap {
             return Err(Refusal::TooLittle {
                 overlap: joint.overlap,
@@ -1110,15 +1128,15 @@ mod tests {
     use crate::geometry::{ScanPoint, pose_error};
     use crate::register::Candidate;
 
-    /// A 20 × 8 m hall, symmetric under a half turn about its centre but for one 3 × 2 m
+    /// A 12 × 6 m hall, symmetric under a half turn about its centre but for one 1.5 × 1.5 m
     /// block in its north-west; the block's mirror image would stand in empty floor.
     fn hall() -> Vec<Wall> {
-        let mut walls = polygon(&[(-10.0, -4.0), (10.0, -4.0), (10.0, 4.0), (-10.0, 4.0)]);
+        let mut walls = polygon(&[(-6.0, -3.0), (6.0, -3.0), (6.0, 3.0), (-6.0, 3.0)]);
         walls.extend(polygon(&[
-            (-8.0, 1.0),
-            (-5.0, 1.0),
-            (-5.0, 3.0),
-            (-8.0, 3.0),
+            (-5.5, 1.0),
+            (-4.0, 1.0),
+            (-4.0, 2.5),
+            (-5.5, 2.5),
         ]));
         walls
     }
@@ -1181,7 +1199,7 @@ mod tests {
         }
     }
 
-    /// s0 and s1 look only at the hall's symmetric end walls, so each of their pairs with s3
+    /// s0 and s1 look only at symmetric corners of the hall, so each of their pairs with s3
     /// fits s3's true pose and its half-turn mirror image equally well, and both pairs put the
     /// mirror first: two neighbours agreeing on the wrong pose. The group to join is s3 alone.
     struct MirrorScene {
@@ -1195,15 +1213,15 @@ mod tests {
     fn mirror_scene() -> MirrorScene {
         let walls = hall();
         let half_turn = pose2(0.0, 0.0, std::f64::consts::PI);
-        // s0 sees only the north wall's east part, s1 (its half-turn image) only the south
-        // wall's west part; s3 sees all of the hall but the block's shadow; s2 looks at the block.
+        // s0 sees only the hall's north-east, s1 (its half-turn image) only its south-west;
+        // s3 sees all of the hall but the block's shadow; s2 looks at the block.
         let truth = vec![
-            pose2(0.0, 3.0, 10f64.to_radians()),
-            half_turn * pose2(0.0, 3.0, 10f64.to_radians()),
-            pose2(-3.0, 3.5, 203f64.to_radians()),
-            pose2(-3.0, -0.5, 0.3),
+            pose2(0.0, 2.0, 45f64.to_radians()),
+            half_turn * pose2(0.0, 2.0, 45f64.to_radians()),
+            pose2(-2.0, 2.5, 195f64.to_radians()),
+            pose2(-2.0, -0.5, 0.3),
         ];
-        let fov_deg = [30.0, 30.0, 60.0, 360.0];
+        let fov_deg = [120.0, 120.0, 60.0, 360.0];
         let sensors: Vec<SensorInput> = truth
             .iter()
             .zip(fov_deg)
