@@ -201,8 +201,8 @@ pub fn register_site(
                 Err(why) => refusals[g] = Some(why),
             }
         }
-        // A group whose best placement one member alone contradicts: that member's checked
-        // edges were wrong after all (or it sees what the others do not); weigh it apart.
+        // A group whose best placement a minority of its members contradict: their checked
+        // edges were wrong after all (or they see what the others do not); weigh them apart.
         if !split.is_empty() {
             for (g, member) in split {
                 groups[g].retain(|(m, _)| *m != member);
