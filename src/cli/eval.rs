@@ -307,8 +307,11 @@ fn sim_cases(
 fn sites(plans: &[Plan], count: usize, seed: u64, params: &RegisterParams) -> Result<()> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5173);
     println!(
-        "{:<6} {:<6} {:>7} {:>9} {:>11} {:>10} {:>9}",
-        "site", "plan", "placed", "≤10cm/1°", "max err cm", "max err °", "time ms"
+        "{:<6} {:<6} {:>7} {:>9} {:>11} {:>10} {:>9} {:>9}",
+        "site", "plan", "placed", "≤10cm/1°", "max err cm", "max err °", "time ms", "reachable"
+    );
+    println!(
+        "(reachable: sensors joined to s0 by pairs whose candidates include the truth, an upper bound on what choosing among candidates can place)"
     );
     let mut done = 0;
     let mut attempts = 0;
@@ -394,16 +397,86 @@ fn sites(plans: &[Plan], count: usize, seed: u64, params: &RegisterParams) -> Re
                 ));
             }
         }
+        // For each sensor not placed right: was the truth among its pairs' candidates at all?
+        // (With both ends known: "truth #c/n of pair a–b" means the site solve had it to pick.)
+        for (k, s) in site.sensors.iter().enumerate() {
+            let (Some(t), Some(t0)) = (truths.get(k), truths.first()) else {
+                continue;
+            };
+            let right = s.pose.as_ref().is_ok_and(|p| {
+                let (dt, dyaw) = pose_error(&p.pose.planar(), &(t0.inverse() * t));
+                dt <= 0.1 && dyaw <= 1f64.to_radians()
+            });
+            if right || k == 0 {
+                continue;
+            }
+            let found: Vec<String> = site
+                .pairs
+                .iter()
+                .filter(|pr| pr.a == k || pr.b == k)
+                .filter_map(|pr| {
+                    let truth = truths.get(pr.a)?.inverse() * truths.get(pr.b)?;
+                    let c = pr.result.candidates.iter().position(|c| {
+                        let (dt, dyaw) = pose_error(&c.a_from_b, &truth);
+                        dt <= 0.1 && dyaw <= 1f64.to_radians()
+                    })?;
+                    Some(format!(
+                        "{}–{} #{}/{}",
+                        pr.a,
+                        pr.b,
+                        c,
+                        pr.result.candidates.len()
+                    ))
+                })
+                .collect();
+            why_wrong.push(if found.is_empty() {
+                format!("    {}: the truth is no pair's candidate", s.id)
+            } else {
+                format!(
+                    "    {}: the truth is a candidate of {}",
+                    s.id,
+                    found.join(", ")
+                )
+            });
+        }
+        // Sensors joined to s0 through pairs that had the truth among their candidates.
+        let mut reachable = vec![false; site.sensors.len()];
+        if let Some(r) = reachable.first_mut() {
+            *r = true;
+        }
+        loop {
+            let mut grew = false;
+            for pr in &site.pairs {
+                let (Some(ta), Some(tb)) = (truths.get(pr.a), truths.get(pr.b)) else {
+                    continue;
+                };
+                let truth = ta.inverse() * tb;
+                let has_truth = pr.result.candidates.iter().any(|c| {
+                    let (dt, dyaw) = pose_error(&c.a_from_b, &truth);
+                    dt <= 0.1 && dyaw <= 1f64.to_radians()
+                });
+                let (ra, rb) = (reachable[pr.a], reachable[pr.b]);
+                if has_truth && ra != rb {
+                    reachable[pr.a] = true;
+                    reachable[pr.b] = true;
+                    grew = true;
+                }
+            }
+            if !grew {
+                break;
+            }
+        }
         done += 1;
         println!(
-            "{:<6} {:<6} {:>5}/8 {:>7}/8 {:>11.1} {:>10.2} {:>9.0}",
+            "{:<6} {:<6} {:>5}/8 {:>7}/8 {:>11.1} {:>10.2} {:>9.0} {:>7}/8",
             done,
             plan.name,
             placed,
             ok,
             max_m * 100.0,
             max_deg,
-            ms
+            ms,
+            reachable.iter().filter(|r| **r).count()
         );
         for w in why_wrong {
             println!("{w}");
