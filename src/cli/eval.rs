@@ -315,6 +315,8 @@ fn sites(plans: &[Plan], count: usize, seed: u64, params: &RegisterParams) -> Re
     );
     let mut done = 0;
     let mut attempts = 0;
+    // Over all sites: sensors placed, placed within 10 cm / 1°, reachable, slowest site (ms).
+    let (mut all_placed, mut all_ok, mut all_reachable, mut slowest_ms) = (0, 0, 0, 0.0f64);
     while done < count && attempts < count * 50 {
         attempts += 1;
         let Some(base) = plans.get(attempts % plans.len()) else {
@@ -467,6 +469,10 @@ fn sites(plans: &[Plan], count: usize, seed: u64, params: &RegisterParams) -> Re
             }
         }
         done += 1;
+        all_placed += placed;
+        all_ok += ok;
+        all_reachable += reachable.iter().filter(|r| **r).count();
+        slowest_ms = slowest_ms.max(ms);
         println!(
             "{:<6} {:<6} {:>5}/8 {:>7}/8 {:>11.1} {:>10.2} {:>9.0} {:>7}/8",
             done,
@@ -482,6 +488,11 @@ fn sites(plans: &[Plan], count: usize, seed: u64, params: &RegisterParams) -> Re
             println!("{w}");
         }
     }
+    println!(
+        "all {done} sites: {all_placed}/{} sensors placed, {all_ok} within 10 cm / 1°, {} placed wrong, {all_reachable} reachable; slowest site {slowest_ms:.0} ms",
+        done * 8,
+        all_placed - all_ok
+    );
     Ok(())
 }
 
