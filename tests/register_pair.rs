@@ -113,6 +113,12 @@ fn pair_in_hall_is_registered_within_tolerance() {
     let r = assert_registered_within(&a, &b, &truth, 0.05, 0.5, &p);
     assert!(r.overlap > 0.3 && r.ambiguity < 0.8 && r.match_score > 0.0);
     assert!(r.covariance[(0, 0)] > 0.0 && r.covariance[(0, 0)].sqrt() < 0.05);
+    // Every candidate carries the covariance linearised at its own pose (the site solve
+    // weighs an edge made from a runner-up by it); the best's is the pair's.
+    assert_eq!(r.candidates[0].covariance, r.covariance);
+    for c in &r.candidates {
+        assert!((0..3).all(|k| c.covariance[(k, k)].is_finite() && c.covariance[(k, k)] > 0.0));
+    }
 }
 
 #[test]

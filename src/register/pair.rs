@@ -70,11 +70,12 @@ impl fmt::Display for Abstain {
     }
 }
 
-/// A refined candidate pose with its score.
+/// A refined candidate pose with its score and covariance (x, y, yaw; m², rad²).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Candidate {
     pub a_from_b: Pose2,
     pub score: PoseScore,
+    pub covariance: Matrix3<f64>,
 }
 
 /// The outcome for one pair. The best candidate is always reported (for diagnosis and for the
@@ -142,6 +143,8 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
                 Candidate {
                     a_from_b: icp.a_from_b,
                     score: score(a, b, &icp.a_from_b, p),
+                    // Linearised at the end, for the distinct candidates only.
+                    covariance: Matrix3::zeros(),
                 },
                 icp,
             )
@@ -168,10 +171,8 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         let polished = symmetric_refine(a, b, &first.a_from_b, &narrow);
         let polished_score = score(a, b, &polished, p);
         if polished_score.value >= first.score.value - p.polish_tolerance {
-            *first = Candidate {
-                a_from_b: polished,
-                score: polished_score,
-            };
+            first.a_from_b = polished;
+            first.score = polished_score;
         }
     }
     let Some((best, icp)) = distinct.first().cloned() else {
@@ -193,15 +194,7 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         Some(r) if best.score.value > 0.0 => (r.score.value / best.score.value).max(0.0),
         _ => 0.0,
     };
-    // Linearise once more at the chosen pose with the narrow gate: that is the information
-    // the scans carry about it (the guarded ICP may have stopped at an early, wide-gate iterate).
-    let narrow = RegisterParams {
-        icp_max_iterations: 1,
-        max_correspondence_m: 0.2,
-        ..p.clone()
-    };
-    let at_best = super::icp::refine(a, b, &best.a_from_b, &narrow, p.class_aware);
-    let (covariance, weak) = covariance_of(&at_best, p);
+    let (covariance, weak) = covariance_at(a, b, &best.a_from_b, p);
     let overlap = best.score.overlap();
     let verdict = if overlap < p.min_overlap {
         Err(Abstain::TooLittleOverlap { overlap })
@@ -237,7 +230,18 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         ambiguity,
         overlap,
         score: best.score,
-        candidates: distinct.into_iter().map(|d| d.0).collect(),
+        candidates: distinct
+            .into_iter()
+            .enumerate()
+            .map(|(k, (c, _))| Candidate {
+                covariance: if k == 0 {
+                    covariance
+                } else {
+                    covariance_at(a, b, &c.a_from_b, p).0
+                },
+                ..c
+            })
+            .collect(),
         hypotheses: hypotheses_count,
         icp_iterations: icp.iterations,
     }
@@ -278,6 +282,24 @@ fn slides_freely(
         })
         .collect();
     ratios.iter().any(|r| *r > p.slide_ratio)
+}
+
+/// Linearises once more at `a_from_b` with a narrow gate: that is the information the scans
+/// carry about the pose (the guarded ICP may have stopped at an early, wide-gate iterate).
+/// Returns its covariance and the direction of a translation the scans do not constrain.
+fn covariance_at(
+    a: &ScanModel,
+    b: &ScanModel,
+    a_from_b: &Pose2,
+    p: &RegisterParams,
+) -> (Matrix3<f64>, Option<f64>) {
+    let narrow = RegisterParams {
+        icp_max_iterations: 1,
+        max_correspondence_m: 0.2,
+        ..p.clone()
+    };
+    let at = super::icp::refine(a, b, a_from_b, &narrow, p.class_aware);
+    covariance_of(&at, p)
 }
 
 /// The position σ (along the worst direction, m) and heading σ (rad) when either exceeds its

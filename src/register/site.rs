@@ -408,13 +408,15 @@ fn why_best_pair(i: usize, pairs: &[(usize, usize)], results: &[PairResult]) -> 
     r.verdict.as_ref().err().map(|why| why.to_string())
 }
 
-/// The edge a pair's candidate `ci` makes (candidate 0 is the pair's own answer).
+/// The edge a pair's candidate `ci` makes (candidate 0 is the pair's own answer), with the
+/// covariance linearised at that candidate.
 fn candidate_edge(pair: (usize, usize), r: &PairResult, ci: usize) -> Option<Edge> {
+    let c = r.candidates.get(ci)?;
     Some(Edge {
         a: pair.0,
         b: pair.1,
-        a_from_b: r.candidates.get(ci)?.a_from_b,
-        covariance: r.covariance,
+        a_from_b: c.a_from_b,
+        covariance: c.covariance,
         strength: strength(r),
     })
 }
@@ -1176,11 +1178,13 @@ mod tests {
             .map(|pose| Candidate {
                 a_from_b: *pose,
                 score: crate::register::score::score(&a.model, &b.model, pose, &p),
+                covariance: Matrix3::identity() * 1e-4,
             })
             .collect();
         let best = candidates.first().cloned().unwrap_or(Candidate {
             a_from_b: Pose2::identity(),
             score: Default::default(),
+            covariance: Matrix3::identity() * 1e-4,
         });
         PairResult {
             verdict: Err(crate::register::Abstain::Ambiguous {
