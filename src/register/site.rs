@@ -1214,6 +1214,25 @@ mod tests {
         mirror_of_s3: Pose2,
     }
 
+    /// A join context in which the scene's first `count` sensors stand at their true poses.
+    fn truth_placed<'a>(
+        scene: &'a MirrorScene,
+        count: usize,
+        p: &'a RegisterParams,
+        sp: &'a SiteParams,
+    ) -> JoinContext<'a> {
+        JoinContext {
+            sensors: &scene.sensors,
+            placed: (0..count)
+                .map(|i| (i, scene.truth[0].inverse() * scene.truth[i]))
+                .collect(),
+            pairs: &scene.pairs,
+            results: &scene.results,
+            p,
+            sp,
+        }
+    }
+
     fn mirror_scene() -> MirrorScene {
         let walls = hall();
         let half_turn = pose2(0.0, 0.0, std::f64::consts::PI);
@@ -1279,16 +1298,7 @@ mod tests {
                 truth.value
             );
         }
-        let ctx = JoinContext {
-            sensors: &scene.sensors,
-            placed: (0..3)
-                .map(|i| (i, scene.truth[0].inverse() * scene.truth[i]))
-                .collect(),
-            pairs: &scene.pairs,
-            results: &scene.results,
-            p: &p,
-            sp: &sp,
-        };
+        let ctx = truth_placed(&scene, 3, &p, &sp);
         let s3 = [(3, Pose2::identity())];
         // The mirror image puts s3's view of the pillar in the floor s2 sees empty.
         let at_mirror = ctx.joint(&s3, &(scene.truth[0].inverse() * scene.mirror_of_s3));
@@ -1316,16 +1326,7 @@ mod tests {
     fn without_the_third_sensor_the_mirror_image_is_reported_not_placed() {
         let scene = mirror_scene();
         let (p, sp) = (RegisterParams::default(), SiteParams::default());
-        let ctx = JoinContext {
-            sensors: &scene.sensors,
-            placed: (0..2)
-                .map(|i| (i, scene.truth[0].inverse() * scene.truth[i]))
-                .collect(),
-            pairs: &scene.pairs,
-            results: &scene.results,
-            p: &p,
-            sp: &sp,
-        };
+        let ctx = truth_placed(&scene, 2, &p, &sp);
         let refusal = ctx.weigh(&[(3, Pose2::identity())]).err();
         let Some(Refusal::Ambiguous {
             ratio, apart_deg, ..
