@@ -8,8 +8,9 @@
 //! Run: `cargo bench --bench daemon_fuse` (`SCANFUSE_BENCH_S=60` for a longer run; 20 s
 //! default).
 
+mod common;
+
 use std::io::{BufRead, BufReader, Write};
-use std::os::unix::net::UnixStream;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use scanfuse::daemon::config::Config;
@@ -94,16 +95,7 @@ fn main() -> Result<(), Error> {
 
     // The watcher: connect once the socket is there, skip the first second (connects).
     let started = Instant::now();
-    let stream = loop {
-        match UnixStream::connect(&socket) {
-            Ok(s) => break s,
-            Err(e) if started.elapsed() < Duration::from_secs(10) => {
-                let _ = e;
-                std::thread::sleep(Duration::from_millis(20));
-            }
-            Err(e) => return Err(format!("no socket: {e}").into()),
-        }
-    };
+    let stream = common::connect_when_up(&socket)?;
     stream.set_read_timeout(Some(Duration::from_secs(5)))?;
     let mut writer = stream.try_clone()?;
     let mut reader = BufReader::new(stream);

@@ -7,6 +7,8 @@
 //! Run: `cargo bench --bench daemon_memory` (`SCANFUSE_BENCH_S=60` for a shorter run; 360 s
 //! default; `SCANFUSE_BENCH_SPEED` to change the 10×).
 
+mod common;
+
 use std::io::{BufRead, BufReader, Write};
 use std::os::unix::net::UnixStream;
 use std::time::{Duration, Instant};
@@ -101,15 +103,7 @@ fn main() -> Result<(), Error> {
     let daemon = runtime.spawn(run_daemon(config, options));
 
     let started = Instant::now();
-    let stream = loop {
-        match UnixStream::connect(&socket) {
-            Ok(s) => break s,
-            Err(_) if started.elapsed() < Duration::from_secs(10) => {
-                std::thread::sleep(Duration::from_millis(20));
-            }
-            Err(e) => return Err(format!("no socket: {e}").into()),
-        }
-    };
+    let stream = common::connect_when_up(&socket)?;
     stream.set_read_timeout(Some(Duration::from_secs(10)))?;
     let mut client = BufReader::new(stream);
     println!(
