@@ -161,8 +161,8 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         }
     }
     // The guarded ICP keeps the iterate the score likes best, and the score is flat within a
-    // degree or two of the optimum: polish the winner with plain narrow-gate ICP, both ways, which
-    // settles the heading, unless that costs score (it slid off along a weak direction).
+    // degree or two of the optimum: polish the winner with plain narrow-gate ICP, both ways,
+    // which settles the heading, unless that costs score (it slid off along a weak direction).
     if let Some((first, _)) = distinct.first_mut() {
         let narrow = RegisterParams {
             max_correspondence_m: p.min_correspondence_m * 1.5,

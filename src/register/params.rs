@@ -70,8 +70,10 @@ pub struct RegisterParams {
     /// Abstain above this violation fraction at the best pose.
     pub max_violation: f64,
     /// Abstain when the pose's own standard deviation (covariance above, worst translation
-    /// direction; heading) exceeds these: "registered" promises ~10 cm / 1°, and a pose the
-    /// scans fix only to ±15 cm / ±2° (a few sparse points on short walls) cannot keep it.
+    /// direction; heading) exceeds these: "registered" promises ~10 cm / 1°, and on sparse real
+    /// scans the covariance reads the true error about 3× low. From eval `--csv` on 600 real
+    /// pairs: 95 % of correct poses have σ under 4–7 cm / 0.7°; 18 of 31 wrong ones exceeded
+    /// 10 cm / 1°.
     pub max_sigma_m: f64,
     pub max_sigma_rad: f64,
     /// Abstain when the runner-up (a different pose) scores at least this fraction of the best.
