@@ -177,7 +177,23 @@ pub fn register_site(
     // Join the groups one at a time, the best-supported first: each join adds evidence
     // (placed sensors to check against) for the rest.
     let mut refusals: Vec<Option<Refusal>> = vec![None; groups.len()];
-    let mut open: Vec<usize> = (0..groups.len()).collect();
+    // A group with a surveyed member stands where its best survey puts it (the solve weighs
+    // the survey against the edges later); from there it is evidence for the groups that join.
+    let mut open: Vec<usize> = Vec::new();
+    for (g, members) in groups.iter().enumerate() {
+        let surveyed = members
+            .iter()
+            .filter_map(|&(m, root_from_m)| Some((sensors.get(m)?.prior?, root_from_m)))
+            .min_by(|x, y| x.0.sigma_xy_m.total_cmp(&y.0.sigma_xy_m));
+        let Some((prior, root_from_m)) = surveyed else {
+            open.push(g);
+            continue;
+        };
+        let anchor_from_root = prior.anchor_from_sensor * root_from_m.inverse();
+        for &(m, root_from_member) in members {
+            placed[m] = Some(anchor_from_root * root_from_member);
+        }
+    }
     let mut join_sources: Vec<(usize, usize)> = Vec::new();
     loop {
         let ctx = JoinContext {
@@ -825,6 +841,12 @@ pub fn spanning_poses(n: usize, anchor: usize, edges: &[Edge]) -> Vec<Option<Pos
         return poses;
     }
     poses[anchor] = Some(Pose2::identity());
+    grow_poses(&mut poses, edges);
+    poses
+}
+
+/// Extends `poses` along `edges` from the sensors already posed, strongest edge first.
+fn grow_poses(poses: &mut [Option<Pose2>], edges: &[Edge]) {
     loop {
         let next = edges
             .iter()
@@ -836,7 +858,7 @@ pub fn spanning_poses(n: usize, anchor: usize, edges: &[Edge]) -> Vec<Option<Pos
             .max_by(|x, y| x.0.total_cmp(&y.0));
         match next {
             Some((_, i, pose)) => poses[i] = Some(pose),
-            None => return poses,
+            None => return,
         }
     }
 }
@@ -868,12 +890,18 @@ pub fn solve(
     sp: &SiteParams,
 ) -> Vec<Option<(Pose2, [f64; 3])>> {
     let mut poses = spanning_poses(n, anchor, edges);
-    // Surveyed sensors not reached by any edge are placed by their prior.
-    for (i, s) in sensors.iter().enumerate() {
-        if poses[i].is_none()
-            && let Some(prior) = s.prior
-        {
+    // Surveyed sensors the anchor's edges do not reach start at their survey (the surest
+    // first), and the sensors their edges reach start from there.
+    let mut surveyed: Vec<(usize, Prior)> = sensors
+        .iter()
+        .enumerate()
+        .filter_map(|(i, s)| Some((i, s.prior?)))
+        .collect();
+    surveyed.sort_by(|x, y| x.1.sigma_xy_m.total_cmp(&y.1.sigma_xy_m));
+    for (i, prior) in surveyed {
+        if poses.get(i).is_some_and(|p| p.is_none()) {
             poses[i] = Some(prior.anchor_from_sensor);
+            grow_poses(&mut poses, edges);
         }
     }
     let free: Vec<usize> = (0..n)
@@ -1166,6 +1194,60 @@ mod tests {
             model: ScanModel::new(&points, step, &RegisterParams::default()),
             mount: crate::geometry::Mount::default(),
             prior: None,
+        }
+    }
+
+    #[test]
+    fn a_surveyed_sensor_out_of_reach_places_the_sensors_registered_to_it() {
+        // Two rooms 40 m apart that share no view: s0 and s1 in the hall, s2 and s3 in an
+        // L-shaped room with a pillar. Only s2 is surveyed; s3 registers with s2 alone.
+        let mut room = polygon(&[
+            (40.0, 0.0),
+            (52.0, 0.0),
+            (52.0, 5.0),
+            (46.0, 5.0),
+            (46.0, 10.0),
+            (40.0, 10.0),
+        ]);
+        room.extend(polygon(&[
+            (43.0, 3.0),
+            (43.6, 3.0),
+            (43.6, 3.6),
+            (43.0, 3.6),
+        ]));
+        let walls: Vec<Wall> = hall().into_iter().chain(room).collect();
+        let truth = [
+            pose2(-3.0, -1.0, 0.3),
+            pose2(1.0, -2.0, 2.6),
+            pose2(41.0, 1.5, 0.6),
+            pose2(50.0, 3.5, 2.9),
+        ];
+        let fov = 270f64.to_radians();
+        let mut sensors: Vec<SensorInput> = truth
+            .iter()
+            .enumerate()
+            .map(|(i, t)| sensor_at(&walls, *t, fov, &format!("s{i}")))
+            .collect();
+        sensors[2].prior = Some(Prior {
+            anchor_from_sensor: truth[0].inverse() * truth[2],
+            sigma_xy_m: 0.02,
+            sigma_yaw_rad: 0.01,
+        });
+        let site = register_site(
+            &sensors,
+            0,
+            &RegisterParams::default(),
+            &SiteParams::default(),
+        );
+        for k in 1..4 {
+            let placed = site.sensors[k].pose.as_ref();
+            let pose = placed.unwrap_or_else(|why| panic!("s{k} not placed: {why}"));
+            let (dt, dyaw) = pose_error(&pose.pose.planar(), &(truth[0].inverse() * truth[k]));
+            assert!(
+                dt < 0.05 && dyaw < 0.5f64.to_radians(),
+                "s{k} off by {dt} m {} deg",
+                dyaw.to_degrees()
+            );
         }
     }
 
