@@ -496,6 +496,11 @@ impl Refusal {
             Refusal::Outweighed { value } => format!(
                 "at its best placement, points in the placed sensors' free space outweigh the shared view (score {value:.2}); {HELP}"
             ),
+            // Without a rival the margin is the shared view alone: say so, not "0 % as well".
+            Refusal::Weak { overlap, ambiguity } if *ambiguity < 0.005 => format!(
+                "its best placement shares only {:.0} % of its view with the placed sensors, too little to rest a placement on; {HELP}",
+                overlap * 100.0
+            ),
             Refusal::Weak { overlap, ambiguity } => format!(
                 "its best placement shares {:.0} % of its view with the placed sensors and another scores {:.0} % as well, too thin a margin to place it; {HELP}",
                 overlap * 100.0,
@@ -1430,6 +1435,26 @@ mod tests {
             why.contains("mirror image") && why.contains("survey it"),
             "{why}"
         );
+    }
+
+    #[test]
+    fn a_weak_join_names_the_rival_only_when_there_is_one() {
+        let id = |i: usize| ["s0", "s1"][i];
+        let alone = Refusal::Weak {
+            overlap: 0.22,
+            ambiguity: 0.0,
+        }
+        .describe(&id);
+        assert!(
+            alone.contains("only 22 %") && !alone.contains("as well"),
+            "{alone}"
+        );
+        let rivalled = Refusal::Weak {
+            overlap: 0.45,
+            ambiguity: 0.4,
+        }
+        .describe(&id);
+        assert!(rivalled.contains("40 % as well"), "{rivalled}");
     }
 
     #[test]
