@@ -204,3 +204,43 @@ fn noisy_sparse_180_degree_scans_are_registered_within_5_cm_and_half_a_degree() 
         &p,
     );
 }
+
+#[test]
+fn a_sensor_standing_far_behind_the_other_is_found() {
+    // A looks down a hall; B stands 6 m behind A's back, where A sees nothing, facing the same
+    // way. The translation vote must reach that far beyond A's outline.
+    let p = RegisterParams::default();
+    let mut walls = polygon(&[
+        (0.0, 0.0),
+        (20.0, 0.0),
+        (20.0, 5.0),
+        (17.0, 5.0),
+        (17.0, 8.0),
+        (0.0, 8.0),
+    ]);
+    walls.extend(polygon(&[
+        (15.0, 2.0),
+        (16.0, 2.0),
+        (16.0, 3.0),
+        (15.0, 3.0),
+    ]));
+    walls.extend(polygon(&[
+        (12.5, 5.5),
+        (13.2, 5.5),
+        (13.2, 6.2),
+        (12.5, 6.2),
+    ]));
+    walls.extend(polygon(&[(10.0, 0.0), (11.0, 1.2), (12.0, 0.0)]));
+    walls.extend(polygon(&[(4.0, 8.0), (5.5, 7.0), (7.0, 8.0)]));
+    let site_from_a = pose2(9.0, 4.0, 0.05);
+    let site_from_b = pose2(3.0, 3.5, -0.1);
+    let a = sparse_model(&walls, &site_from_a, 1, &p);
+    let b = sparse_model(&walls, &site_from_b, 2, &p);
+    let leftmost = a.points().iter().map(|q| q.x).fold(f64::INFINITY, f64::min);
+    let truth = site_from_a.inverse() * site_from_b;
+    assert!(
+        leftmost - truth.translation.x > 4.0,
+        "B must stand well outside A's outline"
+    );
+    assert_registered_within(&a, &b, &truth, 0.05, 0.5, &p);
+}

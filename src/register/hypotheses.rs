@@ -16,6 +16,12 @@ const PEAK_FLOOR: f32 = 0.25;
 /// Segments used per scan for hypotheses (the longest).
 const MAX_SEGMENTS: usize = 40;
 
+/// How far beyond A's outline (and A itself) the translation vote reaches (m). B may stand
+/// well outside what A sees (behind A's back, or in a doorway A's walls hide); with 2 m the
+/// true pose was never hypothesised for 8 of 360 simulated and 6 of 600 real pairs at ≥ 30 %
+/// overlap (eval seeds 1–3 / 1–5). 15 m found no more and cost time.
+const VOTE_MARGIN_M: f64 = 8.0;
+
 /// Headings θ (B's heading in A's frame) worth trying, strongest first.
 pub fn rotation_candidates(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> Vec<f64> {
     let sa = &a.features.segments[..a.features.segments.len().min(MAX_SEGMENTS)];
@@ -91,9 +97,9 @@ impl Accumulator {
             lo = lo.inf(q);
             hi = hi.sup(q);
         }
-        let min = lo - Vector2::repeat(2.0);
-        let width = ((hi.x - min.x + 2.0) / res).ceil() as usize + 1;
-        let height = ((hi.y - min.y + 2.0) / res).ceil() as usize + 1;
+        let min = lo - Vector2::repeat(VOTE_MARGIN_M);
+        let width = ((hi.x - min.x + VOTE_MARGIN_M) / res).ceil() as usize + 1;
+        let height = ((hi.y - min.y + VOTE_MARGIN_M) / res).ceil() as usize + 1;
         Accumulator {
             min,
             res,
