@@ -514,14 +514,15 @@ const BINS: [(f64, f64, &str); 5] = [
     (0.5, 1.01, "50–100 %"),
 ];
 
-/// Share of each scan's points within 10 cm of the other's under `a_from_b`, the smaller of
-/// the two: the same definition as the simulator's `view_overlap`, so "≥ 30 % overlap" means
-/// the same in the simulated and the real tables.
+/// Share of each scan's points within 10 cm of the other's, seen from the same side, under
+/// `a_from_b`, the smaller of the two: the same definition as the simulator's `view_overlap`,
+/// so "≥ 30 % overlap" means the same in the simulated and the real tables.
 pub fn true_overlap(a: &ScanModel, b: &ScanModel, a_from_b: &Pose2) -> f64 {
     share_near(a, b, a_from_b).min(share_near(b, a, &a_from_b.inverse()))
 }
 
-/// Share of `b`'s points within 10 cm of `a`'s under `a_from_b`.
+/// Share of `b`'s points within 10 cm of `a`'s under `a_from_b`, where both sensors face the
+/// surface from the same side (their normals, which point towards each sensor, agree).
 fn share_near(a: &ScanModel, b: &ScanModel, a_from_b: &Pose2) -> f64 {
     let grid = NearestGrid::new(a.points(), 0.05, 0.1);
     let pts = b.points();
@@ -530,11 +531,17 @@ fn share_near(a: &ScanModel, b: &ScanModel, a_from_b: &Pose2) -> f64 {
     }
     let near = pts
         .iter()
-        .filter(|p| {
+        .zip(&b.normals)
+        .filter(|(p, n)| {
             let q = a_from_b * **p;
-            grid.nearest(&q)
-                .and_then(|j| a.points().get(j))
-                .is_some_and(|r| (q - r).norm() <= 0.1)
+            grid.nearest(&q).is_some_and(|j| {
+                let close = a.points().get(j).is_some_and(|r| (q - r).norm() <= 0.1);
+                let facing = a
+                    .normals
+                    .get(j)
+                    .is_some_and(|m| m.dot(&(a_from_b * **n)) > 0.0);
+                close && facing
+            })
         })
         .count();
     near as f64 / pts.len() as f64

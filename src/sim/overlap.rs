@@ -10,14 +10,19 @@ use crate::scan::ScanGeometry;
 use super::plan::{Model, Plan};
 
 /// Fraction of B's static returns (noise-free, no people, initial poses) that lie within `tol_m`
-/// of a return of A, and the same the other way; returns the smaller.
+/// of a return of A seen from the same side, and the same the other way; returns the smaller.
+///
+/// Plan walls have no thickness, so a sensor outside a wall (or behind a partition) sees points
+/// that coincide with the other face's: those are not shared view (a real wall's faces lie its
+/// thickness apart, and the two sensors see different surfaces), so a pair of returns counts
+/// only when both beams strike the surface from the same side.
 ///
 /// Returns are the centre rays' hits within [DMIN, DMAX], as horizontal points in the site
 /// frame. Floor and ceiling hits are left out: registration drops them (METHOD.md §1), so they
 /// are not shared view.
 pub fn view_overlap(plan: &Plan, a_id: &str, b_id: &str, tol_m: f64) -> Result<f64, PlanError> {
     let scene = Scene::build(plan)?;
-    let points = |id: &str| -> Result<Vec<[f64; 2]>, PlanError> {
+    let points = |id: &str| -> Result<Vec<Return>, PlanError> {
         let sensor = plan.sensor(id).ok_or_else(|| {
             let known: Vec<&str> = plan.sensors.iter().map(|s| s.id.as_str()).collect();
             PlanError::new(
@@ -39,15 +44,16 @@ pub fn view_overlap(plan: &Plan, a_id: &str, b_id: &str, tol_m: f64) -> Result<f
             geometry.dmax_mm as f64 / 1000.0,
         );
         let pose = [sensor.x, sensor.y, sensor.yaw_deg.to_radians()];
-        Ok(beam_rays(sensor, &geometry, pose)
+        let hits: Vec<([f64; 2], [f64; 2])> = beam_rays(sensor, &geometry, pose)
             .iter()
             .filter_map(|[_, centre, _]| {
                 let hit = scene.cast(centre)?;
                 let wall = matches!(hit.surface, Surface::Shape(_));
                 (wall && (dmin_m..=dmax_m).contains(&hit.range_m))
-                    .then(|| centre.xy_at(hit.range_m))
+                    .then(|| (centre.xy_at(hit.range_m), [centre.dir[0], centre.dir[1]]))
             })
-            .collect())
+            .collect();
+        Ok(with_normals(&hits))
     };
     if !(tol_m.is_finite() && tol_m > 0.0) {
         return Err(PlanError::new(
@@ -62,22 +68,58 @@ pub fn view_overlap(plan: &Plan, a_id: &str, b_id: &str, tol_m: f64) -> Result<f
     Ok(covered(&a, &b, tol_m).min(covered(&b, &a, tol_m)))
 }
 
-/// Fraction of `of` within `tol_m` of some point of `by`.
-fn covered(by: &[[f64; 2]], of: &[[f64; 2]], tol_m: f64) -> f64 {
+/// One static return: where it lies, the beam's direction and the surface's normal there
+/// (from the neighbouring returns; `None` where they are too far to tell).
+#[derive(Debug, Clone, Copy)]
+struct Return {
+    at: [f64; 2],
+    dir: [f64; 2],
+    normal: Option<[f64; 2]>,
+}
+
+/// Surface normals from each return's neighbours along the scan (within 0.3 m).
+fn with_normals(hits: &[([f64; 2], [f64; 2])]) -> Vec<Return> {
+    let dist = |p: &[f64; 2], q: &[f64; 2]| (p[0] - q[0]).hypot(p[1] - q[1]);
+    (0..hits.len())
+        .map(|i| {
+            let (at, dir) = hits[i];
+            let near = |j: usize| hits.get(j).map(|h| h.0).filter(|q| dist(q, &at) <= 0.3);
+            let before = i.checked_sub(1).and_then(near).unwrap_or(at);
+            let after = near(i + 1).unwrap_or(at);
+            let t = [after[0] - before[0], after[1] - before[1]];
+            let len = t[0].hypot(t[1]);
+            let normal = (len > 1e-6).then(|| [-t[1] / len, t[0] / len]);
+            Return { at, dir, normal }
+        })
+        .collect()
+}
+
+/// Fraction of `of` within `tol_m` of some return of `by` that struck the surface from the same
+/// side.
+fn covered(by: &[Return], of: &[Return], tol_m: f64) -> f64 {
     if of.is_empty() {
         return 0.0;
     }
     let cell = |p: &[f64; 2]| ((p[0] / tol_m).floor() as i64, (p[1] / tol_m).floor() as i64);
-    let mut grid: HashMap<(i64, i64), Vec<[f64; 2]>> = HashMap::new();
-    for p in by {
-        grid.entry(cell(p)).or_default().push(*p);
+    let mut grid: HashMap<(i64, i64), Vec<Return>> = HashMap::new();
+    for r in by {
+        grid.entry(cell(&r.at)).or_default().push(*r);
     }
-    let near = |p: &[f64; 2]| {
-        let (cx, cy) = cell(p);
+    let same_side = |p: &Return, q: &Return| {
+        let dot = |n: &[f64; 2], d: &[f64; 2]| n[0] * d[0] + n[1] * d[1];
+        q.normal
+            .or(p.normal)
+            .is_none_or(|n| dot(&n, &p.dir) * dot(&n, &q.dir) > 0.0)
+    };
+    let near = |p: &Return| {
+        let (cx, cy) = cell(&p.at);
         (-1..=1).any(|dx| {
             (-1..=1).any(|dy| {
-                grid.get(&(cx + dx, cy + dy))
-                    .is_some_and(|qs| qs.iter().any(|q| (p[0] - q[0]).hypot(p[1] - q[1]) <= tol_m))
+                grid.get(&(cx + dx, cy + dy)).is_some_and(|qs| {
+                    qs.iter().any(|q| {
+                        (p.at[0] - q.at[0]).hypot(p.at[1] - q.at[1]) <= tol_m && same_side(p, q)
+                    })
+                })
             })
         })
     };
@@ -123,6 +165,31 @@ mod tests {
                 assert!((0.25..=0.70).contains(&o), "{a}–{b}: {o}");
             }
         }
+    }
+
+    #[test]
+    fn the_two_faces_of_a_wall_are_not_shared_view() {
+        // One free-standing 10 m wall (no thickness): `north` and `also_north` see its north
+        // face, `south` its south face at the very same points.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("wall.toml");
+        let sensor = |id: &str, x: f64, y: f64, yaw: f64| {
+            format!(
+                "[[sensor]]\nid = \"{id}\"\nmodel = \"UTM-30LX-EW\"\nx = {x}\ny = {y}\nyaw_deg = {yaw}\n"
+            )
+        };
+        let text = format!(
+            "name = \"wall\"\n[[wall]]\npoints = [[0, 0], [10, 0]]\n{}{}{}",
+            sensor("north", 5.0, 3.0, -90.0),
+            sensor("also_north", 3.5, 2.5, -90.0),
+            sensor("south", 5.0, -3.0, 90.0)
+        );
+        std::fs::write(&path, text).unwrap();
+        let plan = Plan::load(&path).unwrap();
+        let across = view_overlap(&plan, "north", "south", 0.10).unwrap();
+        let along = view_overlap(&plan, "north", "also_north", 0.10).unwrap();
+        assert!(across < 0.02, "opposite faces counted as shared: {across}");
+        assert!(along > 0.5, "the same face from nearby: {along}");
     }
 
     /// A plan without what locates it in its file, to compare plans across files.
