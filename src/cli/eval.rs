@@ -92,8 +92,14 @@ pub fn run(args: Args) -> Result<()> {
             classes_on_off(&cases, &params, args.seed);
         }
         if wants("site") {
-            println!("\n== Simulated sites of 8 sensors: every sensor within 10 cm / 1°? ==");
-            sites(&plans, args.sites, args.seed, &params)?;
+            println!(
+                "\n== Simulated sites of 8 installed sensors (each shares ≥ 30 % of its view with one placed before it): every sensor within 10 cm / 1°? =="
+            );
+            sites(&plans, args.sites, args.seed, &params, SiteDraw::Installed)?;
+            println!(
+                "\n== Simulated sites of 8 sensors dropped at random (some share no view with any other): every sensor within 10 cm / 1°? =="
+            );
+            sites(&plans, args.sites, args.seed, &params, SiteDraw::Random)?;
         }
     }
     if wants("real") || wants("classes") {
@@ -303,9 +309,51 @@ fn sim_cases(
     Ok(cases)
 }
 
-/// Sites of 8 random sensors: the joint solve's error against truth, and its time.
-fn sites(plans: &[Plan], count: usize, seed: u64, params: &RegisterParams) -> Result<()> {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5173);
+/// How a site's sensors are drawn.
+#[derive(Clone, Copy, PartialEq)]
+enum SiteDraw {
+    /// Anywhere in the plan's bounds, any heading: many share no view with any other sensor.
+    Random,
+    /// As an installer covers a floor: each sensor within 2–12 m of one placed before it and
+    /// sharing at least `INSTALLED_OVERLAP` of its view with it (the overlap the method is
+    /// promised to work at), so every sensor is reachable from the first in principle.
+    Installed,
+}
+
+const INSTALLED_OVERLAP: f64 = 0.3;
+
+/// Eight sensors as `SiteDraw::Installed` describes, or `None` when a sensor finds no spot
+/// within a few tries (the caller draws another site).
+fn installed_sensors(plan: &Plan, rng: &mut ChaCha8Rng) -> Option<Vec<SensorPlan>> {
+    let mut trial = plan.clone();
+    trial.sensors = vec![random_sensor(plan, "s0", None, rng)];
+    for k in 1..8 {
+        let id = format!("s{k}");
+        let placed = (0..40).find_map(|_| {
+            let parent = trial.sensors[rng.random_range(0..trial.sensors.len())].clone();
+            let sensor = random_sensor(plan, &id, Some((parent.x, parent.y)), rng);
+            trial.sensors.push(sensor);
+            let shared = view_overlap(&trial, &parent.id, &id, 0.1).unwrap_or(0.0);
+            let sensor = trial.sensors.pop()?;
+            (shared >= INSTALLED_OVERLAP).then_some(sensor)
+        })?;
+        trial.sensors.push(placed);
+    }
+    Some(trial.sensors)
+}
+
+/// Sites of 8 sensors: the joint solve's error against truth, and its time.
+fn sites(
+    plans: &[Plan],
+    count: usize,
+    seed: u64,
+    params: &RegisterParams,
+    draw: SiteDraw,
+) -> Result<()> {
+    let mut rng = ChaCha8Rng::seed_from_u64(match draw {
+        SiteDraw::Random => seed ^ 0x5173,
+        SiteDraw::Installed => seed ^ 0x1257a11,
+    });
     println!(
         "{:<6} {:<6} {:>7} {:>9} {:>11} {:>10} {:>9} {:>9}",
         "site", "plan", "placed", "≤10cm/1°", "max err cm", "max err °", "time ms", "reachable"
@@ -324,9 +372,15 @@ fn sites(plans: &[Plan], count: usize, seed: u64, params: &RegisterParams) -> Re
         };
         let mut plan = base.clone();
         plan.moves.clear();
-        plan.sensors = (0..8)
-            .map(|k| random_sensor(&plan, &format!("s{k}"), None, &mut rng))
-            .collect();
+        plan.sensors = match draw {
+            SiteDraw::Random => (0..8)
+                .map(|k| random_sensor(&plan, &format!("s{k}"), None, &mut rng))
+                .collect(),
+            SiteDraw::Installed => match installed_sensors(&plan, &mut rng) {
+                Some(sensors) => sensors,
+                None => continue,
+            },
+        };
         let Some(models) = simulate_models(&plan, rng.random(), params)? else {
             continue;
         };
