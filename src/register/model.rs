@@ -131,6 +131,32 @@ pub struct ScanModel {
     pub icp_sample: Vec<usize>,
     pub grid: NearestGrid,
     pub polar: PolarRanges,
+    /// Where the scan plane runs in height, when the mount is known.
+    pub plane: Option<ScanPlane>,
+}
+
+/// The plane a (possibly tilted) scan sweeps: z = height + x·slope at a horizontal point
+/// (x forward, sensor frame), since a beam's x is d·cos θ·cos φ and its z is h + d·cos θ·sin φ.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ScanPlane {
+    pub height_m: f64,
+    /// tan of the pitch.
+    pub slope: f64,
+}
+
+impl ScanPlane {
+    pub fn of(mount: &Mount) -> Option<ScanPlane> {
+        mount.height_m.map(|height_m| ScanPlane {
+            height_m,
+            slope: mount.pitch_rad.tan(),
+        })
+    }
+
+    /// Height of the plane above the floor at `q` (sensor frame, m).
+    #[inline]
+    pub fn z_at(&self, q: &Point2<f64>) -> f64 {
+        self.height_m + q.x * self.slope
+    }
 }
 
 impl ScanModel {
@@ -150,6 +176,7 @@ impl ScanModel {
             icp_sample,
             grid,
             polar,
+            plane: None,
         }
     }
 
@@ -167,7 +194,10 @@ impl ScanModel {
             (Some(a), Some(b)) if angles.len() > 1 => ((b - a) / (angles.len() - 1) as f64).abs(),
             _ => 0.25f64.to_radians(),
         };
-        Self::new(&points, step_rad, params)
+        ScanModel {
+            plane: ScanPlane::of(mount),
+            ..Self::new(&points, step_rad, params)
+        }
     }
 
     pub fn points(&self) -> &[Point2<f64>] {

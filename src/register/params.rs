@@ -25,6 +25,9 @@ pub struct RegisterParams {
     /// much (plus `free_margin_frac` of its range) short of what that sensor saw (m).
     pub free_margin_m: f64,
     pub free_margin_frac: f64,
+    /// ... and only when the other sensor's scan plane passes within this height of the point
+    /// (m): a unit 0.7 m higher, or tilted, sees over boxes and partitions the other one hits.
+    pub free_space_dz_m: f64,
     /// Weight of the violation fraction against the hit fraction in the score: free space
     /// decides, since hits alone favour the pose with the most overlap.
     pub violation_weight: f64,
@@ -101,6 +104,7 @@ impl Default for RegisterParams {
             hit_m: 0.12,
             free_margin_m: 0.15,
             free_margin_frac: 0.02,
+            free_space_dz_m: 0.5,
             violation_weight: 3.0,
             coarse_slack_m: 0.12,
             seed_gap_m: 0.25,

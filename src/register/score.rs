@@ -5,6 +5,7 @@
 
 use super::{RegisterParams, ScanModel};
 use crate::geometry::Pose2;
+use nalgebra::Point2;
 
 /// Hit and violation fractions of one direction.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -56,7 +57,9 @@ fn score_dir(
                 overlap += 1;
             }
         }
-        if into.polar.violates(&q, p.free_margin_m, p.free_margin_frac) {
+        if crosses(from, into, &pts[i], &q, p)
+            && into.polar.violates(&q, p.free_margin_m, p.free_margin_frac)
+        {
             violation += 1;
         }
     }
@@ -68,12 +71,31 @@ fn score_dir(
     }
 }
 
+/// Whether `into`'s beam towards `q` (its frame; `p_from`, the same point in `from`'s frame)
+/// passes at the height `from` saw it: only then does a return short of it in `into`'s scan
+/// contradict it. A beam passing well above or below may clear a box or partition the other
+/// sensor saw; with a mount unknown the two planes are taken as one.
+#[inline]
+fn crosses(
+    from: &ScanModel,
+    into: &ScanModel,
+    p_from: &Point2<f64>,
+    q: &Point2<f64>,
+    p: &Tolerance,
+) -> bool {
+    match (from.plane, into.plane) {
+        (Some(f), Some(i)) => i.z_at(q) - f.z_at(p_from) <= p.free_space_dz_m,
+        _ => true,
+    }
+}
+
 /// Hit distance and free-space margins of one scoring pass.
 #[derive(Debug, Clone, Copy)]
 struct Tolerance {
     hit_m: f64,
     free_margin_m: f64,
     free_margin_frac: f64,
+    free_space_dz_m: f64,
     violation_weight: f64,
 }
 
@@ -83,6 +105,7 @@ pub fn score(a: &ScanModel, b: &ScanModel, a_from_b: &Pose2, p: &RegisterParams)
         hit_m: p.hit_m,
         free_margin_m: p.free_margin_m,
         free_margin_frac: p.free_margin_frac,
+        free_space_dz_m: p.free_space_dz_m,
         violation_weight: p.violation_weight,
     };
     score_with(a, b, a_from_b, &t)
@@ -100,6 +123,7 @@ pub fn score_coarse(
         hit_m: p.hit_m + p.coarse_slack_m,
         free_margin_m: p.free_margin_m + p.coarse_slack_m,
         free_margin_frac: p.free_margin_frac,
+        free_space_dz_m: p.free_space_dz_m,
         violation_weight: p.violation_weight,
     };
     score_with(a, b, a_from_b, &t)
@@ -114,5 +138,57 @@ fn score_with(a: &ScanModel, b: &ScanModel, a_from_b: &Pose2, p: &Tolerance) -> 
         a_in_b,
         b_in_a,
         value,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::ScanPoint;
+    use crate::register::model::ScanPlane;
+
+    /// A level sensor at the origin, facing +x, that saw a straight surface across its view
+    /// at `range_m` (±40°, 0.25° steps), mounted at `height_m` (None: mount unknown).
+    fn facing(range_m: f64, height_m: Option<f64>) -> ScanModel {
+        let step = 0.25f64.to_radians();
+        let points: Vec<ScanPoint> = (-160..=160)
+            .enumerate()
+            .map(|(beam, k)| {
+                let a = k as f64 * step;
+                ScanPoint {
+                    p: Point2::new(range_m, range_m * a.tan()),
+                    beam,
+                    z_m: height_m,
+                }
+            })
+            .collect();
+        let model = ScanModel::new(&points, step, &RegisterParams::default());
+        ScanModel {
+            plane: height_m.map(|height_m| ScanPlane {
+                height_m,
+                slope: 0.0,
+            }),
+            ..model
+        }
+    }
+
+    #[test]
+    fn a_beam_passing_over_what_a_lower_unit_saw_does_not_contradict_it() {
+        let p = RegisterParams::default();
+        let same = Pose2::identity();
+        // Both at one spot: the low unit (0.8 m) hits a 1 m box 3 m out, the high one (1.5 m)
+        // sees over it to the wall at 6 m.
+        let (low, high) = (facing(3.0, Some(0.8)), facing(6.0, Some(1.5)));
+        let s = score(&high, &low, &same, &p);
+        assert!(s.a_in_b.violation < 0.01, "{s:?}");
+        assert!(s.b_in_a.violation < 0.01, "{s:?}");
+        // Mounts unknown: the scans are taken to sweep one plane, and the box contradicts.
+        let s = score(&facing(6.0, None), &facing(3.0, None), &same, &p);
+        assert!(s.b_in_a.violation > 0.9, "{s:?}");
+        // Objects stand on the floor: a low beam that passed where the high unit saw something
+        // would have hit it too, so that still contradicts.
+        let (low_far, high_near) = (facing(6.0, Some(0.8)), facing(3.0, Some(1.5)));
+        let s = score(&low_far, &high_near, &same, &p);
+        assert!(s.b_in_a.violation > 0.9, "{s:?}");
     }
 }
