@@ -1,6 +1,7 @@
 //! `scanfuse eval`: measures registration as issue 5 asks and prints the tables: success per
 //! overlap bin, errors, confident-wrong and abstentions with reasons, time per pair, plain
-//! point-to-point ICP baselines side by side, real-data pairs from the CARMEN logs, and ICP
+//! point-to-point ICP baselines side by side, real-data pairs from the CARMEN logs, sites of 8
+//! (simulated: installed and dropped at random; real: CARMEN scans drawn as installed), and ICP
 //! iterations with point classes on vs. off.
 
 use anyhow::{Context, Result, bail};
@@ -37,7 +38,7 @@ pub struct Args {
     /// Folder of the floor plans random placements are drawn in.
     #[arg(long, default_value = "fixtures/plans")]
     pub plans: PathBuf,
-    /// Simulated sites of 8 sensors to solve.
+    /// Sites of 8 sensors to solve, per kind (installed, random, real).
     #[arg(long, default_value_t = 3)]
     pub sites: usize,
     /// Parts to run: sim, site, real, classes (comma separated; default all).
@@ -104,7 +105,8 @@ pub fn run(args: Args) -> Result<()> {
     }
     if wants("real") || wants("classes") {
         if args.real_data.is_dir() {
-            let cases = real_cases(&args, &params)?;
+            let per_log = load_logs(&args)?;
+            let cases = real_cases(&args, &per_log, &params)?;
             if wants("real") {
                 println!("\n== Real data: CARMEN 180° scans, success ≤ 15 cm and ≤ 1.5° ==");
                 evaluate(
@@ -118,6 +120,10 @@ pub fn run(args: Args) -> Result<()> {
                 if args.diagnose {
                     diagnose(&cases, 0.15, 1.5f64.to_radians(), &params);
                 }
+                println!(
+                    "\n== Real sites: 8 CARMEN scans of one log, each sharing ≥ 30 % of its view with one drawn before it: every scan within 15 cm / 1.5°? =="
+                );
+                real_sites(&args, &per_log, &params)?;
             }
             if wants("classes") {
                 println!(
@@ -354,17 +360,10 @@ fn sites(
         SiteDraw::Random => seed ^ 0x5173,
         SiteDraw::Installed => seed ^ 0x1257a11,
     });
-    println!(
-        "{:<6} {:<6} {:>7} {:>9} {:>11} {:>10} {:>9} {:>9}",
-        "site", "plan", "placed", "≤10cm/1°", "max err cm", "max err °", "time ms", "reachable"
-    );
-    println!(
-        "(reachable: sensors joined to s0 by pairs whose candidates include the truth, an upper bound on what choosing among candidates can place)"
-    );
+    SiteTotals::header("≤10cm/1°");
     let mut done = 0;
     let mut attempts = 0;
-    // Over all sites: sensors placed, placed within 10 cm / 1°, reachable, slowest site (ms).
-    let (mut all_placed, mut all_ok, mut all_reachable, mut slowest_ms) = (0, 0, 0, 0.0f64);
+    let mut totals = SiteTotals::default();
     while done < count && attempts < count * 50 {
         attempts += 1;
         let Some(base) = plans.get(attempts % plans.len()) else {
@@ -397,157 +396,236 @@ fn sites(
                 prior: None,
             })
             .collect();
-        let t0 = Instant::now();
-        let site = register_site(&inputs, 0, params, &SiteParams::default());
-        let ms = t0.elapsed().as_secs_f64() * 1e3;
-        let (mut placed, mut ok, mut max_m, mut max_deg) = (0, 0, 0.0f64, 0.0f64);
-        for (k, s) in site.sensors.iter().enumerate() {
-            let (Ok(p), Some(t), Some(t0)) = (&s.pose, truths.get(k), truths.first()) else {
-                continue;
-            };
-            placed += 1;
-            let (dt, dyaw) = pose_error(&p.pose.planar(), &(t0.inverse() * t));
-            max_m = max_m.max(dt);
-            max_deg = max_deg.max(dyaw.to_degrees());
-            if dt <= 0.1 && dyaw <= 1f64.to_radians() {
-                ok += 1;
-            }
-        }
-        // What placed each wrong sensor: the pairs used for it, and how wrong each was.
-        let mut why_wrong = Vec::new();
-        for (k, s) in site.sensors.iter().enumerate() {
-            if let Err(why) = &s.pose {
-                why_wrong.push(format!("    {} not placed: {why}", s.id));
-            }
-            let (Ok(p), Some(t), Some(t0)) = (&s.pose, truths.get(k), truths.first()) else {
-                continue;
-            };
-            let (dt, dyaw) = pose_error(&p.pose.planar(), &(t0.inverse() * t));
-            if dt <= 0.1 && dyaw <= 1f64.to_radians() {
-                continue;
-            }
-            for pr in site
-                .pairs
-                .iter()
-                .filter(|pr| pr.used && (pr.a == k || pr.b == k))
-            {
-                let (Some(ta), Some(tb)) = (truths.get(pr.a), truths.get(pr.b)) else {
-                    continue;
-                };
-                let (et, eyaw) = pose_error(&pr.result.a_from_b, &(ta.inverse() * tb));
-                why_wrong.push(format!(
-                    "    {} off by {:.2} m {:.1}°: pair {}–{} {} (pair error {:.2} m {:.1}°, ambiguity {:.2}, overlap {:.2})",
-                    s.id,
-                    dt,
-                    dyaw.to_degrees(),
-                    pr.a,
-                    pr.b,
-                    match &pr.result.verdict {
-                        Ok(()) => "registered".to_string(),
-                        Err(w) => format!("candidate of an unregistered pair ({w})"),
-                    },
-                    et,
-                    eyaw.to_degrees(),
-                    pr.result.ambiguity,
-                    pr.result.overlap
-                ));
-            }
-        }
-        // For each sensor not placed right: was the truth among its pairs' candidates at all?
-        // (With both ends known: "truth #c/n of pair a–b" means the site solve had it to pick.)
-        for (k, s) in site.sensors.iter().enumerate() {
-            let (Some(t), Some(t0)) = (truths.get(k), truths.first()) else {
-                continue;
-            };
-            let right = s.pose.as_ref().is_ok_and(|p| {
-                let (dt, dyaw) = pose_error(&p.pose.planar(), &(t0.inverse() * t));
-                dt <= 0.1 && dyaw <= 1f64.to_radians()
-            });
-            if right || k == 0 {
-                continue;
-            }
-            let found: Vec<String> = site
-                .pairs
-                .iter()
-                .filter(|pr| pr.a == k || pr.b == k)
-                .filter_map(|pr| {
-                    let truth = truths.get(pr.a)?.inverse() * truths.get(pr.b)?;
-                    let c = pr.result.candidates.iter().position(|c| {
-                        let (dt, dyaw) = pose_error(&c.a_from_b, &truth);
-                        dt <= 0.1 && dyaw <= 1f64.to_radians()
-                    })?;
-                    Some(format!(
-                        "{}–{} #{}/{}",
-                        pr.a,
-                        pr.b,
-                        c,
-                        pr.result.candidates.len()
-                    ))
-                })
-                .collect();
-            why_wrong.push(if found.is_empty() {
-                format!("    {}: the truth is no pair's candidate", s.id)
-            } else {
-                format!(
-                    "    {}: the truth is a candidate of {}",
-                    s.id,
-                    found.join(", ")
-                )
-            });
-        }
-        // Sensors joined to s0 through pairs that had the truth among their candidates.
-        let mut reachable = vec![false; site.sensors.len()];
-        if let Some(r) = reachable.first_mut() {
-            *r = true;
-        }
-        loop {
-            let mut grew = false;
-            for pr in &site.pairs {
-                let (Some(ta), Some(tb)) = (truths.get(pr.a), truths.get(pr.b)) else {
-                    continue;
-                };
-                let truth = ta.inverse() * tb;
-                let has_truth = pr.result.candidates.iter().any(|c| {
-                    let (dt, dyaw) = pose_error(&c.a_from_b, &truth);
-                    dt <= 0.1 && dyaw <= 1f64.to_radians()
-                });
-                let (ra, rb) = (reachable[pr.a], reachable[pr.b]);
-                if has_truth && ra != rb {
-                    reachable[pr.a] = true;
-                    reachable[pr.b] = true;
-                    grew = true;
-                }
-            }
-            if !grew {
-                break;
-            }
-        }
+        let outcome = solve_site(&inputs, &truths, params, (0.10, 1f64.to_radians()));
         done += 1;
-        all_placed += placed;
-        all_ok += ok;
-        all_reachable += reachable.iter().filter(|r| **r).count();
-        slowest_ms = slowest_ms.max(ms);
+        outcome.print(done, &plan.name);
+        totals.add(&outcome);
+    }
+    totals.print("10 cm / 1°");
+    Ok(())
+}
+
+/// How one site came out against its truth.
+struct SiteOutcome {
+    placed: usize,
+    ok: usize,
+    reachable: usize,
+    sensors: usize,
+    max_m: f64,
+    max_deg: f64,
+    ms: f64,
+    /// For each sensor not placed right: why, and whether the truth was among its candidates.
+    why_wrong: Vec<String>,
+}
+
+impl SiteOutcome {
+    fn print(&self, k: usize, name: &str) {
+        let n = self.sensors;
         println!(
-            "{:<6} {:<6} {:>5}/8 {:>7}/8 {:>11.1} {:>10.2} {:>9.0} {:>7}/8",
-            done,
-            plan.name,
-            placed,
-            ok,
-            max_m * 100.0,
-            max_deg,
-            ms,
-            reachable.iter().filter(|r| **r).count()
+            "{:<6} {:<6} {:>5}/{n} {:>7}/{n} {:>11.1} {:>10.2} {:>9.0} {:>7}/{n}",
+            k,
+            name,
+            self.placed,
+            self.ok,
+            self.max_m * 100.0,
+            self.max_deg,
+            self.ms,
+            self.reachable
         );
-        for w in why_wrong {
+        for w in &self.why_wrong {
             println!("{w}");
         }
     }
-    println!(
-        "all {done} sites: {all_placed}/{} sensors placed, {all_ok} within 10 cm / 1°, {} placed wrong, {all_reachable} reachable; slowest site {slowest_ms:.0} ms",
-        done * 8,
-        all_placed - all_ok
-    );
-    Ok(())
+}
+
+/// Sums over sites; prints the table's header and its totals line.
+#[derive(Default)]
+struct SiteTotals {
+    sites: usize,
+    sensors: usize,
+    placed: usize,
+    ok: usize,
+    reachable: usize,
+    slowest_ms: f64,
+}
+
+impl SiteTotals {
+    fn header(tol: &str) {
+        println!(
+            "{:<6} {:<6} {:>7} {:>9} {:>11} {:>10} {:>9} {:>9}",
+            "site", "plan", "placed", tol, "max err cm", "max err °", "time ms", "reachable"
+        );
+        println!(
+            "(reachable: sensors joined to s0 by pairs whose candidates include the truth, an upper bound on what choosing among candidates can place)"
+        );
+    }
+
+    fn add(&mut self, o: &SiteOutcome) {
+        self.sites += 1;
+        self.sensors += o.sensors;
+        self.placed += o.placed;
+        self.ok += o.ok;
+        self.reachable += o.reachable;
+        self.slowest_ms = self.slowest_ms.max(o.ms);
+    }
+
+    fn print(&self, tol: &str) {
+        println!(
+            "all {} sites: {}/{} sensors placed, {} within {tol}, {} placed wrong, {} reachable; slowest site {:.0} ms",
+            self.sites,
+            self.placed,
+            self.sensors,
+            self.ok,
+            self.placed - self.ok,
+            self.reachable,
+            self.slowest_ms
+        );
+    }
+}
+
+/// Solves a site anchored at its first sensor and scores every placement against `truths`
+/// (site frame) within `tol` (m, rad).
+fn solve_site(
+    inputs: &[SensorInput],
+    truths: &[Pose2],
+    params: &RegisterParams,
+    tol: (f64, f64),
+) -> SiteOutcome {
+    let t0 = Instant::now();
+    let site = register_site(inputs, 0, params, &SiteParams::default());
+    let ms = t0.elapsed().as_secs_f64() * 1e3;
+    let (mut placed, mut ok, mut max_m, mut max_deg) = (0, 0, 0.0f64, 0.0f64);
+    for (k, s) in site.sensors.iter().enumerate() {
+        let (Ok(p), Some(t), Some(t0)) = (&s.pose, truths.get(k), truths.first()) else {
+            continue;
+        };
+        placed += 1;
+        let (dt, dyaw) = pose_error(&p.pose.planar(), &(t0.inverse() * t));
+        max_m = max_m.max(dt);
+        max_deg = max_deg.max(dyaw.to_degrees());
+        if dt <= tol.0 && dyaw <= tol.1 {
+            ok += 1;
+        }
+    }
+    // What placed each wrong sensor: the pairs used for it, and how wrong each was.
+    let mut why_wrong = Vec::new();
+    for (k, s) in site.sensors.iter().enumerate() {
+        if let Err(why) = &s.pose {
+            why_wrong.push(format!("    {} not placed: {why}", s.id));
+        }
+        let (Ok(p), Some(t), Some(t0)) = (&s.pose, truths.get(k), truths.first()) else {
+            continue;
+        };
+        let (dt, dyaw) = pose_error(&p.pose.planar(), &(t0.inverse() * t));
+        if dt <= tol.0 && dyaw <= tol.1 {
+            continue;
+        }
+        for pr in site
+            .pairs
+            .iter()
+            .filter(|pr| pr.used && (pr.a == k || pr.b == k))
+        {
+            let (Some(ta), Some(tb)) = (truths.get(pr.a), truths.get(pr.b)) else {
+                continue;
+            };
+            let (et, eyaw) = pose_error(&pr.result.a_from_b, &(ta.inverse() * tb));
+            why_wrong.push(format!(
+                "    {} off by {:.2} m {:.1}°: pair {}–{} {} (pair error {:.2} m {:.1}°, ambiguity {:.2}, overlap {:.2})",
+                s.id,
+                dt,
+                dyaw.to_degrees(),
+                pr.a,
+                pr.b,
+                match &pr.result.verdict {
+                    Ok(()) => "registered".to_string(),
+                    Err(w) => format!("candidate of an unregistered pair ({w})"),
+                },
+                et,
+                eyaw.to_degrees(),
+                pr.result.ambiguity,
+                pr.result.overlap
+            ));
+        }
+    }
+    // For each sensor not placed right: was the truth among its pairs' candidates at all?
+    // (With both ends known: "truth #c/n of pair a–b" means the site solve had it to pick.)
+    for (k, s) in site.sensors.iter().enumerate() {
+        let (Some(t), Some(t0)) = (truths.get(k), truths.first()) else {
+            continue;
+        };
+        let right = s.pose.as_ref().is_ok_and(|p| {
+            let (dt, dyaw) = pose_error(&p.pose.planar(), &(t0.inverse() * t));
+            dt <= tol.0 && dyaw <= tol.1
+        });
+        if right || k == 0 {
+            continue;
+        }
+        let found: Vec<String> = site
+            .pairs
+            .iter()
+            .filter(|pr| pr.a == k || pr.b == k)
+            .filter_map(|pr| {
+                let truth = truths.get(pr.a)?.inverse() * truths.get(pr.b)?;
+                let c = pr.result.candidates.iter().position(|c| {
+                    let (dt, dyaw) = pose_error(&c.a_from_b, &truth);
+                    dt <= tol.0 && dyaw <= tol.1
+                })?;
+                Some(format!(
+                    "{}–{} #{}/{}",
+                    pr.a,
+                    pr.b,
+                    c,
+                    pr.result.candidates.len()
+                ))
+            })
+            .collect();
+        why_wrong.push(if found.is_empty() {
+            format!("    {}: the truth is no pair's candidate", s.id)
+        } else {
+            format!(
+                "    {}: the truth is a candidate of {}",
+                s.id,
+                found.join(", ")
+            )
+        });
+    }
+    // Sensors joined to s0 through pairs that had the truth among their candidates.
+    let mut reachable = vec![false; site.sensors.len()];
+    if let Some(r) = reachable.first_mut() {
+        *r = true;
+    }
+    loop {
+        let mut grew = false;
+        for pr in &site.pairs {
+            let (Some(ta), Some(tb)) = (truths.get(pr.a), truths.get(pr.b)) else {
+                continue;
+            };
+            let truth = ta.inverse() * tb;
+            let has_truth = pr.result.candidates.iter().any(|c| {
+                let (dt, dyaw) = pose_error(&c.a_from_b, &truth);
+                dt <= tol.0 && dyaw <= tol.1
+            });
+            let (ra, rb) = (reachable[pr.a], reachable[pr.b]);
+            if has_truth && ra != rb {
+                reachable[pr.a] = true;
+                reachable[pr.b] = true;
+                grew = true;
+            }
+        }
+        if !grew {
+            break;
+        }
+    }
+    SiteOutcome {
+        placed,
+        ok,
+        reachable: reachable.iter().filter(|r| **r).count(),
+        sensors: inputs.len(),
+        max_m,
+        max_deg,
+        ms,
+        why_wrong,
+    }
 }
 
 /// One pair to register, with the truth.
@@ -1014,12 +1092,10 @@ fn classes_on_off(cases: &[Case], params: &RegisterParams, seed: u64) {
     }
 }
 
-/// Draws real pairs from the CARMEN logs, spread over the overlap bins.
-fn real_cases(args: &Args, params: &RegisterParams) -> Result<Vec<Case>> {
-    let logs = ["intel", "aces", "freiburg-079", "csail"];
-    let mut rng = ChaCha8Rng::seed_from_u64(args.seed ^ 0x5ea1);
+/// The CARMEN logs the real-data tables draw from, those present in `--real-data`.
+fn load_logs(args: &Args) -> Result<Vec<(&'static str, Vec<carmen::LogScan>)>> {
     let mut per_log = Vec::new();
-    for name in logs {
+    for name in ["intel", "aces", "freiburg-079", "csail"] {
         let path = args.real_data.join(format!("{name}-corrected.log.gz"));
         if !path.is_file() {
             continue;
@@ -1031,6 +1107,78 @@ fn real_cases(args: &Args, params: &RegisterParams) -> Result<Vec<Case>> {
     if per_log.is_empty() {
         bail!("no CARMEN logs found in {}", args.real_data.display());
     }
+    Ok(per_log)
+}
+
+/// Sites of 8 real scans of one log, drawn as `SiteDraw::Installed` draws sensors: each 1–10 m
+/// from one drawn before it and sharing at least `INSTALLED_OVERLAP` of its view with it (and
+/// at least 1 m from every other, so no two are near-copies of one robot stop).
+fn real_sites(
+    args: &Args,
+    per_log: &[(&str, Vec<carmen::LogScan>)],
+    params: &RegisterParams,
+) -> Result<()> {
+    let mut rng = ChaCha8Rng::seed_from_u64(args.seed ^ 0x5ea1_5173);
+    SiteTotals::header("≤15cm/1.5°");
+    let mut totals = SiteTotals::default();
+    let model =
+        |s: &carmen::LogScan| ScanModel::from_scan(&s.scan, None, &Mount::default(), params);
+    let mut attempts = 0;
+    while totals.sites < args.sites && attempts < args.sites * 50 {
+        attempts += 1;
+        let (name, scans) = &per_log[rng.random_range(0..per_log.len())];
+        let first = rng.random_range(0..scans.len());
+        let mut picked: Vec<(usize, ScanModel)> = vec![(first, model(&scans[first]))];
+        for _ in 1..8 {
+            let found = (0..200).find_map(|_| {
+                let (parent, parent_model) = &picked[rng.random_range(0..picked.len())];
+                let j = rng.random_range(0..scans.len());
+                let at = |k: usize| scans[k].site_from_laser.translation.vector;
+                let from_parent = (at(j) - at(*parent)).norm();
+                let apart = picked.iter().all(|(k, _)| (at(j) - at(*k)).norm() >= 1.0);
+                if !(1.0..=10.0).contains(&from_parent) || !apart {
+                    return None;
+                }
+                let m = model(&scans[j]);
+                let truth = scans[*parent].site_from_laser.inverse() * scans[j].site_from_laser;
+                (true_overlap(parent_model, &m, &truth) >= INSTALLED_OVERLAP).then_some((j, m))
+            });
+            match found {
+                Some(p) => picked.push(p),
+                None => break,
+            }
+        }
+        if picked.len() < 8 {
+            continue;
+        }
+        let truths: Vec<Pose2> = picked
+            .iter()
+            .map(|(k, _)| scans[*k].site_from_laser)
+            .collect();
+        let inputs: Vec<SensorInput> = picked
+            .into_iter()
+            .map(|(k, model)| SensorInput {
+                id: format!("{name}#{k}"),
+                model,
+                mount: Mount::default(),
+                prior: None,
+            })
+            .collect();
+        let outcome = solve_site(&inputs, &truths, params, (0.15, 1.5f64.to_radians()));
+        outcome.print(totals.sites + 1, name);
+        totals.add(&outcome);
+    }
+    totals.print("15 cm / 1.5°");
+    Ok(())
+}
+
+/// Draws real pairs from the CARMEN logs, spread over the overlap bins.
+fn real_cases(
+    args: &Args,
+    per_log: &[(&str, Vec<carmen::LogScan>)],
+    params: &RegisterParams,
+) -> Result<Vec<Case>> {
+    let mut rng = ChaCha8Rng::seed_from_u64(args.seed ^ 0x5ea1);
     let quota = args.real_pairs.div_ceil(BINS.len());
     let mut filled = [0usize; BINS.len()];
     let mut cases = Vec::new();
