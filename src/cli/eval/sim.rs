@@ -1,0 +1,279 @@
+//! Simulated pairs and sites for `scanfuse eval`: random placements in the fixture floor plans,
+//! simulated for a moment with people walking, each sensor's static view prepared.
+
+use super::site::{SiteTotals, solve_site};
+use super::{BINS, Case, bin_of};
+use anyhow::{Context, Result};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use scanfuse::features::static_view;
+use scanfuse::geometry::{Mount, Pose2, pose2};
+use scanfuse::register::site::SensorInput;
+use scanfuse::register::{RegisterParams, ScanModel};
+use scanfuse::scan::{Scan, SensorInfo};
+use scanfuse::sim::plan::{Model, Plan, SensorPlan};
+use scanfuse::sim::{Simulation, view_overlap};
+
+pub(super) fn load_plans(dir: &std::path::Path) -> Result<Vec<Plan>> {
+    let mut plans = Vec::new();
+    for name in ["lab", "hall"] {
+        let path = dir.join(format!("{name}.toml"));
+        plans.push(
+            Plan::load(&path)
+                .with_context(|| format!("{}: cannot load the plan", path.display()))?,
+        );
+    }
+    Ok(plans)
+}
+
+/// A random sensor somewhere in `plan`: either model, one in five tilted like a ceiling unit.
+fn random_sensor(
+    plan: &Plan,
+    id: &str,
+    near: Option<(f64, f64)>,
+    rng: &mut ChaCha8Rng,
+) -> SensorPlan {
+    let (mut lo, mut hi) = (
+        (f64::INFINITY, f64::INFINITY),
+        (f64::NEG_INFINITY, f64::NEG_INFINITY),
+    );
+    for w in &plan.walls {
+        for p in &w.points {
+            lo = (lo.0.min(p[0]), lo.1.min(p[1]));
+            hi = (hi.0.max(p[0]), hi.1.max(p[1]));
+        }
+    }
+    let (x, y) = match near {
+        Some((x0, y0)) => {
+            let d = rng.random_range(2.0..12.0);
+            let a = rng.random_range(0.0..std::f64::consts::TAU);
+            (x0 + d * a.cos(), y0 + d * a.sin())
+        }
+        None => (rng.random_range(lo.0..hi.0), rng.random_range(lo.1..hi.1)),
+    };
+    let model = if rng.random_bool(0.7) {
+        Model::Utm30lxEw
+    } else {
+        Model::Uxm30lxE
+    };
+    let tilted = rng.random_bool(0.2);
+    SensorPlan {
+        line: None,
+        id: id.to_string(),
+        model,
+        x,
+        y,
+        yaw_deg: rng.random_range(-180.0..180.0),
+        height_m: if tilted {
+            rng.random_range(2.0..2.6)
+        } else {
+            rng.random_range(0.8..1.5)
+        },
+        pitch_deg: if tilted {
+            -rng.random_range(8.0..20.0)
+        } else {
+            0.0
+        },
+        intensities: None,
+    }
+}
+
+/// Simulates `plan` for a second and prepares every sensor's static view; `None` when a sensor
+/// stands somewhere useless (inside furniture, outside the building).
+fn simulate_models(
+    plan: &Plan,
+    seed: u64,
+    params: &RegisterParams,
+) -> Result<Option<Vec<(SensorInfo, ScanModel)>>> {
+    // A placement the simulator refuses (inside furniture, in a wall) is simply not drawn.
+    let Ok(mut sim) = Simulation::new(plan, seed) else {
+        return Ok(None);
+    };
+    let infos: Vec<SensorInfo> = sim.sensors().to_vec();
+    let mut scans: Vec<Vec<Scan>> = vec![Vec::new(); infos.len()];
+    sim.run(SIM_SECONDS, |i, scan| {
+        if let Some(v) = scans.get_mut(i) {
+            v.push(scan);
+        }
+        Ok::<(), std::convert::Infallible>(())
+    })
+    .ok();
+    let mut out = Vec::new();
+    for (info, scans) in infos.into_iter().zip(scans) {
+        let Some(view) = static_view(&scans, SIM_SECONDS) else {
+            return Ok(None);
+        };
+        let returns: Vec<f32> = view.ranges_m.iter().copied().filter(|r| *r > 0.0).collect();
+        // Outside the building most beams return nothing; inside a box everything is close.
+        if returns.len() * 2 < view.ranges_m.len()
+            || returns.iter().filter(|r| **r > 1.0).count() * 2 < returns.len()
+        {
+            return Ok(None);
+        }
+        let mount = Mount {
+            height_m: info.height_m,
+            pitch_rad: info.pitch_deg.unwrap_or(0.0).to_radians(),
+        };
+        let model = ScanModel::from_scan(&view, info.geometry.as_ref(), &mount, params);
+        out.push((info, model));
+    }
+    Ok(Some(out))
+}
+
+/// Seconds simulated per placement; the static view is the median over them.
+const SIM_SECONDS: f64 = 0.5;
+
+fn truth_pose(info: &SensorInfo) -> Option<Pose2> {
+    info.truth
+        .map(|t| pose2(t.x_m, t.y_m, t.yaw_deg.to_radians()))
+}
+
+/// Random pairs in the fixture plans, spread over the overlap bins.
+pub(super) fn sim_cases(
+    plans: &[Plan],
+    count: usize,
+    seed: u64,
+    params: &RegisterParams,
+) -> Result<Vec<Case>> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x51a);
+    let quota = count.div_ceil(BINS.len());
+    let mut filled = [0usize; BINS.len()];
+    let mut cases = Vec::new();
+    let mut attempts = 0;
+    while cases.len() < count && attempts < count * 60 {
+        attempts += 1;
+        let Some(base) = plans.get(rng.random_range(0..plans.len())) else {
+            break;
+        };
+        let mut plan = base.clone();
+        plan.moves.clear();
+        let a = random_sensor(&plan, "a", None, &mut rng);
+        let b = random_sensor(&plan, "b", Some((a.x, a.y)), &mut rng);
+        plan.sensors = vec![a, b];
+        // Overlap first (cheap): skip placements whose bin is already full.
+        let Ok(overlap) = view_overlap(&plan, "a", "b", 0.1) else {
+            continue;
+        };
+        let bin = bin_of(overlap);
+        if filled[bin] >= quota {
+            continue;
+        }
+        let Some(models) = simulate_models(&plan, rng.random(), params)? else {
+            continue;
+        };
+        let [(ia, ma), (ib, mb)] = <[(SensorInfo, ScanModel); 2]>::try_from(models)
+            .map_err(|_| anyhow::anyhow!("expected two sensors"))?;
+        let (Some(ta), Some(tb)) = (truth_pose(&ia), truth_pose(&ib)) else {
+            continue;
+        };
+        filled[bin] += 1;
+        if cases.len() % 25 == 0 {
+            eprintln!("simulated {} of {count} pairs…", cases.len());
+        }
+        cases.push(Case {
+            label: format!(
+                "{} {} {}→{} {}",
+                plan.name,
+                ia.model,
+                (ta.translation.x * 10.0).round() / 10.0,
+                (tb.translation.x * 10.0).round() / 10.0,
+                ib.model
+            ),
+            a: ma,
+            b: mb,
+            a_from_b: ta.inverse() * tb,
+            overlap,
+        });
+    }
+    Ok(cases)
+}
+
+/// How a site's sensors are drawn.
+#[derive(Clone, Copy, PartialEq)]
+pub(super) enum SiteDraw {
+    /// Anywhere in the plan's bounds, any heading: many share no view with any other sensor.
+    Random,
+    /// As an installer covers a floor: each sensor within 2–12 m of one placed before it and
+    /// sharing at least `INSTALLED_OVERLAP` of its view with it (the overlap the method is
+    /// promised to work at), so every sensor is reachable from the first in principle.
+    Installed,
+}
+
+pub(super) const INSTALLED_OVERLAP: f64 = 0.3;
+
+/// Eight sensors as `SiteDraw::Installed` describes, or `None` when a sensor finds no spot
+/// within a few tries (the caller draws another site).
+fn installed_sensors(plan: &Plan, rng: &mut ChaCha8Rng) -> Option<Vec<SensorPlan>> {
+    let mut trial = plan.clone();
+    trial.sensors = vec![random_sensor(plan, "s0", None, rng)];
+    for k in 1..8 {
+        let id = format!("s{k}");
+        let placed = (0..40).find_map(|_| {
+            let parent = trial.sensors[rng.random_range(0..trial.sensors.len())].clone();
+            let sensor = random_sensor(plan, &id, Some((parent.x, parent.y)), rng);
+            trial.sensors.push(sensor);
+            let shared = view_overlap(&trial, &parent.id, &id, 0.1).unwrap_or(0.0);
+            let sensor = trial.sensors.pop()?;
+            (shared >= INSTALLED_OVERLAP).then_some(sensor)
+        })?;
+        trial.sensors.push(placed);
+    }
+    Some(trial.sensors)
+}
+
+/// Sites of 8 sensors: the joint solve's error against truth, and its time.
+pub(super) fn sites(
+    plans: &[Plan],
+    count: usize,
+    seed: u64,
+    params: &RegisterParams,
+    draw: SiteDraw,
+) -> Result<()> {
+    let mut rng = ChaCha8Rng::seed_from_u64(match draw {
+        SiteDraw::Random => seed ^ 0x5173,
+        SiteDraw::Installed => seed ^ 0x1257a11,
+    });
+    SiteTotals::header("≤10cm/1°");
+    let mut done = 0;
+    let mut attempts = 0;
+    let mut totals = SiteTotals::default();
+    while done < count && attempts < count * 50 {
+        attempts += 1;
+        let Some(base) = plans.get(attempts % plans.len()) else {
+            break;
+        };
+        let mut plan = base.clone();
+        plan.moves.clear();
+        plan.sensors = match draw {
+            SiteDraw::Random => (0..8)
+                .map(|k| random_sensor(&plan, &format!("s{k}"), None, &mut rng))
+                .collect(),
+            SiteDraw::Installed => match installed_sensors(&plan, &mut rng) {
+                Some(sensors) => sensors,
+                None => continue,
+            },
+        };
+        let Some(models) = simulate_models(&plan, rng.random(), params)? else {
+            continue;
+        };
+        let truths: Vec<Pose2> = models.iter().filter_map(|(i, _)| truth_pose(i)).collect();
+        let inputs: Vec<SensorInput> = models
+            .into_iter()
+            .map(|(info, model)| SensorInput {
+                id: info.id.clone(),
+                mount: Mount {
+                    height_m: info.height_m,
+                    pitch_rad: info.pitch_deg.unwrap_or(0.0).to_radians(),
+                },
+                model,
+                prior: None,
+            })
+            .collect();
+        let outcome = solve_site(&inputs, &truths, params, (0.10, 1f64.to_radians()));
+        done += 1;
+        outcome.print(done, &plan.name);
+        totals.add(&outcome);
+    }
+    totals.print("10 cm / 1°");
+    Ok(())
+}

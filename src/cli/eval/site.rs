@@ -1,0 +1,229 @@
+//! One site of sensors solved and scored against its truth, and the table the sites print.
+
+use scanfuse::geometry::{Pose2, pose_error};
+use scanfuse::register::RegisterParams;
+use scanfuse::register::site::{SensorInput, SiteParams, register_site};
+use std::time::Instant;
+
+/// How one site came out against its truth.
+pub(super) struct SiteOutcome {
+    placed: usize,
+    ok: usize,
+    reachable: usize,
+    sensors: usize,
+    max_m: f64,
+    max_deg: f64,
+    ms: f64,
+    /// For each sensor not placed right: why, and whether the truth was among its candidates.
+    why_wrong: Vec<String>,
+}
+
+impl SiteOutcome {
+    pub(super) fn print(&self, k: usize, name: &str) {
+        let n = self.sensors;
+        println!(
+            "{:<6} {:<6} {:>5}/{n} {:>7}/{n} {:>11.1} {:>10.2} {:>9.0} {:>7}/{n}",
+            k,
+            name,
+            self.placed,
+            self.ok,
+            self.max_m * 100.0,
+            self.max_deg,
+            self.ms,
+            self.reachable
+        );
+        for w in &self.why_wrong {
+            println!("{w}");
+        }
+    }
+}
+
+/// Sums over sites; prints the table's header and its totals line.
+#[derive(Default)]
+pub(super) struct SiteTotals {
+    pub(super) sites: usize,
+    sensors: usize,
+    placed: usize,
+    ok: usize,
+    reachable: usize,
+    slowest_ms: f64,
+}
+
+impl SiteTotals {
+    pub(super) fn header(tol: &str) {
+        println!(
+            "{:<6} {:<6} {:>7} {:>9} {:>11} {:>10} {:>9} {:>9}",
+            "site", "plan", "placed", tol, "max err cm", "max err °", "time ms", "reachable"
+        );
+        println!(
+            "(reachable: sensors joined to s0 by pairs whose candidates include the truth, an upper bound on what choosing among candidates can place)"
+        );
+    }
+
+    pub(super) fn add(&mut self, o: &SiteOutcome) {
+        self.sites += 1;
+        self.sensors += o.sensors;
+        self.placed += o.placed;
+        self.ok += o.ok;
+        self.reachable += o.reachable;
+        self.slowest_ms = self.slowest_ms.max(o.ms);
+    }
+
+    pub(super) fn print(&self, tol: &str) {
+        println!(
+            "all {} sites: {}/{} sensors placed, {} within {tol}, {} placed wrong, {} reachable; slowest site {:.0} ms",
+            self.sites,
+            self.placed,
+            self.sensors,
+            self.ok,
+            self.placed - self.ok,
+            self.reachable,
+            self.slowest_ms
+        );
+    }
+}
+
+/// Solves a site anchored at its first sensor and scores every placement against `truths`
+/// (site frame) within `tol` (m, rad).
+pub(super) fn solve_site(
+    inputs: &[SensorInput],
+    truths: &[Pose2],
+    params: &RegisterParams,
+    tol: (f64, f64),
+) -> SiteOutcome {
+    let t0 = Instant::now();
+    let site = register_site(inputs, 0, params, &SiteParams::default());
+    let ms = t0.elapsed().as_secs_f64() * 1e3;
+    let (mut placed, mut ok, mut max_m, mut max_deg) = (0, 0, 0.0f64, 0.0f64);
+    for (k, s) in site.sensors.iter().enumerate() {
+        let (Ok(p), Some(t), Some(t0)) = (&s.pose, truths.get(k), truths.first()) else {
+            continue;
+        };
+        placed += 1;
+        let (dt, dyaw) = pose_error(&p.pose.planar(), &(t0.inverse() * t));
+        max_m = max_m.max(dt);
+        max_deg = max_deg.max(dyaw.to_degrees());
+        if dt <= tol.0 && dyaw <= tol.1 {
+            ok += 1;
+        }
+    }
+    // What placed each wrong sensor: the pairs used for it, and how wrong each was.
+    let mut why_wrong = Vec::new();
+    for (k, s) in site.sensors.iter().enumerate() {
+        if let Err(why) = &s.pose {
+            why_wrong.push(format!("    {} not placed: {why}", s.id));
+        }
+        let (Ok(p), Some(t), Some(t0)) = (&s.pose, truths.get(k), truths.first()) else {
+            continue;
+        };
+        let (dt, dyaw) = pose_error(&p.pose.planar(), &(t0.inverse() * t));
+        if dt <= tol.0 && dyaw <= tol.1 {
+            continue;
+        }
+        for pr in site
+            .pairs
+            .iter()
+            .filter(|pr| pr.used && (pr.a == k || pr.b == k))
+        {
+            let (Some(ta), Some(tb)) = (truths.get(pr.a), truths.get(pr.b)) else {
+                continue;
+            };
+            let (et, eyaw) = pose_error(&pr.result.a_from_b, &(ta.inverse() * tb));
+            why_wrong.push(format!(
+                "    {} off by {:.2} m {:.1}°: pair {}–{} {} (pair error {:.2} m {:.1}°, ambiguity {:.2}, overlap {:.2})",
+                s.id,
+                dt,
+                dyaw.to_degrees(),
+                pr.a,
+                pr.b,
+                match &pr.result.verdict {
+                    Ok(()) => "registered".to_string(),
+                    Err(w) => format!("candidate of an unregistered pair ({w})"),
+                },
+                et,
+                eyaw.to_degrees(),
+                pr.result.ambiguity,
+                pr.result.overlap
+            ));
+        }
+    }
+    // For each sensor not placed right: was the truth among its pairs' candidates at all?
+    // (With both ends known: "truth #c/n of pair a–b" means the site solve had it to pick.)
+    for (k, s) in site.sensors.iter().enumerate() {
+        let (Some(t), Some(t0)) = (truths.get(k), truths.first()) else {
+            continue;
+        };
+        let right = s.pose.as_ref().is_ok_and(|p| {
+            let (dt, dyaw) = pose_error(&p.pose.planar(), &(t0.inverse() * t));
+            dt <= tol.0 && dyaw <= tol.1
+        });
+        if right || k == 0 {
+            continue;
+        }
+        let found: Vec<String> = site
+            .pairs
+            .iter()
+            .filter(|pr| pr.a == k || pr.b == k)
+            .filter_map(|pr| {
+                let truth = truths.get(pr.a)?.inverse() * truths.get(pr.b)?;
+                let c = pr.result.candidates.iter().position(|c| {
+                    let (dt, dyaw) = pose_error(&c.a_from_b, &truth);
+                    dt <= tol.0 && dyaw <= tol.1
+                })?;
+                Some(format!(
+                    "{}–{} #{}/{}",
+                    pr.a,
+                    pr.b,
+                    c,
+                    pr.result.candidates.len()
+                ))
+            })
+            .collect();
+        why_wrong.push(if found.is_empty() {
+            format!("    {}: the truth is no pair's candidate", s.id)
+        } else {
+            format!(
+                "    {}: the truth is a candidate of {}",
+                s.id,
+                found.join(", ")
+            )
+        });
+    }
+    // Sensors joined to s0 through pairs that had the truth among their candidates.
+    let mut reachable = vec![false; site.sensors.len()];
+    if let Some(r) = reachable.first_mut() {
+        *r = true;
+    }
+    loop {
+        let mut grew = false;
+        for pr in &site.pairs {
+            let (Some(ta), Some(tb)) = (truths.get(pr.a), truths.get(pr.b)) else {
+                continue;
+            };
+            let truth = ta.inverse() * tb;
+            let has_truth = pr.result.candidates.iter().any(|c| {
+                let (dt, dyaw) = pose_error(&c.a_from_b, &truth);
+                dt <= tol.0 && dyaw <= tol.1
+            });
+            let (ra, rb) = (reachable[pr.a], reachable[pr.b]);
+            if has_truth && ra != rb {
+                reachable[pr.a] = true;
+                reachable[pr.b] = true;
+                grew = true;
+            }
+        }
+        if !grew {
+            break;
+        }
+    }
+    SiteOutcome {
+        placed,
+        ok,
+        reachable: reachable.iter().filter(|r| **r).count(),
+        sensors: inputs.len(),
+        max_m,
+        max_deg,
+        ms,
+        why_wrong,
+    }
+}
