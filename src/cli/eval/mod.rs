@@ -1,6 +1,6 @@
 //! `scanfuse eval`: measures registration as issue 5 asks and prints the tables: success per
 //! overlap bin, errors, confident-wrong and abstentions with reasons, time per pair, plain
-//! point-to-point ICP baselines side by side, real-data pairs from the CARMEN logs, sites of 8
+//! point-to-point ICP baselines side by side, real-data pairs from the CARMEN logs, sites
 //! (simulated: installed and dropped at random; real: CARMEN scans drawn as installed), and ICP
 //! iterations with point classes on vs. off.
 
@@ -39,9 +39,12 @@ pub struct Args {
     /// Folder of the floor plans random placements are drawn in.
     #[arg(long, default_value = "fixtures/plans")]
     pub plans: PathBuf,
-    /// Sites of 8 sensors to solve, per kind (installed, random, real).
+    /// Sites to solve, per kind (installed, random, real).
     #[arg(long, default_value_t = 3)]
     pub sites: usize,
+    /// Sensors per site (at least 2).
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u16).range(2..))]
+    pub site_sensors: u16,
     /// Parts to run: sim, site, real, classes (comma separated; default all).
     #[arg(long, value_delimiter = ',')]
     pub only: Vec<String>,
@@ -95,13 +98,15 @@ pub fn run(args: Args) -> Result<()> {
         }
         if wants("site") {
             println!(
-                "\n== Simulated sites of 8 installed sensors (each shares ≥ 30 % of its view with one placed before it): every sensor within 10 cm / 1°? =="
+                "\n== Simulated sites of {} installed sensors (each shares ≥ 30 % of its view with one placed before it): every sensor within 10 cm / 1°? ==",
+                args.site_sensors
             );
-            sites(&plans, args.sites, args.seed, &params, SiteDraw::Installed)?;
+            sites(&plans, &args, &params, SiteDraw::Installed)?;
             println!(
-                "\n== Simulated sites of 8 sensors dropped at random (some share no view with any other): every sensor within 10 cm / 1°? =="
+                "\n== Simulated sites of {} sensors dropped at random (some share no view with any other): every sensor within 10 cm / 1°? ==",
+                args.site_sensors
             );
-            sites(&plans, args.sites, args.seed, &params, SiteDraw::Random)?;
+            sites(&plans, &args, &params, SiteDraw::Random)?;
         }
     }
     if wants("real") || wants("classes") {
@@ -122,7 +127,8 @@ pub fn run(args: Args) -> Result<()> {
                     diagnose(&cases, 0.15, 1.5f64.to_radians(), &params);
                 }
                 println!(
-                    "\n== Real sites: 8 CARMEN scans of one log, each sharing ≥ 30 % of its view with one drawn before it: every scan within 15 cm / 1.5°? =="
+                    "\n== Real sites: {} CARMEN scans of one log, each sharing ≥ 30 % of its view with one drawn before it: every scan within 15 cm / 1.5°? ==",
+                    args.site_sensors
                 );
                 real_sites(&args, &per_log, &params)?;
             }

@@ -31,7 +31,7 @@ pub(super) fn load_logs(args: &Args) -> Result<Vec<(&'static str, Vec<carmen::Lo
     Ok(per_log)
 }
 
-/// Sites of 8 real scans of one log, drawn as `SiteDraw::Installed` draws sensors: each 1–10 m
+/// Sites of `--site-sensors` real scans of one log, drawn as `SiteDraw::Installed` draws sensors: each 1–10 m
 /// from one drawn before it and sharing at least `INSTALLED_OVERLAP` of its view with it (and
 /// at least 1 m from every other, so no two are near-copies of one robot stop).
 pub(super) fn real_sites(
@@ -50,7 +50,7 @@ pub(super) fn real_sites(
         let (name, scans) = &per_log[rng.random_range(0..per_log.len())];
         let first = rng.random_range(0..scans.len());
         let mut picked: Vec<(usize, ScanModel)> = vec![(first, model(&scans[first]))];
-        for _ in 1..8 {
+        for _ in 1..args.site_sensors {
             let found = (0..200).find_map(|_| {
                 let (parent, parent_model) = &picked[rng.random_range(0..picked.len())];
                 let j = rng.random_range(0..scans.len());
@@ -69,7 +69,7 @@ pub(super) fn real_sites(
                 None => break,
             }
         }
-        if picked.len() < 8 {
+        if picked.len() < usize::from(args.site_sensors) {
             continue;
         }
         let truths: Vec<Pose2> = picked

@@ -2,7 +2,7 @@
 //! simulated for a moment with people walking, each sensor's static view prepared.
 
 use super::site::{SiteTotals, solve_site};
-use super::{BINS, Case, bin_of};
+use super::{Args, BINS, Case, bin_of};
 use anyhow::{Context, Result};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -203,10 +203,10 @@ pub(super) const INSTALLED_OVERLAP: f64 = 0.3;
 
 /// Eight sensors as `SiteDraw::Installed` describes, or `None` when a sensor finds no spot
 /// within a few tries (the caller draws another site).
-fn installed_sensors(plan: &Plan, rng: &mut ChaCha8Rng) -> Option<Vec<SensorPlan>> {
+fn installed_sensors(plan: &Plan, n: usize, rng: &mut ChaCha8Rng) -> Option<Vec<SensorPlan>> {
     let mut trial = plan.clone();
     trial.sensors = vec![random_sensor(plan, "s0", None, rng)];
-    for k in 1..8 {
+    for k in 1..n {
         let id = format!("s{k}");
         let placed = (0..40).find_map(|_| {
             let parent = trial.sensors[rng.random_range(0..trial.sensors.len())].clone();
@@ -221,22 +221,22 @@ fn installed_sensors(plan: &Plan, rng: &mut ChaCha8Rng) -> Option<Vec<SensorPlan
     Some(trial.sensors)
 }
 
-/// Sites of 8 sensors: the joint solve's error against truth, and its time.
+/// Sites of `--site-sensors` sensors: the joint solve's error against truth, and its time.
 pub(super) fn sites(
     plans: &[Plan],
-    count: usize,
-    seed: u64,
+    args: &Args,
     params: &RegisterParams,
     draw: SiteDraw,
 ) -> Result<()> {
     let mut rng = ChaCha8Rng::seed_from_u64(match draw {
-        SiteDraw::Random => seed ^ 0x5173,
-        SiteDraw::Installed => seed ^ 0x1257a11,
+        SiteDraw::Random => args.seed ^ 0x5173,
+        SiteDraw::Installed => args.seed ^ 0x1257a11,
     });
     SiteTotals::header("≤10cm/1°");
     let mut done = 0;
     let mut attempts = 0;
     let mut totals = SiteTotals::default();
+    let (count, n) = (args.sites, usize::from(args.site_sensors));
     while done < count && attempts < count * 50 {
         attempts += 1;
         let Some(base) = plans.get(attempts % plans.len()) else {
@@ -245,10 +245,10 @@ pub(super) fn sites(
         let mut plan = base.clone();
         plan.moves.clear();
         plan.sensors = match draw {
-            SiteDraw::Random => (0..8)
+            SiteDraw::Random => (0..n)
                 .map(|k| random_sensor(&plan, &format!("s{k}"), None, &mut rng))
                 .collect(),
-            SiteDraw::Installed => match installed_sensors(&plan, &mut rng) {
+            SiteDraw::Installed => match installed_sensors(&plan, n, &mut rng) {
                 Some(sensors) => sensors,
                 None => continue,
             },

@@ -70,6 +70,12 @@ impl SiteTotals {
     }
 
     pub(super) fn print(&self, tol: &str) {
+        if self.sites == 0 {
+            println!(
+                "no site could be drawn: every draw put a sensor outside the building, inside furniture or out of view of the others (fewer sensors per site draw more easily)"
+            );
+            return;
+        }
         println!(
             "all {} sites: {}/{} sensors placed, {} within {tol}, {} placed wrong, {} reachable; slowest site {:.0} ms",
             self.sites,
