@@ -72,9 +72,10 @@ fn score_dir(
 }
 
 /// Whether `into`'s beam towards `q` (its frame; `p_from`, the same point in `from`'s frame)
-/// passes at the height `from` saw it: only then does a return short of it in `into`'s scan
-/// contradict it. A beam passing well above or below may clear a box or partition the other
-/// sensor saw; with a mount unknown the two planes are taken as one.
+/// would have hit what `from` saw there: only then does a return short of it in `into`'s scan
+/// contradict it. A beam passing well above it may clear a box or partition; one passing below
+/// would hit it too, since objects stand on the floor. With a mount unknown the two planes are
+/// taken as one.
 #[inline]
 fn crosses(
     from: &ScanModel,
