@@ -31,9 +31,9 @@ pub(super) fn load_logs(args: &Args) -> Result<Vec<(&'static str, Vec<carmen::Lo
     Ok(per_log)
 }
 
-/// Sites of `--site-sensors` real scans of one log, drawn as `SiteDraw::Installed` draws sensors: each 1–10 m
-/// from one drawn before it and sharing at least `INSTALLED_OVERLAP` of its view with it (and
-/// at least 1 m from every other, so no two are near-copies of one robot stop).
+/// Sites of `--site-sensors` real scans of one log, drawn as `SiteDraw::Installed` draws
+/// sensors: each 1–10 m from one drawn before it and sharing at least `INSTALLED_OVERLAP` of its
+/// view with it (and at least 1 m from every other, so no two are near-copies of one robot stop).
 pub(super) fn real_sites(
     args: &Args,
     per_log: &[(&str, Vec<carmen::LogScan>)],

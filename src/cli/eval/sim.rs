@@ -201,7 +201,7 @@ pub(super) enum SiteDraw {
 
 pub(super) const INSTALLED_OVERLAP: f64 = 0.3;
 
-/// Eight sensors as `SiteDraw::Installed` describes, or `None` when a sensor finds no spot
+/// `n` sensors as `SiteDraw::Installed` describes, or `None` when a sensor finds no spot
 /// within a few tries (the caller draws another site).
 fn installed_sensors(plan: &Plan, n: usize, rng: &mut ChaCha8Rng) -> Option<Vec<SensorPlan>> {
     let mut trial = plan.clone();
