@@ -100,32 +100,36 @@ pub(super) fn solve_site(
     let t0 = Instant::now();
     let site = register_site(inputs, 0, params, &SiteParams::default());
     let ms = t0.elapsed().as_secs_f64() * 1e3;
-    let (mut placed, mut ok, mut max_m, mut max_deg) = (0, 0, 0.0f64, 0.0f64);
-    for (k, s) in site.sensors.iter().enumerate() {
-        let (Ok(p), Some(t), Some(t0)) = (&s.pose, truths.get(k), truths.first()) else {
-            continue;
-        };
-        placed += 1;
-        let (dt, dyaw) = pose_error(&p.pose.planar(), &(t0.inverse() * t));
-        max_m = max_m.max(dt);
-        max_deg = max_deg.max(dyaw.to_degrees());
-        if dt <= tol.0 && dyaw <= tol.1 {
-            ok += 1;
-        }
-    }
+    let within = |e: (f64, f64)| e.0 <= tol.0 && e.1 <= tol.1;
+    // Each placed sensor's error against the truth, relative to the anchor (m, rad).
+    let errors: Vec<Option<(f64, f64)>> = site
+        .sensors
+        .iter()
+        .enumerate()
+        .map(|(k, s)| {
+            let (Ok(p), Some(t), Some(t0)) = (&s.pose, truths.get(k), truths.first()) else {
+                return None;
+            };
+            Some(pose_error(&p.pose.planar(), &(t0.inverse() * t)))
+        })
+        .collect();
+    let placed = errors.iter().flatten().count();
+    let ok = errors.iter().flatten().filter(|e| within(**e)).count();
+    let max_m = errors.iter().flatten().map(|e| e.0).fold(0.0, f64::max);
+    let max_deg = errors
+        .iter()
+        .flatten()
+        .map(|e| e.1.to_degrees())
+        .fold(0.0, f64::max);
     // What placed each wrong sensor: the pairs used for it, and how wrong each was.
     let mut why_wrong = Vec::new();
     for (k, s) in site.sensors.iter().enumerate() {
         if let Err(why) = &s.pose {
             why_wrong.push(format!("    {} not placed: {why}", s.id));
         }
-        let (Ok(p), Some(t), Some(t0)) = (&s.pose, truths.get(k), truths.first()) else {
+        let Some((dt, dyaw)) = errors[k].filter(|e| !within(*e)) else {
             continue;
         };
-        let (dt, dyaw) = pose_error(&p.pose.planar(), &(t0.inverse() * t));
-        if dt <= tol.0 && dyaw <= tol.1 {
-            continue;
-        }
         for pr in site
             .pairs
             .iter()
@@ -156,14 +160,7 @@ pub(super) fn solve_site(
     // For each sensor not placed right: was the truth among its pairs' candidates at all?
     // (With both ends known: "truth #c/n of pair a–b" means the site solve had it to pick.)
     for (k, s) in site.sensors.iter().enumerate() {
-        let (Some(t), Some(t0)) = (truths.get(k), truths.first()) else {
-            continue;
-        };
-        let right = s.pose.as_ref().is_ok_and(|p| {
-            let (dt, dyaw) = pose_error(&p.pose.planar(), &(t0.inverse() * t));
-            dt <= tol.0 && dyaw <= tol.1
-        });
-        if right || k == 0 {
+        if truths.get(k).is_none() || errors[k].is_some_and(within) || k == 0 {
             continue;
         }
         let found: Vec<String> = site
@@ -172,10 +169,11 @@ pub(super) fn solve_site(
             .filter(|pr| pr.a == k || pr.b == k)
             .filter_map(|pr| {
                 let truth = truths.get(pr.a)?.inverse() * truths.get(pr.b)?;
-                let c = pr.result.candidates.iter().position(|c| {
-                    let (dt, dyaw) = pose_error(&c.a_from_b, &truth);
-                    dt <= tol.0 && dyaw <= tol.1
-                })?;
+                let c = pr
+                    .result
+                    .candidates
+                    .iter()
+                    .position(|c| within(pose_error(&c.a_from_b, &truth)))?;
                 Some(format!(
                     "{}–{} #{}/{}",
                     pr.a,
@@ -207,10 +205,11 @@ pub(super) fn solve_site(
                 continue;
             };
             let truth = ta.inverse() * tb;
-            let has_truth = pr.result.candidates.iter().any(|c| {
-                let (dt, dyaw) = pose_error(&c.a_from_b, &truth);
-                dt <= tol.0 && dyaw <= tol.1
-            });
+            let has_truth = pr
+                .result
+                .candidates
+                .iter()
+                .any(|c| within(pose_error(&c.a_from_b, &truth)));
             let (ra, rb) = (reachable[pr.a], reachable[pr.b]);
             if has_truth && ra != rb {
                 reachable[pr.a] = true;
