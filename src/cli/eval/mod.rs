@@ -19,7 +19,7 @@ mod real;
 mod sim;
 mod site;
 
-use real::{load_logs, real_cases, real_sites};
+use real::{Logs, load_logs, real_cases, real_sites};
 use sim::{SiteDraw, load_plans, sim_cases, sites};
 
 #[derive(clap::Args)]
@@ -80,17 +80,7 @@ pub fn run(args: Args) -> Result<()> {
             println!(
                 "\n== Simulated pairs (fixture plans, both models, tilted units, people), success ≤ 10 cm and ≤ 1° =="
             );
-            evaluate(
-                &cases,
-                0.10,
-                1f64.to_radians(),
-                &params,
-                args.seed,
-                csv.as_mut().map(|f| ("sim", f)),
-            )?;
-            if args.diagnose {
-                diagnose(&cases, 0.10, 1f64.to_radians(), &params);
-            }
+            pair_tables(&cases, "sim", (0.10, 1.0), &params, &args, &mut csv)?;
             println!(
                 "\n== ICP with point classes on vs. off (simulated pairs ≥ 30 % overlap, start 0.3 m / 3° off) =="
             );
@@ -111,26 +101,16 @@ pub fn run(args: Args) -> Result<()> {
     }
     if wants("real") || wants("classes") {
         if args.real_data.is_dir() {
-            let per_log = load_logs(&args)?;
-            let cases = real_cases(&args, &per_log, &params)?;
+            let mut logs = Logs::new(load_logs(&args)?, &params);
+            let cases = real_cases(&args, &mut logs)?;
             if wants("real") {
                 println!("\n== Real data: CARMEN 180° scans, success ≤ 15 cm and ≤ 1.5° ==");
-                evaluate(
-                    &cases,
-                    0.15,
-                    1.5f64.to_radians(),
-                    &params,
-                    args.seed,
-                    csv.as_mut().map(|f| ("real", f)),
-                )?;
-                if args.diagnose {
-                    diagnose(&cases, 0.15, 1.5f64.to_radians(), &params);
-                }
+                pair_tables(&cases, "real", (0.15, 1.5), &params, &args, &mut csv)?;
                 println!(
                     "\n== Real sites: {} CARMEN scans of one log, each sharing ≥ 30 % of its view with one drawn before it: every scan within 15 cm / 1.5°? ==",
                     args.site_sensors
                 );
-                real_sites(&args, &per_log, &params)?;
+                real_sites(&args, &mut logs)?;
             }
             if wants("classes") {
                 println!(
@@ -144,6 +124,30 @@ pub fn run(args: Args) -> Result<()> {
                 args.real_data.display()
             );
         }
+    }
+    Ok(())
+}
+
+/// The pair tables of one set (`sim`, `real`) at a tolerance (m, degrees), its CSV rows and,
+/// with `--diagnose`, where each miss was lost.
+fn pair_tables(
+    cases: &[Case],
+    set: &str,
+    (tol_m, tol_deg): (f64, f64),
+    params: &RegisterParams,
+    args: &Args,
+    csv: &mut Option<std::fs::File>,
+) -> Result<()> {
+    if cases.is_empty() {
+        println!(
+            "no {set} pairs drawn: --pairs (sim) or --real-pairs (real) is 0, or no draw fitted"
+        );
+        return Ok(());
+    }
+    let csv = csv.as_mut().map(|f| (set, f));
+    evaluate(cases, tol_m, tol_deg.to_radians(), params, args.seed, csv)?;
+    if args.diagnose {
+        diagnose(cases, tol_m, tol_deg.to_radians(), params);
     }
     Ok(())
 }
@@ -563,6 +567,10 @@ fn classes_on_off(cases: &[Case], params: &RegisterParams, seed: u64) {
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0xc1a55);
     let mut rows = Vec::new();
     let chosen: Vec<&Case> = cases.iter().filter(|c| c.overlap >= 0.3).collect();
+    if chosen.is_empty() {
+        println!("no pairs at ≥ 30 % overlap to compare");
+        return;
+    }
     let starts: Vec<Pose2> = chosen
         .iter()
         .map(|c| {
