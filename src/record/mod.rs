@@ -1,8 +1,10 @@
 //! Recordings: MCAP files with one `foxglove.LaserScan` channel per sensor (DESIGN.md "Formats").
 //!
 //! [`RecordingWriter`] writes them, [`read`]/[`read_lenient`] read them (from scanfuse or any
-//! other writer), [`stats`] summarises them for `scanfuse info`.
+//! other writer), [`stats`] summarises them for `scanfuse info`. [`carmen`] reads the CARMEN
+//! logs of public laser datasets, for evaluation against real data.
 
+pub mod carmen;
 pub mod laserscan;
 pub mod metadata;
 mod reader;

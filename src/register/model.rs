@@ -3,7 +3,7 @@
 
 use super::RegisterParams;
 use crate::features::{self, Features, PointClass};
-use crate::geometry::{Mount, ScanPoint, beam_angles_rad, project_scan};
+use crate::geometry::{Mount, Pose2, ScanPoint, beam_angles_rad, project_scan};
 use crate::scan::{Scan, ScanGeometry};
 use nalgebra::{Point2, Vector2};
 use std::f64::consts::{PI, TAU};
@@ -282,4 +282,38 @@ fn normals_of(f: &Features, neighbour_m: f64) -> Vec<Vector2<f64>> {
         }
     }
     normals
+}
+
+/// How much two scans see of the same surfaces under a known pose (the truth, in evaluation):
+/// the share of each scan's points within 10 cm of the other's, seen from the same side, the
+/// smaller of the two. The same definition as the simulator's `view_overlap`, so "≥ 30 %
+/// overlap" means the same on simulated and real scans.
+pub fn shared_view(a: &ScanModel, b: &ScanModel, a_from_b: &Pose2) -> f64 {
+    share_near(a, b, a_from_b).min(share_near(b, a, &a_from_b.inverse()))
+}
+
+/// Share of `b`'s points within 10 cm of `a`'s under `a_from_b`, where both sensors face the
+/// surface from the same side (their normals, which point towards each sensor, agree).
+fn share_near(a: &ScanModel, b: &ScanModel, a_from_b: &Pose2) -> f64 {
+    let grid = NearestGrid::new(a.points(), 0.05, 0.1);
+    let pts = b.points();
+    if pts.is_empty() {
+        return 0.0;
+    }
+    let near = pts
+        .iter()
+        .zip(&b.normals)
+        .filter(|(p, n)| {
+            let q = a_from_b * **p;
+            grid.nearest(&q).is_some_and(|j| {
+                let close = a.points().get(j).is_some_and(|r| (q - r).norm() <= 0.1);
+                let facing = a
+                    .normals
+                    .get(j)
+                    .is_some_and(|m| m.dot(&(a_from_b * **n)) > 0.0);
+                close && facing
+            })
+        })
+        .count();
+    near as f64 / pts.len() as f64
 }

@@ -78,7 +78,8 @@ pub fn run(args: Args) -> Result<()> {
         if wants("sim") {
             let cases = sim_cases(&plans, args.pairs, args.seed, &params)?;
             println!(
-                "\n== Simulated pairs (fixture plans, both models, tilted units, people), success ≤ 10 cm and ≤ 1° =="
+                "\n== Simulated pairs (plans {}; both models, tilted units, people), success ≤ 10 cm and ≤ 1° ==",
+                plan_names(&plans)
             );
             pair_tables(&cases, "sim", (0.10, 1.0), &params, &args, &mut csv)?;
             println!(
@@ -152,6 +153,12 @@ fn pair_tables(
     Ok(())
 }
 
+/// "lab, hall": which plans a table was drawn in.
+fn plan_names(plans: &[scanfuse::sim::plan::Plan]) -> String {
+    let names: Vec<&str> = plans.iter().map(|p| p.name.as_str()).collect();
+    names.join(", ")
+}
+
 /// One pair to register, with the truth.
 pub struct Case {
     pub label: String,
@@ -169,39 +176,6 @@ const BINS: [(f64, f64, &str); 5] = [
     (0.3, 0.5, "30–50 %"),
     (0.5, 1.01, "50–100 %"),
 ];
-
-/// Share of each scan's points within 10 cm of the other's, seen from the same side, under
-/// `a_from_b`, the smaller of the two: the same definition as the simulator's `view_overlap`,
-/// so "≥ 30 % overlap" means the same in the simulated and the real tables.
-pub fn true_overlap(a: &ScanModel, b: &ScanModel, a_from_b: &Pose2) -> f64 {
-    share_near(a, b, a_from_b).min(share_near(b, a, &a_from_b.inverse()))
-}
-
-/// Share of `b`'s points within 10 cm of `a`'s under `a_from_b`, where both sensors face the
-/// surface from the same side (their normals, which point towards each sensor, agree).
-fn share_near(a: &ScanModel, b: &ScanModel, a_from_b: &Pose2) -> f64 {
-    let grid = NearestGrid::new(a.points(), 0.05, 0.1);
-    let pts = b.points();
-    if pts.is_empty() {
-        return 0.0;
-    }
-    let near = pts
-        .iter()
-        .zip(&b.normals)
-        .filter(|(p, n)| {
-            let q = a_from_b * **p;
-            grid.nearest(&q).is_some_and(|j| {
-                let close = a.points().get(j).is_some_and(|r| (q - r).norm() <= 0.1);
-                let facing = a
-                    .normals
-                    .get(j)
-                    .is_some_and(|m| m.dot(&(a_from_b * **n)) > 0.0);
-                close && facing
-            })
-        })
-        .count();
-    near as f64 / pts.len() as f64
-}
 
 #[derive(Default, Clone)]
 struct Tally {
@@ -294,7 +268,7 @@ pub fn evaluate(
                 .unwrap_or_default();
             writeln!(
                 f,
-                "{set},{},{:.3},{},\"{}\",{:.3},{:.2},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.2},{:.1}",
+                "{set},\"{}\",{:.3},{},\"{}\",{:.3},{:.2},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.2},{:.1}",
                 case.label,
                 case.overlap,
                 r.registered(),
@@ -503,17 +477,25 @@ fn diagnose(cases: &[Case], tol_m: f64, tol_rad: f64, params: &RegisterParams) {
 }
 
 fn print_row(label: &str, t: &Tally) {
+    // A bin where nothing was registered has no error to show.
+    let q = |v: &[f64], q: f64, scale: f64, digits: usize| {
+        if v.is_empty() {
+            "–".to_string()
+        } else {
+            format!("{:.digits$}", quantile(v, q) * scale)
+        }
+    };
     println!(
-        "{:<10} {:>5} {:>6.1}% {:>8.1}% {:>6.1}% {:>8.1} {:>8.2} {:>8.1} {:>8.2}",
+        "{:<10} {:>5} {:>6.1}% {:>8.1}% {:>6.1}% {:>8} {:>8} {:>8} {:>8}",
         label,
         t.n,
         t.pct(t.ok),
         t.pct(t.abstained),
         t.pct(t.wrong),
-        quantile(&t.err_m, 0.5) * 100.0,
-        quantile(&t.err_deg, 0.5),
-        quantile(&t.err_m, 0.95) * 100.0,
-        quantile(&t.err_deg, 0.95)
+        q(&t.err_m, 0.5, 100.0, 1),
+        q(&t.err_deg, 0.5, 1.0, 2),
+        q(&t.err_m, 0.95, 100.0, 1),
+        q(&t.err_deg, 0.95, 1.0, 2)
     );
 }
 

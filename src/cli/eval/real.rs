@@ -3,14 +3,15 @@
 
 use super::sim::INSTALLED_OVERLAP;
 use super::site::{SiteTotals, solve_site};
-use super::{Args, BINS, Case, bin_of, true_overlap};
-use anyhow::{Context, Result, bail};
+use super::{Args, BINS, Case, bin_of};
+use anyhow::{Result, bail};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use scanfuse::geometry::{Mount, Pose2, pose2};
+use scanfuse::geometry::{Mount, Pose2};
+use scanfuse::record::carmen;
+use scanfuse::register::model::shared_view;
 use scanfuse::register::site::SensorInput;
 use scanfuse::register::{RegisterParams, ScanModel};
-use scanfuse::scan::Scan;
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
@@ -92,7 +93,7 @@ pub(super) fn real_sites(args: &Args, logs: &mut Logs) -> Result<()> {
                 }
                 let truth = scans[parent].site_from_laser.inverse() * scans[j].site_from_laser;
                 let m = logs.model(l, j);
-                (true_overlap(&parent_model, &m, &truth) >= INSTALLED_OVERLAP).then_some((j, m))
+                (shared_view(&parent_model, &m, &truth) >= INSTALLED_OVERLAP).then_some((j, m))
             });
             match found {
                 Some(p) => picked.push(p),
@@ -143,7 +144,7 @@ pub(super) fn real_cases(args: &Args, logs: &mut Logs) -> Result<Vec<Case>> {
             continue;
         }
         let (a, b) = (logs.model(l, i), logs.model(l, j));
-        let overlap = true_overlap(&a, &b, &a_from_b);
+        let overlap = shared_view(&a, &b, &a_from_b);
         let bin = bin_of(overlap);
         if filled[bin] >= quota {
             continue;
@@ -158,81 +159,4 @@ pub(super) fn real_cases(args: &Args, logs: &mut Logs) -> Result<Vec<Case>> {
         });
     }
     Ok(cases)
-}
-
-/// CARMEN text logs (gzip): `FLASER n r_1 … r_n x y theta …` with SLAM-corrected poses.
-pub(super) mod carmen {
-    use super::*;
-    use std::io::{BufRead, BufReader};
-
-    pub struct LogScan {
-        pub scan: Scan,
-        pub site_from_laser: Pose2,
-    }
-
-    pub fn load(path: &std::path::Path) -> Result<Vec<LogScan>> {
-        let file = std::fs::File::open(path)
-            .with_context(|| format!("{}: cannot open", path.display()))?;
-        let reader = BufReader::new(flate2::read::GzDecoder::new(file));
-        let mut offset_m = 0.0;
-        let mut out = Vec::new();
-        for (n, line) in reader.lines().enumerate() {
-            let line =
-                line.with_context(|| format!("{}: unreadable at line {}", path.display(), n + 1))?;
-            let mut words = line.split_whitespace();
-            match words.next() {
-                Some("PARAM") if words.next() == Some("robot_frontlaser_offset") => {
-                    offset_m = words.next().and_then(|w| w.parse().ok()).unwrap_or(0.0);
-                }
-                Some("FLASER") => {
-                    let bad = || format!("{}: line {}: malformed FLASER", path.display(), n + 1);
-                    let count: usize = words
-                        .next()
-                        .and_then(|w| w.parse().ok())
-                        .with_context(bad)?;
-                    // Ranges and the corrected pose; the host name and stamps after them are not needed.
-                    let values: Vec<f64> = words
-                        .take(count + 3)
-                        .map(|w| w.parse::<f64>())
-                        .collect::<Result<_, _>>()
-                        .with_context(bad)?;
-                    let (Some(ranges), Some(pose)) =
-                        (values.get(..count), values.get(count..count + 3))
-                    else {
-                        bail!(bad());
-                    };
-                    // Beam angles: the first beam at −90°, 180°/n apart for 180 or 360 beams and
-                    // 180°/(n − 1) for 181 or 361. The corrected poses support this over the
-                    // alternatives: refining 150 high-overlap pairs per log from the truth with
-                    // both-way ICP, a start angle off by δ turns the found translation by ≈ δ
-                    // about A (the residual itself does not tell them apart). With this rule
-                    // the turn is −0.02° (intel), +0.08° (aces), −0.04° (fr079), −0.11°
-                    // (csail); CARMEN's own centred guess (−89.5° … +89.5°) gives +0.47°,
-                    // +0.58°, +0.21°, and 180°/(n − 1) for 180 beams +0.41°, +0.59°, +0.20°.
-                    // Heading bias and residual are the same under all three (±0.05°, ±0.01 cm).
-                    let half = std::f64::consts::FRAC_PI_2;
-                    let step = if count % 2 == 1 {
-                        2.0 * half / (count - 1) as f64
-                    } else {
-                        2.0 * half / count as f64
-                    };
-                    let scan = Scan {
-                        stamp_ns: 0,
-                        sensor_stamp_ms: None,
-                        start_angle_rad: -half,
-                        end_angle_rad: -half + step * (count - 1) as f64,
-                        ranges_m: ranges.iter().map(|&r| r as f32).collect(),
-                        intensities: Vec::new(),
-                    };
-                    let site_from_robot = pose2(pose[0], pose[1], pose[2]);
-                    out.push(LogScan {
-                        scan,
-                        site_from_laser: site_from_robot * pose2(offset_m, 0.0, 0.0),
-                    });
-                }
-                _ => {}
-            }
-        }
-        Ok(out)
-    }
 }
