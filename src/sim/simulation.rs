@@ -730,19 +730,46 @@ y = 0.0
         );
     }
 
+    /// The plans `eval --plans fixtures/plans-heldout` measures generalisation on stay valid
+    /// scenes: each loads, and every sensor in it sees a room (most beams return).
     #[test]
-    fn hall_fixture_scans_look_like_hokuyo_data() {
-        let path =
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/plans/hall.toml");
-        let plan = Plan::load(&path).unwrap();
+    fn held_out_plans_load_and_every_sensor_sees_its_room() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/plans-heldout");
+        for name in ["shop", "office", "expo"] {
+            let (infos, per_sensor) = simulate_plan(&dir.join(format!("{name}.toml")), 0.1);
+            assert!(infos.len() >= 4, "{name}: {} sensors", infos.len());
+            for (info, scans) in infos.iter().zip(&per_sensor) {
+                let ranges: Vec<f32> = scans.iter().flat_map(|s| s.ranges_m.clone()).collect();
+                let returns = ranges.iter().filter(|r| **r > 0.0).count();
+                assert!(
+                    !ranges.is_empty() && returns * 2 > ranges.len(),
+                    "{name}/{}: {returns} of {} beams return",
+                    info.id,
+                    ranges.len()
+                );
+            }
+        }
+    }
+
+    /// Every sensor's scans over `seconds` of the plan at `path` (seed 1).
+    fn simulate_plan(path: &std::path::Path, seconds: f64) -> (Vec<SensorInfo>, Vec<Vec<Scan>>) {
+        let plan = Plan::load(path).unwrap();
         let mut s = Simulation::new(&plan, 1).unwrap();
         let infos = s.sensors().to_vec();
         let mut per_sensor: Vec<Vec<Scan>> = vec![Vec::new(); infos.len()];
-        s.run(2.0, |i, scan| {
+        s.run(seconds, |i, scan| {
             per_sensor[i].push(scan);
             Ok::<(), ()>(())
         })
         .unwrap();
+        (infos, per_sensor)
+    }
+
+    #[test]
+    fn hall_fixture_scans_look_like_hokuyo_data() {
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/plans/hall.toml");
+        let (infos, per_sensor) = simulate_plan(&path, 2.0);
         for (info, scans) in infos.iter().zip(&per_sensor) {
             let g = info.geometry.unwrap();
             let expected = (2.0 / g.period_s()) as usize;

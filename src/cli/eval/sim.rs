@@ -1,4 +1,4 @@
-//! Simulated pairs and sites for `scanfuse eval`: random placements in the fixture floor plans,
+//! Simulated pairs and sites for `scanfuse eval`: random placements in the floor plans of `--plans`,
 //! simulated for a moment with people walking, each sensor's static view prepared.
 
 use super::site::{SiteTotals, solve_site};
@@ -7,26 +7,53 @@ use anyhow::{Context, Result};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use scanfuse::features::static_view;
-use scanfuse::geometry::{Mount, Pose2, pose2};
+use scanfuse::geometry::{Mount, Pose2, pose2, raycast};
 use scanfuse::register::site::SensorInput;
 use scanfuse::register::{RegisterParams, ScanModel};
 use scanfuse::scan::{Scan, SensorInfo};
 use scanfuse::sim::plan::{Model, Plan, SensorPlan};
 use scanfuse::sim::{Simulation, view_overlap};
 
+/// Every plan (`*.toml`) in `dir`, by file name. Plans that move a sensor mid-run are scenes
+/// for the daemon's move tests (`moved.toml` is the lab with a knock), not places to draw
+/// sensors in: eval draws its own, so those are left out, and says so.
 pub(super) fn load_plans(dir: &std::path::Path) -> Result<Vec<Plan>> {
+    let entries = std::fs::read_dir(dir)
+        .with_context(|| format!("{}: cannot list the plans", dir.display()))?;
+    let mut paths = Vec::new();
+    for entry in entries {
+        let path = entry
+            .with_context(|| format!("{}: cannot list the plans", dir.display()))?
+            .path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            paths.push(path);
+        }
+    }
+    paths.sort();
     let mut plans = Vec::new();
-    for name in ["lab", "hall"] {
-        let path = dir.join(format!("{name}.toml"));
-        plans.push(
-            Plan::load(&path)
-                .with_context(|| format!("{}: cannot load the plan", path.display()))?,
+    for path in paths {
+        let plan = Plan::load(&path)
+            .with_context(|| format!("{}: cannot load the plan", path.display()))?;
+        if plan.moves.is_empty() {
+            plans.push(plan);
+        } else {
+            eprintln!(
+                "eval: leaving out {}: it moves a sensor mid-run (eval draws its own sensors)",
+                path.display()
+            );
+        }
+    }
+    if plans.is_empty() {
+        anyhow::bail!(
+            "{}: no floor plans (*.toml without [[move]]) to draw sensors in",
+            dir.display()
         );
     }
     Ok(plans)
 }
 
-/// A random sensor somewhere in `plan`: either model, one in five tilted like a ceiling unit.
+/// A random sensor inside `plan` (`enclosed`): either model, one in five tilted like a ceiling
+/// unit.
 fn random_sensor(
     plan: &Plan,
     id: &str,
@@ -43,7 +70,8 @@ fn random_sensor(
             hi = (hi.0.max(p[0]), hi.1.max(p[1]));
         }
     }
-    let (x, y) = match near {
+    let walls = wall_segments(plan);
+    let mut draw = || match near {
         Some((x0, y0)) => {
             let d = rng.random_range(2.0..12.0);
             let a = rng.random_range(0.0..std::f64::consts::TAU);
@@ -51,6 +79,14 @@ fn random_sensor(
         }
         None => (rng.random_range(lo.0..hi.0), rng.random_range(lo.1..hi.1)),
     };
+    let mut spot = draw();
+    for _ in 0..100 {
+        if enclosed(&walls, spot) {
+            break;
+        }
+        spot = draw();
+    }
+    let (x, y) = spot;
     let model = if rng.random_bool(0.7) {
         Model::Utm30lxEw
     } else {
@@ -76,6 +112,30 @@ fn random_sensor(
         },
         intensities: None,
     }
+}
+
+/// Every wall of `plan` as 2D segments (doors ignored: a wall with a door still encloses).
+fn wall_segments(plan: &Plan) -> Vec<raycast::Wall> {
+    let mut out = Vec::new();
+    for w in &plan.walls {
+        let n = w.points.len();
+        let segments = if w.closed { n } else { n.saturating_sub(1) };
+        for i in 0..segments {
+            let (a, b) = (w.points[i], w.points[(i + 1) % n]);
+            out.push(raycast::Wall::new(a[0], a[1], b[0], b[1]));
+        }
+    }
+    out
+}
+
+/// Walls stand on all four sides of `(x, y)`: a spot inside the building, where an installer
+/// mounts units, not the street beyond a shop front or a corridor glimpsed through a door
+/// (those are in the plan to be seen, and widen its bounds).
+fn enclosed(walls: &[raycast::Wall], (x, y): (f64, f64)) -> bool {
+    let at = nalgebra::Point2::new(x, y);
+    [(1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)]
+        .iter()
+        .all(|&(dx, dy)| raycast::cast(walls, at, nalgebra::Vector2::new(dx, dy)).is_some())
 }
 
 /// Simulates `plan` for a second and prepares every sensor's static view; `None` when a sensor
@@ -123,12 +183,26 @@ fn simulate_models(
 /// Seconds simulated per placement; the static view is the median over them.
 const SIM_SECONDS: f64 = 0.5;
 
+/// "UTM-30LX-EW at (24.2 15.6) 1.2 m", with " pitched −12°" for a tilted unit: enough to find
+/// the sensor on the plan and see whether it was tilted.
+fn describe(info: &SensorInfo, site_from_sensor: &Pose2) -> String {
+    let t = site_from_sensor.translation.vector;
+    let pitch = match info.pitch_deg {
+        Some(p) if p != 0.0 => format!(" pitched {p:.0}°"),
+        _ => String::new(),
+    };
+    let height = info
+        .height_m
+        .map_or(String::new(), |h| format!(" {h:.1} m"));
+    format!("{} at ({:.1} {:.1}){height}{pitch}", info.model, t.x, t.y)
+}
+
 fn truth_pose(info: &SensorInfo) -> Option<Pose2> {
     info.truth
         .map(|t| pose2(t.x_m, t.y_m, t.yaw_deg.to_radians()))
 }
 
-/// Random pairs in the fixture plans, spread over the overlap bins.
+/// Random pairs in the plans, spread over the overlap bins.
 pub(super) fn sim_cases(
     plans: &[Plan],
     count: usize,
@@ -172,12 +246,10 @@ pub(super) fn sim_cases(
         }
         cases.push(Case {
             label: format!(
-                "{} {} {}→{} {}",
+                "{} {} → {}",
                 plan.name,
-                ia.model,
-                (ta.translation.x * 10.0).round() / 10.0,
-                (tb.translation.x * 10.0).round() / 10.0,
-                ib.model
+                describe(&ia, &ta),
+                describe(&ib, &tb)
             ),
             a: ma,
             b: mb,
