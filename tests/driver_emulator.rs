@@ -5,7 +5,7 @@ mod driver_support;
 
 use std::time::Duration;
 
-use driver_support::{Harness, emulator, mm, recording};
+use driver_support::{Harness, emulator, emulator_with, mm, recording};
 use scanfuse::emulator::faults::GARBAGE;
 use scanfuse::emulator::{EmulatorConfig, Faults, SyntheticEchoes};
 use scanfuse::scip::Echo;
@@ -81,16 +81,7 @@ async fn a_dropped_connection_is_reconnected_and_counted() {
         drop_after_scans: Some(10),
         ..Faults::default()
     };
-    let (emu, uri) = emulator(
-        &info,
-        &scans,
-        EmulatorConfig {
-            looping: true,
-            faults,
-            ..Default::default()
-        },
-    )
-    .await;
+    let (emu, uri) = emulator_with(&info, &scans, faults, true).await;
     let mut driver = Harness::start(&uri, ScanMode::Me, |_| {});
     let got = driver.scans(30, Duration::from_secs(10)).await;
     assert_eq!(got.len(), 30);
@@ -119,15 +110,7 @@ async fn corrupted_scans_are_dropped_and_counted_never_published() {
         corrupt_every: Some(5),
         ..Faults::default()
     };
-    let (emu, uri) = emulator(
-        &info,
-        &scans,
-        EmulatorConfig {
-            faults,
-            ..Default::default()
-        },
-    )
-    .await;
+    let (emu, uri) = emulator_with(&info, &scans, faults, false).await;
     let mut driver = Harness::start(&uri, ScanMode::Me, |_| {});
     let got = driver.scans(32, Duration::from_secs(10)).await;
     assert_eq!(got.len(), 32);
@@ -156,15 +139,7 @@ async fn injected_garbage_is_skipped_and_counted_byte_for_byte() {
         garbage_every: Some(4),
         ..Faults::default()
     };
-    let (emu, uri) = emulator(
-        &info,
-        &scans,
-        EmulatorConfig {
-            faults,
-            ..Default::default()
-        },
-    )
-    .await;
+    let (emu, uri) = emulator_with(&info, &scans, faults, false).await;
     let mut driver = Harness::start(&uri, ScanMode::Me, |_| {});
     let got = driver.scans(20, Duration::from_secs(10)).await;
     assert_eq!(got.len(), 20, "garbage costs no scan");
@@ -187,16 +162,7 @@ async fn a_stalled_sensor_trips_the_watchdog_and_the_driver_reconnects() {
         stall: Some((10, Duration::from_millis(800))),
         ..Faults::default()
     };
-    let (emu, uri) = emulator(
-        &info,
-        &scans,
-        EmulatorConfig {
-            looping: true,
-            faults,
-            ..Default::default()
-        },
-    )
-    .await;
+    let (emu, uri) = emulator_with(&info, &scans, faults, true).await;
     let mut driver = Harness::start(&uri, ScanMode::Me, |_| {});
     let got = driver.scans(30, Duration::from_secs(10)).await;
     assert_eq!(got.len(), 30);
@@ -218,16 +184,7 @@ async fn refused_connections_are_retried_with_backoff() {
         refuse_for: Some(Duration::from_millis(500)),
         ..Faults::default()
     };
-    let (emu, uri) = emulator(
-        &info,
-        &scans,
-        EmulatorConfig {
-            looping: true,
-            faults,
-            ..Default::default()
-        },
-    )
-    .await;
+    let (emu, uri) = emulator_with(&info, &scans, faults, true).await;
     let started = tokio::time::Instant::now();
     let mut driver = Harness::start(&uri, ScanMode::Me, |_| {});
     let got = driver.scans(5, Duration::from_secs(10)).await;

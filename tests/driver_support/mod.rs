@@ -3,7 +3,7 @@
 
 use std::time::Duration;
 
-use scanfuse::emulator::{Emulator, EmulatorConfig};
+use scanfuse::emulator::{Emulator, EmulatorConfig, Faults};
 use scanfuse::scan::{Scan, ScanGeometry, SensorInfo};
 use scanfuse::sensor::{
     CounterSnapshot, Counters, Driver, DriverConfig, DriverEvent, ScanMode, SensorScan,
@@ -130,4 +130,19 @@ pub async fn emulator(
     let serving = emulator.clone();
     tokio::spawn(async move { serving.serve(listener).await });
     (emulator, format!("tcp://{addr}"))
+}
+
+/// An emulator injecting `faults`, replaying the recording once or `looping`.
+pub async fn emulator_with(
+    info: &SensorInfo,
+    scans: &[Scan],
+    faults: Faults,
+    looping: bool,
+) -> (Emulator, String) {
+    let config = EmulatorConfig {
+        faults,
+        looping,
+        ..Default::default()
+    };
+    emulator(info, scans, config).await
 }
