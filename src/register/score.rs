@@ -143,14 +143,14 @@ fn score_with(a: &ScanModel, b: &ScanModel, a_from_b: &Pose2, p: &Tolerance) -> 
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::geometry::ScanPoint;
     use crate::register::model::ScanPlane;
 
     /// A level sensor at the origin, facing +x, that saw a straight surface across its view
     /// at `range_m` (±40°, 0.25° steps), mounted at `height_m` (None: mount unknown).
-    fn facing(range_m: f64, height_m: Option<f64>) -> ScanModel {
+    pub(crate) fn facing(range_m: f64, height_m: Option<f64>) -> ScanModel {
         let step = 0.25f64.to_radians();
         let points: Vec<ScanPoint> = (-160..=160)
             .enumerate()
