@@ -2,7 +2,7 @@
 //! cycles, let third sensors decide pairs that are ambiguous alone, and solve all kept edges
 //! jointly by weighted least squares with the anchor fixed (and surveyed priors, if any).
 
-use super::{PairResult, RegisterParams, ScanModel, register_pair};
+use super::{Candidate, PairResult, RegisterParams, ScanModel, register_pair};
 use crate::geometry::{Mount, Pose2, Pose3, pose_error, pose2, wrap_angle_rad, yaw_rad};
 use nalgebra::{DMatrix, DVector, Matrix3};
 use rayon::prelude::*;
@@ -261,12 +261,18 @@ pub fn register_site(
         open.retain(|&o| o != g);
     }
 
-    // The solve's edges: checked edges between placed sensors, then for every other pair of
-    // placed sensors the candidate that agrees with where the site put them (the join's own
+    second_opinion(&mut placed, anchor, sensors, &pairs, &results, p, sp);
+
+    // The solve's edges: checked edges that agree with where the site put their sensors, then
+    // for every other pair of placed sensors the candidate that agrees (the join's own
     // proposals always; others only with enough shared view to carry information).
     let (mut edges, mut origin) = (Vec::new(), Vec::new());
     for (e, o) in inner.iter().zip(&inner_origin) {
-        if placed[e.a].is_some() && placed[e.b].is_some() {
+        let (Some(pa), Some(pb)) = (placed[e.a], placed[e.b]) else {
+            continue;
+        };
+        let (dt, dyaw) = pose_error(&e.a_from_b, &(pa.inverse() * pb));
+        if dt <= sp.cycle_m && dyaw <= sp.cycle_rad {
             edges.push(e.clone());
             origin.push(*o);
         }
@@ -615,6 +621,58 @@ impl JoinContext<'_> {
         joint
     }
 
+    /// The candidates of every pair between sensor `k` and a placed sensor, each with its pair
+    /// index and whether it puts `k` at `anchor_from_k` (within `confirm_m` / `confirm_rad`);
+    /// candidates that contradict free space are left out.
+    fn opinions_on(
+        &self,
+        k: usize,
+        anchor_from_k: Pose2,
+    ) -> impl Iterator<Item = (usize, &Candidate, bool)> + '_ {
+        self.pairs
+            .iter()
+            .zip(self.results)
+            .enumerate()
+            .filter_map(move |(pair, (&(a, b), r))| {
+                let (other, k_is_b) = match (a == k, b == k) {
+                    (true, false) => (b, false),
+                    (false, true) => (a, true),
+                    _ => return None,
+                };
+                let (_, anchor_from_other) = self.placed.iter().find(|(i, _)| *i == other)?;
+                let other_from_k = anchor_from_other.inverse() * anchor_from_k;
+                Some(r.candidates.iter().filter_map(move |c| {
+                    let said = if k_is_b {
+                        c.a_from_b
+                    } else {
+                        c.a_from_b.inverse()
+                    };
+                    let (dt, dyaw) = pose_error(&said, &other_from_k);
+                    let agrees = dt <= self.sp.confirm_m && dyaw <= self.sp.confirm_rad;
+                    (c.score.violation() <= self.p.max_violation).then_some((pair, c, agrees))
+                }))
+            })
+            .flatten()
+    }
+
+    /// Whether a candidate with enough shared view and fit to stand alone puts `k` elsewhere
+    /// than `anchor_from_k`.
+    fn standing_dissent(&self, k: usize, anchor_from_k: Pose2) -> bool {
+        self.opinions_on(k, anchor_from_k).any(|(_, c, agrees)| {
+            !agrees && c.score.overlap() >= self.p.min_overlap && c.score.value >= self.p.min_score
+        })
+    }
+
+    /// How many pairs have a candidate that puts `k` at `anchor_from_k`.
+    fn support(&self, k: usize, anchor_from_k: Pose2) -> usize {
+        let mut pairs: Vec<usize> = self
+            .opinions_on(k, anchor_from_k)
+            .filter_map(|(pair, _, agrees)| agrees.then_some(pair))
+            .collect();
+        pairs.dedup();
+        pairs.len()
+    }
+
     /// Every distinct placement the candidates of pairs between the group and a placed
     /// sensor propose, scored jointly; the best is accepted when it contradicts no placed
     /// sensor, shares enough view, and no clearly different placement scores nearly as well.
@@ -763,6 +821,76 @@ impl JoinContext<'_> {
                 self.joint(group, &moved).value > self.p.slide_ratio * join.score.value
             })
             .map(|&(deg, _)| Refusal::Slides { axis_deg: deg })
+    }
+}
+
+/// A second opinion on every placement: each placed sensor weighed alone against all the
+/// others, as a group joining them would be. Two wrong edges that agree with each other (a
+/// mirror image of the sensor's view, seen the same way by two neighbours) close a cycle and
+/// bind it into a group; its pairs with the rest of the site may still say, jointly and
+/// clearly, that it stands elsewhere. Then it moves there; when it is the anchor, everyone
+/// else moves instead, so the anchor keeps the frame.
+fn second_opinion(
+    placed: &mut [Option<Pose2>],
+    anchor: usize,
+    sensors: &[SensorInput],
+    pairs: &[(usize, usize)],
+    results: &[PairResult],
+    p: &RegisterParams,
+    sp: &SiteParams,
+) {
+    // The anchor first: were it wrong, every other opinion would be taken in its wrong frame.
+    let order = std::iter::once(anchor).chain((0..placed.len()).filter(|&k| k != anchor));
+    for k in order {
+        let Some(current) = placed.get(k).copied().flatten() else {
+            continue;
+        };
+        let ctx = JoinContext {
+            sensors,
+            placed: placed
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| *i != k)
+                .filter_map(|(i, pose)| pose.map(|pose| (i, pose)))
+                .collect(),
+            pairs,
+            results,
+            p,
+            sp,
+        };
+        // Only a pair that could carry a placement alone may overrule (as in `weigh`): where
+        // every such pair agrees with the current place, there is nothing to weigh.
+        if !ctx.standing_dissent(k, current) {
+            continue;
+        }
+        let alone = [(k, Pose2::identity())];
+        let Ok(join) = ctx.weigh(&alone) else {
+            continue;
+        };
+        let (dt, dyaw) = pose_error(&join.anchor_from_root, &current);
+        if (dt <= sp.confirm_m && dyaw <= sp.confirm_rad) || ctx.slides(&alone, &join).is_some() {
+            continue;
+        }
+        // Overrule the group only on more evidence: the current place contradicts a placed
+        // sensor, or more pairs propose the new one than the current one. (In a symmetric
+        // scene a correctly placed sensor that shares little view with the rest would
+        // otherwise be pulled onto a mirror image that overlaps them more.)
+        let contradicted = ctx.joint(&alone, &current).violation > p.max_violation;
+        if !contradicted && ctx.support(k, join.anchor_from_root) <= ctx.support(k, current) {
+            continue;
+        }
+        if k == anchor {
+            let anchor_from_new = join.anchor_from_root.inverse() * current;
+            for (i, pose) in placed.iter_mut().enumerate() {
+                if let Some(pose) = pose.as_mut()
+                    && i != k
+                {
+                    *pose = anchor_from_new * *pose;
+                }
+            }
+        } else {
+            placed[k] = Some(join.anchor_from_root);
+        }
     }
 }
 
@@ -1437,6 +1565,57 @@ mod tests {
             dt < 0.01 && dyaw < 0.001,
             "placed {dt} m {dyaw} rad from the truth"
         );
+    }
+
+    #[test]
+    fn a_second_opinion_moves_a_sensor_placed_at_a_mirror_image_to_where_the_rest_fit() {
+        let scene = mirror_scene();
+        let (p, sp) = (RegisterParams::default(), SiteParams::default());
+        let rel = |i: usize| scene.truth[0].inverse() * scene.truth[i];
+        let near = |x: &Option<Pose2>, y: &Pose2| {
+            let (dt, dyaw) = pose_error(&x.expect("placed"), y);
+            dt < 0.01 && dyaw < 0.001
+        };
+        // s3 placed at its mirror image (as two agreeing wrong edges would put it): s2's free
+        // space rules that out, and s0's and s1's pairs also propose the truth.
+        let mut placed = vec![
+            Some(rel(0)),
+            Some(rel(1)),
+            Some(rel(2)),
+            Some(scene.truth[0].inverse() * scene.mirror_of_s3),
+        ];
+        second_opinion(
+            &mut placed,
+            0,
+            &scene.sensors,
+            &scene.pairs,
+            &scene.results,
+            &p,
+            &sp,
+        );
+        for (i, pose) in placed.iter().enumerate() {
+            assert!(near(pose, &rel(i)), "s{i} at {pose:?}");
+        }
+        // The same with s3 as the anchor: the others were placed in its mirrored frame, and
+        // they move instead.
+        let m = scene.mirror_of_s3;
+        let mut placed: Vec<Option<Pose2>> = (0..3)
+            .map(|i| Some(m.inverse() * scene.truth[i]))
+            .chain([Some(Pose2::identity())])
+            .collect();
+        second_opinion(
+            &mut placed,
+            3,
+            &scene.sensors,
+            &scene.pairs,
+            &scene.results,
+            &p,
+            &sp,
+        );
+        for (i, pose) in placed.iter().enumerate() {
+            let truth = scene.truth[3].inverse() * scene.truth[i];
+            assert!(near(pose, &truth), "s{i} at {pose:?}");
+        }
     }
 
     #[test]
