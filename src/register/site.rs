@@ -1576,6 +1576,10 @@ mod tests {
             let (dt, dyaw) = pose_error(&x.expect("placed"), y);
             dt < 0.01 && dyaw < 0.001
         };
+        let opinion = |placed: &mut [Option<Pose2>], anchor: usize| {
+            let (sensors, pairs, results) = (&scene.sensors, &scene.pairs, &scene.results);
+            second_opinion(placed, anchor, sensors, pairs, results, &p, &sp);
+        };
         // s3 placed at its mirror image (as two agreeing wrong edges would put it): s2's free
         // space rules that out, and s0's and s1's pairs also propose the truth.
         let mut placed = vec![
@@ -1584,15 +1588,7 @@ mod tests {
             Some(rel(2)),
             Some(scene.truth[0].inverse() * scene.mirror_of_s3),
         ];
-        second_opinion(
-            &mut placed,
-            0,
-            &scene.sensors,
-            &scene.pairs,
-            &scene.results,
-            &p,
-            &sp,
-        );
+        opinion(&mut placed, 0);
         for (i, pose) in placed.iter().enumerate() {
             assert!(near(pose, &rel(i)), "s{i} at {pose:?}");
         }
@@ -1603,15 +1599,7 @@ mod tests {
             .map(|i| Some(m.inverse() * scene.truth[i]))
             .chain([Some(Pose2::identity())])
             .collect();
-        second_opinion(
-            &mut placed,
-            3,
-            &scene.sensors,
-            &scene.pairs,
-            &scene.results,
-            &p,
-            &sp,
-        );
+        opinion(&mut placed, 3);
         for (i, pose) in placed.iter().enumerate() {
             let truth = scene.truth[3].inverse() * scene.truth[i];
             assert!(near(pose, &truth), "s{i} at {pose:?}");
