@@ -307,6 +307,7 @@ pub fn register_site(
     // contradictions only).
     let mut solution = solve(n, anchor, &edges, sensors, sp);
     let mut contradicted = vec![None::<usize>; n];
+    let certain = certain_only(p, sp);
     loop {
         let placed: Vec<(usize, Pose2)> = solution
             .iter()
@@ -326,8 +327,7 @@ pub fn register_site(
                     &sensors[i].model,
                     &sensors[j].model,
                     &(pi.inverse() * pj),
-                    p,
-                    sp,
+                    &certain,
                 )
             })
             .map(|(i, _, j, _)| (i, j));
@@ -894,21 +894,19 @@ fn second_opinion(
     }
 }
 
-/// Whether `j`'s scan placed at `i_from_j` in `i`'s frame puts enough points in space one of
-/// them saw empty, counting only contradictions a beam at or below the point would make
-/// (`SiteParams::conflict_dz_m`): the last check's veto on a placed sensor.
-fn contradicts(
-    i: &ScanModel,
-    j: &ScanModel,
-    i_from_j: &Pose2,
-    p: &RegisterParams,
-    sp: &SiteParams,
-) -> bool {
-    let certain = RegisterParams {
+/// The registration parameters with only the contradictions the last check is sure of
+/// counted (`SiteParams::conflict_dz_m`).
+fn certain_only(p: &RegisterParams, sp: &SiteParams) -> RegisterParams {
+    RegisterParams {
         free_space_dz_m: sp.conflict_dz_m,
         ..p.clone()
-    };
-    super::score::score(i, j, i_from_j, &certain).violation() > p.max_violation
+    }
+}
+
+/// Whether `j`'s scan placed at `i_from_j` in `i`'s frame puts enough points in space one of
+/// them saw empty, under `certain` (`certain_only`): the last check's veto on a placed sensor.
+fn contradicts(i: &ScanModel, j: &ScanModel, i_from_j: &Pose2, certain: &RegisterParams) -> bool {
+    super::score::score(i, j, i_from_j, certain).violation() > certain.max_violation
 }
 
 /// Drops edges that disagree around triangles (more failed than passed cycles), then edges
@@ -1717,17 +1715,13 @@ mod tests {
         // within its 0.5 m), the last check does not: the counter may stand under 1.1 m.
         let (low, high) = (facing(3.0, Some(0.8)), facing(6.0, Some(1.1)));
         assert!(crate::register::score::score(&high, &low, &same, &p).violation() > 0.9);
-        assert!(!contradicts(&high, &low, &same, &p, &sp));
+        let certain = certain_only(&p, &sp);
+        assert!(!contradicts(&high, &low, &same, &certain));
         // A low beam that passed where the high unit saw something would have hit it.
         let (low_far, high_near) = (facing(6.0, Some(0.8)), facing(3.0, Some(1.1)));
-        assert!(contradicts(&low_far, &high_near, &same, &p, &sp));
+        assert!(contradicts(&low_far, &high_near, &same, &certain));
         // Mounts unknown: one plane, and the counter contradicts.
-        assert!(contradicts(
-            &facing(6.0, None),
-            &facing(3.0, None),
-            &same,
-            &p,
-            &sp
-        ));
+        let (far, near) = (facing(6.0, None), facing(3.0, None));
+        assert!(contradicts(&far, &near, &same, &certain));
     }
 }

@@ -118,6 +118,15 @@ pub struct Wall {
     pub reflectivity: f64,
 }
 
+impl Wall {
+    /// Its straight pieces, end to end (and back to the start when `closed`).
+    pub fn segments(&self) -> impl Iterator<Item = ([f64; 2], [f64; 2])> + '_ {
+        let n = self.points.len();
+        let count = if self.closed { n } else { n.saturating_sub(1) };
+        (0..count).map(move |i| (self.points[i], self.points[(i + 1) % n]))
+    }
+}
+
 /// A rectangular block: a desk, a shelf, a cabinet.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -151,17 +151,11 @@ impl Scene {
         // Every wall segment with the gaps (arc-length intervals) doors cut into it.
         let mut raw: Vec<(Segment, Vec<(f64, f64)>)> = Vec::new();
         for wall in &plan.walls {
-            let n = wall.points.len();
-            let count = if wall.closed { n } else { n.saturating_sub(1) };
             let extent = Extent {
                 z_min_m: wall.z_min_m,
                 z_max_m: wall.height_m,
             };
-            for i in 0..count {
-                let (Some(&a), Some(&b)) = (wall.points.get(i), wall.points.get((i + 1) % n))
-                else {
-                    continue;
-                };
+            for (a, b) in wall.segments() {
                 raw.push((
                     Segment {
                         a,

@@ -116,16 +116,11 @@ fn random_sensor(
 
 /// Every wall of `plan` as 2D segments (doors ignored: a wall with a door still encloses).
 fn wall_segments(plan: &Plan) -> Vec<raycast::Wall> {
-    let mut out = Vec::new();
-    for w in &plan.walls {
-        let n = w.points.len();
-        let segments = if w.closed { n } else { n.saturating_sub(1) };
-        for i in 0..segments {
-            let (a, b) = (w.points[i], w.points[(i + 1) % n]);
-            out.push(raycast::Wall::new(a[0], a[1], b[0], b[1]));
-        }
-    }
-    out
+    plan.walls
+        .iter()
+        .flat_map(|w| w.segments())
+        .map(|(a, b)| raycast::Wall::new(a[0], a[1], b[0], b[1]))
+        .collect()
 }
 
 /// Walls stand on all four sides of `(x, y)`: a spot inside the building, where an installer
