@@ -11,5 +11,5 @@ pub mod score;
 pub mod site;
 
 pub use model::ScanModel;
-pub use pair::{Abstain, Candidate, PairResult, register_pair};
+pub use pair::{Abstain, Candidate, PairResult, polish, register_pair};
 pub use params::RegisterParams;

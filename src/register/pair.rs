@@ -164,11 +164,7 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
     // degree or two of the optimum: polish the winner with plain narrow-gate ICP, both ways,
     // which settles the heading, unless that costs score (it slid off along a weak direction).
     if let Some((first, _)) = distinct.first_mut() {
-        let narrow = RegisterParams {
-            max_correspondence_m: p.min_correspondence_m * 1.5,
-            ..p.clone()
-        };
-        let polished = symmetric_refine(a, b, &first.a_from_b, &narrow);
+        let polished = polish(a, b, &first.a_from_b, p);
         let polished_score = score(a, b, &polished, p);
         if polished_score.value >= first.score.value - p.polish_tolerance {
             first.a_from_b = polished;
@@ -245,6 +241,17 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         hypotheses: hypotheses_count,
         icp_iterations: icp.iterations,
     }
+}
+
+/// Where the scans settle from `init`: narrow-gate point-to-line ICP, both ways (the last step
+/// of `register_pair`). Eval also starts it at a reference pose, to tell a wrong answer from a
+/// reference the scans themselves dispute.
+pub fn polish(a: &ScanModel, b: &ScanModel, init: &Pose2, p: &RegisterParams) -> Pose2 {
+    let narrow = RegisterParams {
+        max_correspondence_m: p.min_correspondence_m * 1.5,
+        ..p.clone()
+    };
+    symmetric_refine(a, b, init, &narrow)
 }
 
 /// Point-to-line ICP aligns B's points onto A's lines; with sparse scans each direction alone
