@@ -222,38 +222,54 @@ pub struct Poses {
     pub sensors: Vec<SensorPose>,
 }
 
-/// One sensor's pose, the one vocabulary of the socket and `scanfuse register --json` (which
-/// leaves `age_s` and `source` absent). An unregistered sensor has `registered: false`, a
-/// `reason` and no pose fields.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SensorPose {
-    pub id: String,
-    pub registered: bool,
-    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
-    pub x_m: Option<f64>,
-    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
-    pub y_m: Option<f64>,
-    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
-    pub yaw_deg: Option<f64>,
-    /// Height of the optical centre above the floor.
-    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
-    pub z_m: Option<f64>,
-    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
-    pub pitch_deg: Option<f64>,
-    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
-    pub sigma_x_m: Option<f64>,
-    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
-    pub sigma_y_m: Option<f64>,
-    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
-    pub sigma_yaw_deg: Option<f64>,
-    /// Why the sensor is not registered (or a caveat about its pose).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub reason: Option<String>,
-    /// Seconds since the pose was obtained.
-    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
-    pub age_s: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub source: Option<PoseSource>,
+/// Declares a struct in the pose vocabulary: `id`, `registered`, the pose and its sigmas (left
+/// out when unknown) and `reason`, then the struct's own fields. It exists so the socket's
+/// [`SensorPose`] and `poses.toml`'s `SavedPose` share one list of fields while staying
+/// separate structs (the file refuses unknown keys, which serde's `flatten` would switch off).
+macro_rules! pose_vocabulary {
+    ($(#[$attr:meta])* pub struct $name:ident { $($own:tt)* }) => {
+        $(#[$attr])*
+        pub struct $name {
+            pub id: String,
+            pub registered: bool,
+            #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+            pub x_m: Option<f64>,
+            #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+            pub y_m: Option<f64>,
+            #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+            pub yaw_deg: Option<f64>,
+            /// Height of the optical centre above the floor.
+            #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+            pub z_m: Option<f64>,
+            #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+            pub pitch_deg: Option<f64>,
+            #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+            pub sigma_x_m: Option<f64>,
+            #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+            pub sigma_y_m: Option<f64>,
+            #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+            pub sigma_yaw_deg: Option<f64>,
+            /// Why the sensor is not registered (or a caveat about its pose).
+            #[serde(default, skip_serializing_if = "Option::is_none")]
+            pub reason: Option<String>,
+            $($own)*
+        }
+    };
+}
+pub(crate) use pose_vocabulary;
+
+pose_vocabulary! {
+    /// One sensor's pose, the one vocabulary of the socket and `scanfuse register --json` (which
+    /// leaves `age_s` and `source` absent). An unregistered sensor has `registered: false`, a
+    /// `reason` and no pose fields.
+    #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+    pub struct SensorPose {
+        /// Seconds since the pose was obtained.
+        #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+        pub age_s: Option<f64>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        pub source: Option<PoseSource>,
+    }
 }
 
 impl SensorPose {

@@ -12,7 +12,7 @@ use std::time::SystemTime;
 use serde::{Deserialize, Serialize};
 
 use super::config::Config;
-use super::protocol::{PoseSource, SensorPose};
+use super::protocol::{PoseSource, SensorPose, pose_vocabulary};
 
 /// The state file name for poses, in the state directory.
 pub const POSES_FILE: &str = "poses.toml";
@@ -95,35 +95,17 @@ pub struct PosesFile {
     pub sensors: Vec<SavedPose>,
 }
 
-/// One `[[sensor]]` of `poses.toml`: the register/socket pose vocabulary plus `source` and
-/// `updated`. An unregistered sensor has a `reason` and no pose fields.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SavedPose {
-    pub id: String,
-    pub registered: bool,
-    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
-    pub x_m: Option<f64>,
-    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
-    pub y_m: Option<f64>,
-    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
-    pub yaw_deg: Option<f64>,
-    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
-    pub z_m: Option<f64>,
-    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
-    pub pitch_deg: Option<f64>,
-    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
-    pub sigma_x_m: Option<f64>,
-    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
-    pub sigma_y_m: Option<f64>,
-    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
-    pub sigma_yaw_deg: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub reason: Option<String>,
-    /// How the pose was obtained (never `saved`: a pose read back keeps its origin).
-    pub source: PoseSource,
-    /// When the pose was obtained, RFC 3339 UTC.
-    pub updated: String,
+pose_vocabulary! {
+    /// One `[[sensor]]` of `poses.toml`: the register/socket pose vocabulary plus `source` and
+    /// `updated`. An unregistered sensor has a `reason` and no pose fields.
+    #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct SavedPose {
+        /// How the pose was obtained (never `saved`: a pose read back keeps its origin).
+        pub source: PoseSource,
+        /// When the pose was obtained, RFC 3339 UTC.
+        pub updated: String,
+    }
 }
 
 impl SavedPose {
