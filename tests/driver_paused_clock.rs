@@ -8,10 +8,12 @@ use std::time::Duration;
 
 use driver_support::{mm, recording};
 use scanfuse::emulator::{Emulator, EmulatorConfig, Faults};
+use scanfuse::scan::{Scan, SensorInfo};
 use scanfuse::sensor::{
     Connector, Driver, DriverConfig, DriverEvent, Link, ScanMode, TransportError,
 };
 use tokio::sync::{mpsc, watch};
+use tokio::task::JoinHandle;
 use tokio::time::Instant;
 
 /// Connects to `emulator` in memory, refusing the first `refuse` attempts; logs every attempt.
@@ -46,24 +48,38 @@ fn config() -> DriverConfig {
     config
 }
 
+/// Every test's looping emulator, to serve in memory (`driver_support::emulator_with` binds TCP).
+fn looping_emulator(info: &SensorInfo, scans: &[Scan], faults: Faults) -> Emulator {
+    let config = EmulatorConfig {
+        looping: true,
+        faults,
+        ..Default::default()
+    };
+    Emulator::new(info, scans, config).unwrap()
+}
+
+/// Starts `driver` as every test here does: its events, the stop switch and the task to await.
+fn spawn(
+    driver: Driver,
+) -> (
+    mpsc::Receiver<DriverEvent>,
+    watch::Sender<bool>,
+    JoinHandle<()>,
+) {
+    let (tx, rx) = mpsc::channel(1024);
+    let (stop, stop_rx) = watch::channel(false);
+    let task = tokio::spawn(driver.run(tx, stop_rx));
+    (rx, stop, task)
+}
+
 #[tokio::test(start_paused = true)]
 async fn backoff_doubles_up_to_its_cap() {
     let (info, scans) = recording(20);
-    let emulator = Emulator::new(
-        &info,
-        &scans,
-        EmulatorConfig {
-            looping: true,
-            ..Default::default()
-        },
-    )
-    .unwrap();
+    let emulator = looping_emulator(&info, &scans, Faults::default());
     let attempts = Arc::new(Mutex::new(Vec::new()));
     let driver = Driver::with_connector(config(), connector(emulator, 6, attempts.clone()));
     let counters = driver.counters();
-    let (tx, mut rx) = mpsc::channel(1024);
-    let (stop, stop_rx) = watch::channel(false);
-    let task = tokio::spawn(driver.run(tx, stop_rx));
+    let (mut rx, stop, task) = spawn(driver);
     while !matches!(rx.recv().await, Some(DriverEvent::Scan(_))) {}
     let attempts = attempts.lock().unwrap().clone();
     let gaps_ms: Vec<u128> = attempts
@@ -85,21 +101,10 @@ async fn watchdog_fires_three_periods_after_the_last_scan_and_sync_is_exact() {
         stall: Some((5, Duration::from_secs(5))),
         ..Faults::default()
     };
-    let emulator = Emulator::new(
-        &info,
-        &scans,
-        EmulatorConfig {
-            looping: true,
-            faults,
-            ..Default::default()
-        },
-    )
-    .unwrap();
+    let emulator = looping_emulator(&info, &scans, faults);
     let driver = Driver::with_connector(config(), connector(emulator, 0, Arc::default()));
     let counters = driver.counters();
-    let (tx, mut rx) = mpsc::channel(1024);
-    let (stop, stop_rx) = watch::channel(false);
-    let task = tokio::spawn(driver.run(tx, stop_rx));
+    let (mut rx, stop, task) = spawn(driver);
     let mut last_scan_at = None;
     let mut got = Vec::new();
     let silence = loop {
@@ -146,21 +151,10 @@ async fn tm0_refused_while_the_unit_boots_is_retried() {
         booting_for: Some(Duration::from_millis(250)),
         ..Faults::default()
     };
-    let emulator = Emulator::new(
-        &info,
-        &scans,
-        EmulatorConfig {
-            looping: true,
-            faults,
-            ..Default::default()
-        },
-    )
-    .unwrap();
+    let emulator = looping_emulator(&info, &scans, faults);
     let driver = Driver::with_connector(config(), connector(emulator, 0, Arc::default()));
     let counters = driver.counters();
-    let (tx, mut rx) = mpsc::channel(1024);
-    let (stop, stop_rx) = watch::channel(false);
-    let task = tokio::spawn(driver.run(tx, stop_rx));
+    let (mut rx, stop, task) = spawn(driver);
     let started = Instant::now();
     while !matches!(rx.recv().await, Some(DriverEvent::Scan(_))) {}
     // TM0 at 0 ms and 100 ms is refused; the third, at 300 ms, gets through on the same link.
@@ -176,26 +170,16 @@ async fn tm0_refused_while_the_unit_boots_is_retried() {
 async fn shutdown_waits_for_qt_no_longer_than_its_bound() {
     let (info, scans) = recording(20);
     // The unit goes silent after 3 scans for a minute: it reads nothing, so QT goes unanswered.
-    let emulator = Emulator::new(
-        &info,
-        &scans,
-        EmulatorConfig {
-            looping: true,
-            faults: Faults {
-                stall: Some((3, Duration::from_secs(60))),
-                ..Faults::default()
-            },
-            ..Default::default()
-        },
-    )
-    .unwrap();
+    let faults = Faults {
+        stall: Some((3, Duration::from_secs(60))),
+        ..Faults::default()
+    };
+    let emulator = looping_emulator(&info, &scans, faults);
     let attempts = Arc::new(Mutex::new(Vec::new()));
     let mut config = config();
     config.watchdog_periods = 10_000.0; // keep the link through the stall
     let driver = Driver::with_connector(config, connector(emulator.clone(), 0, attempts));
-    let (tx, mut rx) = mpsc::channel(1024);
-    let (stop, stop_rx) = watch::channel(false);
-    let task = tokio::spawn(driver.run(tx, stop_rx));
+    let (mut rx, stop, task) = spawn(driver);
     let mut seen = 0;
     while seen < 3 {
         if let Some(DriverEvent::Scan(_)) = rx.recv().await {
