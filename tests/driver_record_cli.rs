@@ -5,62 +5,77 @@
 mod driver_support;
 
 use std::io::{BufRead, BufReader};
-use std::process::{Command, Stdio};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
 
 use driver_support::{mm, recording};
 use scanfuse::record::{self, RecordingWriter};
+use scanfuse::scan::{Scan, SensorInfo};
+use tempfile::TempDir;
 
 const BIN: &str = env!("CARGO_BIN_EXE_scanfuse");
 
-#[test]
-fn record_of_emulate_reproduces_the_source_scans() {
+/// Writes the recording every test here emulates (`scans` of `info`) to a new dir's `source.mcap`.
+fn write_source(info: &SensorInfo, scans: &[Scan]) -> (TempDir, PathBuf) {
     let dir = tempfile::tempdir().unwrap();
     let source = dir.path().join("source.mcap");
-    let (info, scans) = recording(50);
     let mut writer = RecordingWriter::create(&source).unwrap();
-    writer.add_sensor(&info).unwrap();
-    for scan in &scans {
+    writer.add_sensor(info).unwrap();
+    for scan in scans {
         writer.write_scan(&info.id, scan).unwrap();
     }
     writer.finish().unwrap();
+    (dir, source)
+}
 
+/// Starts `scanfuse emulate SOURCE ARGS…` and reads the first line it prints: where it serves.
+fn emulate(source: &Path, args: &[&str]) -> (Child, String) {
     let mut emulate = Command::new(BIN)
-        .args([
-            "emulate",
-            source.to_str().unwrap(),
-            "--sensor",
-            "hall",
-            "--listen",
-            "127.0.0.1:0",
-        ])
+        .arg("emulate")
+        .arg(source.to_str().unwrap())
+        .args(args)
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
-    let mut addr = String::new();
+    let mut line = String::new();
     BufReader::new(emulate.stdout.take().unwrap())
-        .read_line(&mut addr)
+        .read_line(&mut line)
         .unwrap();
-    let addr = addr.trim();
-    assert!(addr.starts_with("127.0.0.1:"), "emulate printed {addr:?}");
+    (emulate, line.trim().to_string())
+}
 
-    let out = dir.path().join("copy.mcap");
+/// Runs `scanfuse record` against a running `emulate` as sensor `id` into `out`, then stops it.
+fn record_from(
+    mut emulate: Child,
+    connect: &str,
+    id: &str,
+    out: &Path,
+    args: &[&str],
+) -> ExitStatus {
     let status = Command::new(BIN)
-        .args([
-            "record",
-            "--connect",
-            &format!("tcp://{addr}"),
-            "--id",
-            "copy",
-            "--out",
-            out.to_str().unwrap(),
-        ])
-        .args(["--scans", "50", "--seconds", "30"])
+        .args(["record", "--connect", connect, "--id", id, "--out"])
+        .arg(out.to_str().unwrap())
+        .args(args)
         .stderr(Stdio::null())
         .status()
         .unwrap();
     let _ = emulate.kill();
     let _ = emulate.wait();
+    status
+}
+
+#[test]
+fn record_of_emulate_reproduces_the_source_scans() {
+    let (info, scans) = recording(50);
+    let (dir, source) = write_source(&info, &scans);
+
+    let (emulate, addr) = emulate(&source, &["--sensor", "hall", "--listen", "127.0.0.1:0"]);
+    assert!(addr.starts_with("127.0.0.1:"), "emulate printed {addr:?}");
+
+    let out = dir.path().join("copy.mcap");
+    let args = ["--scans", "50", "--seconds", "30"];
+    let status = record_from(emulate, &format!("tcp://{addr}"), "copy", &out, &args);
     assert!(status.success());
 
     let copy = record::read(&out).unwrap();
@@ -86,13 +101,8 @@ fn record_of_emulate_reproduces_the_source_scans() {
 
 #[test]
 fn emulate_and_record_refuse_bad_input_with_exit_code_2() {
-    let dir = tempfile::tempdir().unwrap();
-    let source = dir.path().join("source.mcap");
     let (info, scans) = recording(2);
-    let mut writer = RecordingWriter::create(&source).unwrap();
-    writer.add_sensor(&info).unwrap();
-    writer.write_scan(&info.id, &scans[0]).unwrap();
-    writer.finish().unwrap();
+    let (dir, source) = write_source(&info, &scans[..1]);
     let out = Command::new(BIN)
         .args([
             "emulate",
@@ -120,44 +130,13 @@ fn emulate_and_record_refuse_bad_input_with_exit_code_2() {
 
 #[test]
 fn record_reads_emulate_over_a_pty() {
-    let dir = tempfile::tempdir().unwrap();
-    let source = dir.path().join("source.mcap");
     let (info, scans) = recording(20);
-    let mut writer = RecordingWriter::create(&source).unwrap();
-    writer.add_sensor(&info).unwrap();
-    for scan in &scans {
-        writer.write_scan(&info.id, scan).unwrap();
-    }
-    writer.finish().unwrap();
-    let mut emulate = Command::new(BIN)
-        .args(["emulate", source.to_str().unwrap(), "--pty"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let mut path = String::new();
-    BufReader::new(emulate.stdout.take().unwrap())
-        .read_line(&mut path)
-        .unwrap();
-    let path = path.trim();
+    let (dir, source) = write_source(&info, &scans);
+    let (emulate, path) = emulate(&source, &["--pty"]);
     assert!(path.starts_with("/dev/"), "emulate printed {path:?}");
     let out = dir.path().join("copy.mcap");
-    let status = Command::new(BIN)
-        .args([
-            "record",
-            "--connect",
-            &format!("serial://{path}"),
-            "--id",
-            "usb",
-            "--out",
-            out.to_str().unwrap(),
-        ])
-        .args(["--scans", "20", "--seconds", "30", "--mode", "MD"])
-        .stderr(Stdio::null())
-        .status()
-        .unwrap();
-    let _ = emulate.kill();
-    let _ = emulate.wait();
+    let args = ["--scans", "20", "--seconds", "30", "--mode", "MD"];
+    let status = record_from(emulate, &format!("serial://{path}"), "usb", &out, &args);
     assert!(status.success());
     let copy = record::read(&out).unwrap();
     let got = copy.scans_of("usb");
