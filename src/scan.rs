@@ -61,6 +61,19 @@ impl ScanGeometry {
         scan_rpm: 1200,
     };
 
+    /// URG-04LX: 240° (-119.5° to +119.9°) in 682 steps of 0.3515625° (1,024 to the turn),
+    /// 100 ms per scan, 20 mm – 5.6 m (4 m guaranteed). The data sheet's "683 steps" counts
+    /// one more than AMIN..=AMAX holds; a real unit's GD0044072501 returns 682 ranges.
+    pub const URG_04LX: ScanGeometry = ScanGeometry {
+        dmin_mm: 20,
+        dmax_mm: 5600,
+        ares: 1024,
+        amin: 44,
+        amax: 725,
+        afrt: 384,
+        scan_rpm: 600,
+    };
+
     /// Reads the geometry from PP fields (`DMIN`, `DMAX`, `ARES`, `AMIN`, `AMAX`, `AFRT`, `SCAN`).
     pub fn from_fields(fields: &BTreeMap<String, String>) -> Result<Self, GeometryError> {
         fn get(fields: &BTreeMap<String, String>, key: &'static str) -> Result<u32, GeometryError> {
@@ -267,6 +280,19 @@ mod tests {
         assert!((g.angle_of_step_rad(0).to_degrees() + 135.0).abs() < 1e-9);
         assert!((g.period_s() - 0.025).abs() < 1e-12);
         assert_eq!(g.step_of_angle(g.angle_of_step_rad(17)), 17);
+    }
+
+    #[test]
+    fn urg_spans_240_degrees_in_682_steps_at_10_hz() {
+        let g = ScanGeometry::URG_04LX;
+        assert_eq!(g.validate(), Ok(()));
+        assert_eq!(g.step_count(), 682);
+        assert_eq!(g.angle_of_step_rad(384), 0.0);
+        assert!((g.step_rad().to_degrees() - 0.3515625).abs() < 1e-12);
+        // AMIN and AMAX sit 340 and 341 steps either side of the front: ±119.5°, ±119.9°.
+        assert!((g.angle_of_step_rad(44).to_degrees() + 119.53125).abs() < 1e-9);
+        assert!((g.angle_of_step_rad(725).to_degrees() - 119.8828125).abs() < 1e-9);
+        assert!((g.period_s() - 0.1).abs() < 1e-12);
     }
 
     #[test]

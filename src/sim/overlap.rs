@@ -3,11 +3,9 @@
 use std::collections::HashMap;
 
 use super::PlanError;
+use super::plan::Plan;
 use super::scene::{Scene, Surface};
 use super::simulation::beam_rays;
-use crate::scan::ScanGeometry;
-
-use super::plan::{Model, Plan};
 
 /// Fraction of B's static returns (noise-free, no people, initial poses) that lie within `tol_m`
 /// of a return of A seen from the same side, and the same the other way; returns the smaller.
@@ -35,10 +33,7 @@ pub fn view_overlap(plan: &Plan, a_id: &str, b_id: &str, tol_m: f64) -> Result<f
                 ),
             )
         })?;
-        let geometry = match sensor.model {
-            Model::Utm30lxEw => ScanGeometry::UTM_30LX_EW,
-            Model::Uxm30lxE => ScanGeometry::UXM_30LX_E,
-        };
+        let geometry = sensor.model.geometry();
         let (dmin_m, dmax_m) = (
             geometry.dmin_mm as f64 / 1000.0,
             geometry.dmax_mm as f64 / 1000.0,

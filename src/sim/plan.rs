@@ -30,10 +30,10 @@
 //!   on the segment and must fit inside it; beams pass through it to whatever lies beyond.
 //!
 //! Sensors, `[[sensor]]`: `id` (required, unique, letters, digits, `-`, `_`), `model`
-//! (`"UTM-30LX-EW"` or `"UXM-30LX-E"`), `x`, `y` (m), `yaw_deg` (default 0), `height_m`
-//! (optical centre above the floor, default 1.0), `pitch_deg` (scan plane tilt about the
-//! sensor's y axis, positive up, default 0, at most 60 either way), `intensities` (default true
-//! for the UTM, false for the UXM).
+//! (`"UTM-30LX-EW"`, `"UXM-30LX-E"` or `"URG-04LX"`), `x`, `y` (m), `yaw_deg` (default 0),
+//! `height_m` (optical centre above the floor, default 1.0), `pitch_deg` (scan plane tilt about
+//! the sensor's y axis, positive up, default 0, at most 60 either way), `intensities` (default
+//! true for the UTM, false for the UXM; the URG-04LX has none to send, so `true` is refused).
 //!
 //! People, `[[person]]`: discs that walk a closed loop through `waypoints = [[x, y], …]` (at least
 //! 2) at `speed_m_s` (default 1.2), `radius_m` (default 0.25), `height_m` (default 1.75),
@@ -50,6 +50,7 @@ use serde::Deserialize;
 use toml::Spanned;
 
 use super::PlanError;
+use crate::scan::ScanGeometry;
 
 /// Recording start when the plan does not say: 2026-01-01T00:00:00Z.
 pub const DEFAULT_START_UNIX_S: u64 = 1_767_225_600;
@@ -67,15 +68,61 @@ pub enum Model {
     Utm30lxEw,
     #[serde(rename = "UXM-30LX-E")]
     Uxm30lxE,
+    #[serde(rename = "URG-04LX")]
+    Urg04lx,
 }
 
 impl Model {
+    /// Every model, in declaration order.
+    pub const ALL: [Model; 3] = [Model::Utm30lxEw, Model::Uxm30lxE, Model::Urg04lx];
+
     /// The model name as Hokuyo writes it.
     pub fn name(self) -> &'static str {
         match self {
             Model::Utm30lxEw => "UTM-30LX-EW",
             Model::Uxm30lxE => "UXM-30LX-E",
+            Model::Urg04lx => "URG-04LX",
         }
+    }
+
+    /// Its layout, as its PP reply states it.
+    pub fn geometry(self) -> ScanGeometry {
+        match self {
+            Model::Utm30lxEw => ScanGeometry::UTM_30LX_EW,
+            Model::Uxm30lxE => ScanGeometry::UXM_30LX_E,
+            Model::Urg04lx => ScanGeometry::URG_04LX,
+        }
+    }
+
+    /// Whether it can send intensities at all: the URG-04LX speaks MD/GD only, no ME.
+    pub fn can_send_intensities(self) -> bool {
+        !matches!(self, Model::Urg04lx)
+    }
+}
+
+/// A model by name, ignoring case: the full name (`URG-04LX`) or its family's three letters
+/// (`urg`), as command lines take it.
+impl std::str::FromStr for Model {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Model, String> {
+        let text = text.trim();
+        Model::ALL
+            .into_iter()
+            .find(|m| {
+                let name = m.name();
+                text.eq_ignore_ascii_case(name)
+                    || name
+                        .get(..3)
+                        .is_some_and(|short| text.eq_ignore_ascii_case(short))
+            })
+            .ok_or_else(|| {
+                let names: Vec<&str> = Model::ALL.iter().map(|m| m.name()).collect();
+                format!(
+                    "unknown model {text:?}; use {} (or utm, uxm, urg), any case",
+                    names.join(", ")
+                )
+            })
     }
 }
 
@@ -188,7 +235,7 @@ pub struct SensorPlan {
     pub height_m: f64,
     #[serde(default)]
     pub pitch_deg: f64,
-    /// `None` means the model's default (on for the UTM, off for the UXM).
+    /// `None` means the model's default (on for the UTM, off for the UXM and the URG).
     pub intensities: Option<bool>,
 }
 
@@ -545,6 +592,18 @@ impl Plan {
                     format!("is {}; use a height above the floor, > 0 m", s.height_m),
                 );
             }
+            if s.intensities == Some(true) && !s.model.can_send_intensities() {
+                return err(
+                    s.line,
+                    "sensor.intensities",
+                    format!(
+                        "sensor `{}` is a {}, which sends no intensities (MD/GD only); \
+                         leave `intensities` out or set it to false",
+                        s.id,
+                        s.model.name()
+                    ),
+                );
+            }
             if !(s.pitch_deg.is_finite() && s.pitch_deg.abs() <= MAX_PITCH_DEG) {
                 return err(
                     s.line,
@@ -774,12 +833,50 @@ yaw_deg = 180
 
     #[test]
     fn unknown_model_lists_the_models() {
-        let err = error_of(&GOOD.replace("\"UXM-30LX-E\"", "\"URG-04LX\""));
+        let err = error_of(&GOOD.replace("\"UXM-30LX-E\"", "\"URG-04LXX\""));
         assert_eq!(err.key.as_deref(), Some("model"));
-        assert!(
-            err.problem.contains("UTM-30LX-EW") && err.problem.contains("UXM-30LX-E"),
-            "{err}"
-        );
+        for model in Model::ALL {
+            assert!(err.problem.contains(model.name()), "{err}");
+        }
+    }
+
+    #[test]
+    fn models_parse_by_name_or_family_in_any_case() {
+        for (text, model) in [
+            ("UTM-30LX-EW", Model::Utm30lxEw),
+            ("uxm-30lx-e", Model::Uxm30lxE),
+            ("URG-04LX", Model::Urg04lx),
+            ("utm", Model::Utm30lxEw),
+            ("UXM", Model::Uxm30lxE),
+            (" urg ", Model::Urg04lx),
+        ] {
+            assert_eq!(text.parse::<Model>(), Ok(model), "{text:?}");
+        }
+        for bad in ["", "ur", "urg-04", "UTM-30LX", "lms"] {
+            let err = bad.parse::<Model>().unwrap_err();
+            assert!(err.contains(&format!("{:?}", bad.trim())), "{err}");
+            assert!(
+                err.contains("UTM-30LX-EW") && err.contains("URG-04LX"),
+                "{err}"
+            );
+        }
+    }
+
+    #[test]
+    fn urg_parses_without_intensities_and_refuses_them() {
+        let text = GOOD.replace("\"UXM-30LX-E\"", "\"URG-04LX\"");
+        let plan = Plan::from_toml(&text, "plan.toml").unwrap();
+        assert_eq!(plan.sensors[1].model, Model::Urg04lx);
+        assert_eq!(plan.sensors[1].model.name(), "URG-04LX");
+        assert_eq!(plan.sensors[1].model.geometry(), ScanGeometry::URG_04LX);
+        assert!(!plan.sensors[1].has_intensities());
+        let asked = text.replace("yaw_deg = 180", "yaw_deg = 180\nintensities = true");
+        let err = error_of(&asked);
+        assert_eq!(err.key.as_deref(), Some("sensor.intensities"));
+        assert_eq!(err.line, Some(line_with(&asked, "intensities = true")));
+        assert!(err.problem.contains("URG-04LX"), "{err}");
+        let off = text.replace("yaw_deg = 180", "yaw_deg = 180\nintensities = false");
+        assert!(Plan::from_toml(&off, "plan.toml").is_ok());
     }
 
     #[test]

@@ -6,7 +6,9 @@
 //!
 //! - **Noise.** Gaussian, σ = a third of the spec bound (METHOD.md §7): the UTM's ±30 mm to
 //!   10 m and ±50 mm to 30 m give σ = 10 mm up to 10 m rising linearly to 16.7 mm at 30 m
-//!   (and on beyond); the UXM's ±50/±100 mm give 16.7 → 33.3 mm. Weak returns (dark, far,
+//!   (and on beyond); the UXM's ±50/±100 mm give 16.7 → 33.3 mm; the URG-04LX's ±10 mm to 1 m
+//!   and ±1 % of the distance beyond give 3.3 mm up to 1 m, then 0.33 % of the range
+//!   ([`NoiseLaw`]). Weak returns (dark, far,
 //!   grazing) are noisier: σ grows with 1/√signal below a reference signal, up to 3×.
 //!   Weak returns also read long, by up to [`WEAK_BIAS_M`] (the range walk of a time-of-flight
 //!   receiver on a small pulse), so dark and grazing surfaces sit a little behind where they are.
@@ -41,15 +43,38 @@ pub(crate) const WEAK_BIAS_M: f64 = 0.015;
 /// Chance a beam reports a spurious short range.
 const SPURIOUS_RATE: f64 = 2e-4;
 
+/// How the spec-level σ of the range noise grows with range, as each model's data sheet
+/// states its accuracy.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) enum NoiseLaw {
+    /// A fixed bound to 10 m and another to 30 m (UTM, UXM): σ `near_m` at and below 10 m,
+    /// rising linearly to `far_m` at 30 m and on beyond.
+    NearFar { near_m: f64, far_m: f64 },
+    /// A fixed bound close in, a share of the distance further out (URG-04LX): σ is the larger
+    /// of `floor_m` and `fraction` × range.
+    Proportional { floor_m: f64, fraction: f64 },
+}
+
+impl NoiseLaw {
+    /// σ at full signal for a return at this range, m.
+    fn sigma_m(self, range_m: f64) -> f64 {
+        match self {
+            NoiseLaw::NearFar { near_m, far_m } => {
+                let slope = (far_m - near_m) / 20.0;
+                near_m + slope * (range_m - 10.0).max(0.0)
+            }
+            NoiseLaw::Proportional { floor_m, fraction } => floor_m.max(fraction * range_m),
+        }
+    }
+}
+
 /// The per-model constants of the beam model.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct BeamModel {
     pub dmin_m: f64,
     pub dmax_m: f64,
-    /// σ at and below 10 m, m.
-    pub sigma_near_m: f64,
-    /// σ at 30 m, m.
-    pub sigma_far_m: f64,
+    /// σ of the range noise at full signal, by range.
+    pub noise: NoiseLaw,
     /// Intensity of a white target square on at 0 m, before the baseline.
     pub intensity_gain: f64,
     /// Sensitivity relative to the UTM (scales the signal).
@@ -62,18 +87,38 @@ impl BeamModel {
             Model::Utm30lxEw => BeamModel {
                 dmin_m,
                 dmax_m,
-                sigma_near_m: 0.030 / 3.0,
-                sigma_far_m: 0.050 / 3.0,
+                noise: NoiseLaw::NearFar {
+                    near_m: 0.030 / 3.0,
+                    far_m: 0.050 / 3.0,
+                },
                 intensity_gain: 4000.0,
                 sensitivity: 1.0,
             },
             Model::Uxm30lxE => BeamModel {
                 dmin_m,
                 dmax_m,
-                sigma_near_m: 0.050 / 3.0,
-                sigma_far_m: 0.100 / 3.0,
+                noise: NoiseLaw::NearFar {
+                    near_m: 0.050 / 3.0,
+                    far_m: 0.100 / 3.0,
+                },
                 intensity_gain: 3000.0,
                 sensitivity: 1.2,
+            },
+            Model::Urg04lx => BeamModel {
+                dmin_m,
+                dmax_m,
+                // ±10 mm from 60 mm to 1 m, ±1 % of the distance from 1 m to 4 m; the two
+                // meet at 1 m, and the share carries on to DMAX.
+                noise: NoiseLaw::Proportional {
+                    floor_m: 0.010 / 3.0,
+                    fraction: 0.01 / 3.0,
+                },
+                // Never used: the URG-04LX sends no intensities (plans may not ask for them).
+                intensity_gain: 0.0,
+                // A small class 1 unit built for 4 m on white paper, not 30 m: its receiver
+                // gathers far less light than the UTM's, so dark and grazing surfaces drop
+                // out and read noisier well before its 5.6 m DMAX cuts the range.
+                sensitivity: 0.5,
             },
         }
     }
@@ -86,8 +131,7 @@ impl BeamModel {
 
     /// σ of the range noise for a hit of this signal at this range.
     pub fn sigma_m(&self, range_m: f64, signal: f64) -> f64 {
-        let slope = (self.sigma_far_m - self.sigma_near_m) / 20.0;
-        let base = self.sigma_near_m + slope * (range_m - 10.0).max(0.0);
+        let base = self.noise.sigma_m(range_m);
         let weak = (FULL_SIGNAL / signal.max(1e-9)).sqrt().clamp(1.0, 3.0);
         base * weak
     }
@@ -274,6 +318,33 @@ mod tests {
         assert!((sd - 0.010).abs() < 0.001, "sd {sd}");
         let beyond = errors.iter().filter(|e| e.abs() > 0.030).count() as f64 / errors.len() as f64;
         assert!(beyond < 0.01, "{beyond} beyond the spec bound");
+    }
+
+    #[test]
+    fn each_model_states_its_noise_law() {
+        let full = 1.0;
+        let utm = utm();
+        // The UTM keeps its near/far law: 10 mm to 10 m, 16.7 mm at 30 m, on beyond.
+        assert_eq!(utm.sigma_m(5.0, full), 0.010);
+        assert!((utm.sigma_m(30.0, full) - 0.050 / 3.0).abs() < 1e-15);
+        assert!(utm.sigma_m(40.0, full) > utm.sigma_m(30.0, full));
+        let urg = BeamModel::of(Model::Urg04lx, 0.020, 5.6);
+        // The URG: 3.3 mm to 1 m, then a third of 1 % of the range.
+        assert!((urg.sigma_m(0.3, full) - 0.010 / 3.0).abs() < 1e-15);
+        assert!((urg.sigma_m(1.0, full) - 0.010 / 3.0).abs() < 1e-15);
+        assert!((urg.sigma_m(2.0, full) - 0.020 / 3.0).abs() < 1e-15);
+        assert!((urg.sigma_m(4.0, full) - 0.040 / 3.0).abs() < 1e-15);
+        // A weaker receiver: the same dark target is weaker, so it drops out more often.
+        let dark = Hit {
+            range_m: 5.0,
+            cos_incidence: 1.0,
+            reflectivity: 0.05,
+            surface: Surface::Shape(0),
+        };
+        assert!(urg.signal(&dark) < utm.signal(&dark));
+        assert!(
+            urg.dropout_probability(urg.signal(&dark)) > utm.dropout_probability(utm.signal(&dark))
+        );
     }
 
     #[test]

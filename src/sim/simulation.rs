@@ -68,13 +68,6 @@ pub struct Simulation {
     moves: Vec<MoveTruth>,
 }
 
-fn geometry_of(model: Model) -> ScanGeometry {
-    match model {
-        Model::Utm30lxEw => ScanGeometry::UTM_30LX_EW,
-        Model::Uxm30lxE => ScanGeometry::UXM_30LX_E,
-    }
-}
-
 /// The PP and VV fields a unit of this model reports.
 fn fields_of(model: Model, geometry: &ScanGeometry, serial: u32) -> BTreeMap<String, String> {
     let mut fields = geometry.to_fields();
@@ -88,6 +81,12 @@ fn fields_of(model: Model, geometry: &ScanGeometry, serial: u32) -> BTreeMap<Str
             "SOKUIKI Sensor Tough-URG UXM-30LX-E",
             "0.3.01(11/Mar./2010)",
             format!("H09{serial:05}"),
+        ),
+        // As the unit in fixtures/scip/example_urg_04lx.logr answers VV.
+        Model::Urg04lx => (
+            "SOKUIKI Sensor URG-04LX",
+            "3.1.04(02/Aug./2007)",
+            format!("H07{serial:05}"),
         ),
     };
     for (key, value) in [
@@ -158,7 +157,7 @@ impl Simulation {
         let mut infos = Vec::new();
         let mut moves = Vec::new();
         for sensor in &plan.sensors {
-            let geometry = geometry_of(sensor.model);
+            let geometry = sensor.model.geometry();
             let drift = (setup.random::<f64>() * 2.0 - 1.0) * MAX_DRIFT;
             let period_s = geometry.period_s() / (1.0 + drift);
             let phase_s = setup.random::<f64>() * period_s;
@@ -728,6 +727,64 @@ y = 0.0
                 yaw_deg: 0.0
             })
         );
+    }
+
+    /// A URG-04LX 2 m from the wall x = 5, facing it: 682 beams (AMIN..=AMAX, as many as the
+    /// capture in fixtures/scip/example_urg_04lx.logr holds) over 240°, nothing past
+    /// 5.6 m (the back corners lie further), no intensities, and the spec's noise at 2 m:
+    /// σ = 1 % / 3 of the range ≈ 6.7 mm, not the floor of 3.3 mm nor the UTM's 10 mm.
+    #[test]
+    fn urg_sees_682_beams_to_5_6_m_with_one_percent_noise() {
+        let text = ROOM
+            .replace("UTM-30LX-EW", "URG-04LX")
+            .replace("x = 2.0", "x = 3.0");
+        let mut sim = sim(&text, 5);
+        let g = ScanGeometry::URG_04LX;
+        let info = &sim.sensors()[0];
+        assert_eq!(info.model, "URG-04LX");
+        assert_eq!(info.geometry, Some(g));
+        assert_eq!(ScanGeometry::from_fields(&info.fields), Ok(g));
+        assert_eq!(
+            info.fields.get("MODL").map(String::as_str),
+            Some("URG-04LX(Hokuyo Automatic Co.,Ltd.)")
+        );
+        assert_eq!(
+            info.fields.get("PROD").map(String::as_str),
+            Some("SOKUIKI Sensor URG-04LX")
+        );
+        let scans = scans_of(&mut sim, 20.0, 0);
+        assert!(
+            (198..=201).contains(&scans.len()),
+            "{} scans in 20 s at 10 Hz",
+            scans.len()
+        );
+        let c = (g.afrt - g.amin) as usize;
+        let mut errors = Vec::new();
+        for scan in &scans {
+            assert_eq!(scan.ranges_m.len(), 682);
+            assert!(scan.intensities.is_empty());
+            assert!(
+                scan.ranges_m.iter().all(|r| *r <= 5.6),
+                "a return past DMAX"
+            );
+            // The beams aimed at the far back corners find nothing within reach.
+            assert!(scan.ranges_m[..5].iter().all(|r| *r == 0.0));
+            for i in c - 5..=c + 5 {
+                let truth = 2.0 / scan.angle_of_index_rad(i).cos();
+                let r = scan.ranges_m[i] as f64;
+                if r > 0.0 && (r - truth).abs() < 0.1 {
+                    errors.push(r - truth);
+                }
+            }
+        }
+        assert!((scans[0].start_angle_rad.to_degrees() + 119.53125).abs() < 1e-9);
+        assert!((scans[0].end_angle_rad.to_degrees() - 119.8828125).abs() < 1e-9);
+        assert!(errors.len() > 2000, "{} returns", errors.len());
+        let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+        let sd =
+            (errors.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / errors.len() as f64).sqrt();
+        assert!(mean.abs() < 0.001, "mean {mean}");
+        assert!((0.0058..0.0076).contains(&sd), "sd {sd}, expected ≈ 0.0067");
     }
 
     /// The plans `eval --plans fixtures/plans-heldout` measures generalisation on stay valid
