@@ -10,6 +10,7 @@ use rand_chacha::ChaCha8Rng;
 use scanfuse::geometry::{Pose2, pose_error, pose2};
 use scanfuse::register::model::NearestGrid;
 use scanfuse::register::{RegisterParams, ScanModel, polish, register_pair};
+use scanfuse::sim::Model;
 use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::PathBuf;
@@ -39,6 +40,10 @@ pub struct Args {
     /// Folder of the floor plans random placements are drawn in.
     #[arg(long, default_value = "fixtures/plans")]
     pub plans: PathBuf,
+    /// Sensor models simulated pairs and sites are drawn from, comma separated: UTM-30LX-EW,
+    /// UXM-30LX-E, URG-04LX (any case; or utm, uxm, urg). Seven UTMs to three of each other.
+    #[arg(long, value_delimiter = ',', default_value = "UTM-30LX-EW,UXM-30LX-E")]
+    pub models: Vec<Model>,
     /// Sites to solve, per kind (installed, random, real).
     #[arg(long, default_value_t = 3)]
     pub sites: usize,
@@ -76,10 +81,11 @@ pub fn run(args: Args) -> Result<()> {
     if wants("sim") || wants("site") {
         let plans = load_plans(&args.plans)?;
         if wants("sim") {
-            let cases = sim_cases(&plans, args.pairs, args.seed, &params)?;
+            let cases = sim_cases(&plans, &args, &params)?;
             println!(
-                "\n== Simulated pairs (plans {}; both models, tilted units, people), success ≤ 10 cm and ≤ 1° ==",
-                plan_names(&plans)
+                "\n== Simulated pairs (plans {}; {}, tilted units, people), success ≤ 10 cm and ≤ 1° ==",
+                plan_names(&plans),
+                model_names(&args.models)
             );
             pair_tables(&cases, "sim", (0.10, 1.0), &params, &args, &mut csv)?;
             println!(
@@ -156,6 +162,16 @@ fn pair_tables(
 /// "lab, hall": which plans a table was drawn in.
 fn plan_names(plans: &[scanfuse::sim::plan::Plan]) -> String {
     let names: Vec<&str> = plans.iter().map(|p| p.name.as_str()).collect();
+    names.join(", ")
+}
+
+/// "both models" for eval's default draw (as the heading has always read), otherwise which.
+fn model_names(models: &[Model]) -> String {
+    let mix = sim::model_mix(models);
+    if mix == [Model::Utm30lxEw, Model::Uxm30lxE] {
+        return "both models".to_string();
+    }
+    let names: Vec<&str> = mix.iter().map(|m| m.name()).collect();
     names.join(", ")
 }
 

@@ -52,12 +52,47 @@ pub(super) fn load_plans(dir: &std::path::Path) -> Result<Vec<Plan>> {
     Ok(plans)
 }
 
-/// A random sensor inside `plan` (`enclosed`): either model, one in five tilted like a ceiling
-/// unit.
+/// The models of `--models`, once each, in [`Model::ALL`]'s order: the order given on the
+/// command line does not change the draw.
+pub(super) fn model_mix(models: &[Model]) -> Vec<Model> {
+    Model::ALL
+        .into_iter()
+        .filter(|m| models.contains(m))
+        .collect()
+}
+
+/// How often a model is drawn, relative to the others in the mix: the UTM is the common unit.
+fn weight(model: Model) -> u32 {
+    match model {
+        Model::Utm30lxEw => 7,
+        Model::Uxm30lxE | Model::Urg04lx => 3,
+    }
+}
+
+/// One of `models`, by [`weight`]: a Bernoulli draw per model but the last, each for its share
+/// of the weight left. For the default UTM + UXM that is the single `random_bool(0.7)` eval
+/// drew before `--models`, so a seed gives the same pairs as it did; a lone model draws nothing.
+fn random_model(models: &[Model], rng: &mut ChaCha8Rng) -> Model {
+    let mix = model_mix(models);
+    let mut left: u32 = mix.iter().map(|m| weight(*m)).sum();
+    for (i, model) in mix.iter().enumerate() {
+        let w = weight(*model);
+        if i + 1 == mix.len() || rng.random_bool(f64::from(w) / f64::from(left)) {
+            return *model;
+        }
+        left -= w;
+    }
+    // Only for an empty list, which clap does not let through (`--models` needs a name).
+    Model::Utm30lxEw
+}
+
+/// A random sensor inside `plan` (`enclosed`): a model from `models`, one in five tilted like a
+/// ceiling unit.
 fn random_sensor(
     plan: &Plan,
     id: &str,
     near: Option<(f64, f64)>,
+    models: &[Model],
     rng: &mut ChaCha8Rng,
 ) -> SensorPlan {
     let (mut lo, mut hi) = (
@@ -87,11 +122,7 @@ fn random_sensor(
         spot = draw();
     }
     let (x, y) = spot;
-    let model = if rng.random_bool(0.7) {
-        Model::Utm30lxEw
-    } else {
-        Model::Uxm30lxE
-    };
+    let model = random_model(models, rng);
     let tilted = rng.random_bool(0.2);
     SensorPlan {
         line: None,
@@ -198,13 +229,9 @@ fn truth_pose(info: &SensorInfo) -> Option<Pose2> {
 }
 
 /// Random pairs in the plans, spread over the overlap bins.
-pub(super) fn sim_cases(
-    plans: &[Plan],
-    count: usize,
-    seed: u64,
-    params: &RegisterParams,
-) -> Result<Vec<Case>> {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x51a);
+pub(super) fn sim_cases(plans: &[Plan], args: &Args, params: &RegisterParams) -> Result<Vec<Case>> {
+    let count = args.pairs;
+    let mut rng = ChaCha8Rng::seed_from_u64(args.seed ^ 0x51a);
     let quota = count.div_ceil(BINS.len());
     let mut filled = [0usize; BINS.len()];
     let mut cases = Vec::new();
@@ -216,8 +243,8 @@ pub(super) fn sim_cases(
         };
         let mut plan = base.clone();
         plan.moves.clear();
-        let a = random_sensor(&plan, "a", None, &mut rng);
-        let b = random_sensor(&plan, "b", Some((a.x, a.y)), &mut rng);
+        let a = random_sensor(&plan, "a", None, &args.models, &mut rng);
+        let b = random_sensor(&plan, "b", Some((a.x, a.y)), &args.models, &mut rng);
         plan.sensors = vec![a, b];
         // Overlap first (cheap): skip placements whose bin is already full.
         let Ok(overlap) = view_overlap(&plan, "a", "b", 0.1) else {
@@ -270,14 +297,19 @@ pub(super) const INSTALLED_OVERLAP: f64 = 0.3;
 
 /// `n` sensors as `SiteDraw::Installed` describes, or `None` when a sensor finds no spot
 /// within a few tries (the caller draws another site).
-fn installed_sensors(plan: &Plan, n: usize, rng: &mut ChaCha8Rng) -> Option<Vec<SensorPlan>> {
+fn installed_sensors(
+    plan: &Plan,
+    n: usize,
+    models: &[Model],
+    rng: &mut ChaCha8Rng,
+) -> Option<Vec<SensorPlan>> {
     let mut trial = plan.clone();
-    trial.sensors = vec![random_sensor(plan, "s0", None, rng)];
+    trial.sensors = vec![random_sensor(plan, "s0", None, models, rng)];
     for k in 1..n {
         let id = format!("s{k}");
         let placed = (0..40).find_map(|_| {
             let parent = trial.sensors[rng.random_range(0..trial.sensors.len())].clone();
-            let sensor = random_sensor(plan, &id, Some((parent.x, parent.y)), rng);
+            let sensor = random_sensor(plan, &id, Some((parent.x, parent.y)), models, rng);
             trial.sensors.push(sensor);
             let shared = view_overlap(&trial, &parent.id, &id, 0.1).unwrap_or(0.0);
             let sensor = trial.sensors.pop()?;
@@ -313,9 +345,9 @@ pub(super) fn sites(
         plan.moves.clear();
         plan.sensors = match draw {
             SiteDraw::Random => (0..n)
-                .map(|k| random_sensor(&plan, &format!("s{k}"), None, &mut rng))
+                .map(|k| random_sensor(&plan, &format!("s{k}"), None, &args.models, &mut rng))
                 .collect(),
-            SiteDraw::Installed => match installed_sensors(&plan, n, &mut rng) {
+            SiteDraw::Installed => match installed_sensors(&plan, n, &args.models, &mut rng) {
                 Some(sensors) => sensors,
                 None => continue,
             },
@@ -343,4 +375,37 @@ pub(super) fn sites(
     }
     totals.print("10 cm / 1°");
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The default mix draws exactly as eval did before `--models` (one `random_bool(0.7)`),
+    /// whatever order the models are named in, and a lone model draws nothing.
+    #[test]
+    fn default_mix_draws_as_before_and_a_lone_model_draws_nothing() {
+        let (utm, uxm, urg) = (Model::Utm30lxEw, Model::Uxm30lxE, Model::Urg04lx);
+        let mut now = ChaCha8Rng::seed_from_u64(7);
+        let mut before = ChaCha8Rng::seed_from_u64(7);
+        let mut swapped = ChaCha8Rng::seed_from_u64(7);
+        for _ in 0..1000 {
+            let old = if before.random_bool(0.7) { utm } else { uxm };
+            assert_eq!(random_model(&[utm, uxm], &mut now), old);
+            assert_eq!(random_model(&[uxm, utm, uxm], &mut swapped), old);
+        }
+        let mut lone = ChaCha8Rng::seed_from_u64(7);
+        assert_eq!(random_model(&[urg], &mut lone), urg);
+        assert_eq!(
+            lone.random::<u64>(),
+            ChaCha8Rng::seed_from_u64(7).random::<u64>()
+        );
+        // All three: 7 : 3 : 3.
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let n = 13_000;
+        let urgs = (0..n)
+            .filter(|_| random_model(&[urg, uxm, utm], &mut rng) == urg)
+            .count();
+        assert!((2700..3300).contains(&urgs), "{urgs} URGs in {n}");
+    }
 }
