@@ -70,7 +70,6 @@ fn check_fixture(name: &str, anchor: &str) {
         ] {
             assert!(s[key].as_f64().is_some(), "{id} lacks {key}");
         }
-        assert!(s.get("reason").is_none());
     }
     let pairs = json["pairs"].as_array().unwrap();
     let n = sensors.len();
@@ -80,6 +79,22 @@ fn check_fixture(name: &str, anchor: &str) {
             assert!(p[key].as_f64().is_some(), "pair lacks {key}: {p}");
         }
         assert!(p["used"].is_boolean() && p["a"].is_string() && p["b"].is_string());
+    }
+    // A registered sensor carries a `reason` only as a caveat: when its pose rests on fewer
+    // than three used pairs (the anchor never).
+    for s in sensors {
+        let id = s["id"].as_str().unwrap();
+        let used = pairs
+            .iter()
+            .filter(|p| p["used"] == true && (p["a"] == id || p["b"] == id))
+            .count();
+        match s.get("reason").and_then(|r| r.as_str()) {
+            Some(caveat) => assert!(
+                id != anchor && used < 3 && caveat.contains("only"),
+                "{id} ({used} pairs used): {caveat}"
+            ),
+            None => assert!(id == anchor || used >= 3, "{id}: {used} pairs, no caveat"),
+        }
     }
 }
 

@@ -162,12 +162,8 @@ fn to_output(
             if input.is_none() {
                 return unregistered("no scans in the recording".into());
             }
-            match site
-                .sensors
-                .iter()
-                .find(|p| p.id == info.id)
-                .map(|p| &p.pose)
-            {
+            let placement = site.sensors.iter().find(|p| p.id == info.id);
+            match placement.map(|p| &p.pose) {
                 Some(Ok(placed)) => SensorPose {
                     id: info.id.clone(),
                     registered: true,
@@ -179,7 +175,7 @@ fn to_output(
                     sigma_x_m: Some(placed.sigma_x_m),
                     sigma_y_m: Some(placed.sigma_y_m),
                     sigma_yaw_deg: Some(placed.sigma_yaw_rad.to_degrees()),
-                    reason: None,
+                    reason: placement.and_then(|p| p.caveat.clone()),
                     age_s: None,
                     source: None,
                 },
@@ -224,7 +220,7 @@ fn print_table(o: &Output) {
     for s in &o.sensors {
         match (s.x_m, s.y_m, s.yaw_deg) {
             (Some(x), Some(y), Some(yaw)) => println!(
-                "{:<12} {:>9.3} {:>9.3} {:>8.2} {:>6.2} {:>7.1} {:>8.1} {:>8.1} {:>8.2}",
+                "{:<12} {:>9.3} {:>9.3} {:>8.2} {:>6.2} {:>7.1} {:>8.1} {:>8.1} {:>8.2}  {}",
                 s.id,
                 x,
                 y,
@@ -233,7 +229,8 @@ fn print_table(o: &Output) {
                 s.pitch_deg.unwrap_or(0.0),
                 s.sigma_x_m.unwrap_or(0.0) * 100.0,
                 s.sigma_y_m.unwrap_or(0.0) * 100.0,
-                s.sigma_yaw_deg.unwrap_or(0.0)
+                s.sigma_yaw_deg.unwrap_or(0.0),
+                s.reason.as_deref().unwrap_or("")
             ),
             _ => println!(
                 "{:<12} {:>9}  not registered: {}",

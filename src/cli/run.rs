@@ -233,6 +233,14 @@ impl Terminal {
             }
             println!("{line}");
         }
+        for (id, caveat) in poses
+            .sensors
+            .iter()
+            .filter(|p| p.registered)
+            .filter_map(|p| Some((&p.id, p.reason.as_deref()?)))
+        {
+            println!("{id}: {caveat}");
+        }
         println!();
     }
 

@@ -194,11 +194,16 @@ pub fn render_table(status: &Status, poses: &Poses) -> String {
         let s = status.sensors.iter().find(|s| s.id == id);
         let p = poses.sensors.iter().find(|p| p.id == id);
         let _ = writeln!(out, "{}", row(id, s, p));
-        if let Some(p) = p.filter(|p| !p.registered) {
-            notes.push(format!(
+        match p {
+            Some(p) if !p.registered => notes.push(format!(
                 "{id}: not registered: {}",
                 p.reason.as_deref().unwrap_or("no reason given")
-            ));
+            )),
+            Some(SensorPose {
+                reason: Some(caveat),
+                ..
+            }) => notes.push(format!("{id}: {caveat}")),
+            _ => {}
         }
     }
     for note in notes {
@@ -319,6 +324,14 @@ mod tests {
             "{table}"
         );
         assert_eq!(lines[4], "dock: not registered: no static view yet");
+        // A registered sensor's reason is a caveat about its pose: shown as a note too.
+        let mut poses = poses;
+        poses.sensors[0].reason = Some("rests on one pair only (with dock)".into());
+        let table = render_table(&status, &poses);
+        let lines: Vec<&str> = table.lines().collect();
+        assert_eq!(lines.len(), 6, "{table}");
+        assert_eq!(lines[4], "entrance: rests on one pair only (with dock)");
+        assert_eq!(lines[5], "dock: not registered: no static view yet");
     }
 
     #[test]

@@ -80,6 +80,8 @@ pub struct PoseEntry {
     pub source: PoseSource,
     /// Loaded from `poses.toml` at start (the socket then says `saved`).
     pub loaded: bool,
+    /// What to check about the pose (`Placement::caveat`); the socket's `reason`.
+    pub caveat: Option<String>,
     pub updated: SystemTime,
 }
 
@@ -98,7 +100,7 @@ impl PoseEntry {
             sigma_x_m: self.sigma_x_m,
             sigma_y_m: self.sigma_y_m,
             sigma_yaw_deg: self.sigma_yaw_rad.map(f64::to_degrees),
-            reason: None,
+            reason: self.caveat.clone(),
             age_s: now
                 .duration_since(self.updated)
                 .ok()

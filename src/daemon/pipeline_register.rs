@@ -442,6 +442,7 @@ impl Registrar {
                             sigma_yaw_rad: Some(fit.sigma_yaw_rad),
                             source,
                             loaded: false,
+                            caveat: None,
                             updated: now,
                         }),
                         method: Method::Local,
@@ -509,6 +510,7 @@ impl Registrar {
                     sigma_yaw_rad: Some(placed.sigma_yaw_rad),
                     source,
                     loaded: false,
+                    caveat: placement.caveat,
                     updated: now,
                 }),
                 Err(reason) => match track.survey {
@@ -553,6 +555,7 @@ pub fn surveyed(s: &Survey, mount: &Mount, now: SystemTime) -> PoseEntry {
         sigma_yaw_rad: Some(s.sigma_yaw_rad),
         source: PoseSource::Surveyed,
         loaded: false,
+        caveat: None,
         updated: now,
     }
 }
@@ -616,11 +619,16 @@ pub fn run_worker(
                         }
                         (Method::Global, None) => String::new(),
                     };
+                    let caveat = entry
+                        .caveat
+                        .as_ref()
+                        .map(|c| format!("; it {c}"))
+                        .unwrap_or_default();
                     pipeline.announce(
                         kind,
                         Some(&outcome.id),
                         format!(
-                            "{} at x {:.3} m, y {:.3} m, yaw {:.2}° ({}{how})",
+                            "{} at x {:.3} m, y {:.3} m, yaw {:.2}° ({}{how}){caveat}",
                             outcome.id,
                             p.x_m,
                             p.y_m,

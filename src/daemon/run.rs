@@ -244,6 +244,7 @@ fn load_saved_poses(config: &Config, pipeline: &Pipeline) {
                         sigma_yaw_rad: s.sigma_yaw_deg.map(f64::to_radians),
                         source: s.source,
                         loaded: true,
+                        caveat: s.reason.clone(),
                         updated,
                     }),
                 );

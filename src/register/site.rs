@@ -75,6 +75,11 @@ pub struct SiteParams {
     /// (desks, screens and counters at 0.75–1.2 m) and 1 in the fixture plans; 0.2 / 0.1 / 0
     /// placed 14 / 17 / 18 of them back and no wrong one.
     pub conflict_dz_m: f64,
+    /// A placed sensor whose pose the solve draws from fewer pairs than this (and no survey)
+    /// gets a caveat: check it. Over eval's sites (seeds 1–3, 10 of each kind, both plan
+    /// sets) placements on 1–2 pairs were wrong 5 times in 27, on 3 or more once in 536; all
+    /// six wrong ones were in the held-out plans, where identical rooms repeat.
+    pub confirming_pairs: usize,
 }
 
 impl Default for SiteParams {
@@ -90,6 +95,7 @@ impl Default for SiteParams {
             join_slide_m: [0.25, 0.5],
             join_min_strength: 0.3,
             conflict_dz_m: 0.0,
+            confirming_pairs: 3,
         }
     }
 }
@@ -99,6 +105,9 @@ impl Default for SiteParams {
 pub struct Placement {
     pub id: String,
     pub pose: Result<PlacedPose, String>,
+    /// For a placed sensor that rests on too few pairs (`SiteParams::confirming_pairs`) and
+    /// no survey: what to check. None otherwise.
+    pub caveat: Option<String>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -359,11 +368,40 @@ pub fn register_site(
     }
     let anchor_pitch = sensors.get(anchor).map_or(0.0, |s| s.mount.pitch_rad);
     let id = |k: usize| sensors.get(k).map_or("another sensor", |s| s.id.as_str());
+    let caveat = |i: usize| {
+        let mut partners: Vec<usize> = origin
+            .iter()
+            .filter_map(|&(k, _)| match pairs.get(k) {
+                Some(&(a, b)) if a == i => Some(b),
+                Some(&(a, b)) if b == i => Some(a),
+                _ => None,
+            })
+            .collect();
+        partners.sort_unstable();
+        partners.dedup();
+        let surveyed = sensors.get(i).is_some_and(|s| s.prior.is_some());
+        (i != anchor && !surveyed && partners.len() < sp.confirming_pairs).then(|| {
+            let with: Vec<&str> = partners.iter().map(|&k| id(k)).collect();
+            format!(
+                "rests on {} only ({}): where rooms or bays repeat that can be a look-alike \
+                 spot; check it on the map, or survey it",
+                match partners.len() {
+                    1 => "one pair".to_string(),
+                    n => format!("{n} pairs"),
+                },
+                match with.as_slice() {
+                    [] => "no pair".to_string(),
+                    _ => format!("with {}", with.join(", ")),
+                }
+            )
+        })
+    };
     let placements = sensors
         .iter()
         .enumerate()
         .map(|(i, s)| Placement {
             id: s.id.clone(),
+            caveat: solution.get(i).copied().flatten().and_then(|_| caveat(i)),
             pose: match solution.get(i).copied().flatten() {
                 Some((pose, sigma)) => Ok(PlacedPose {
                     pose: Pose3::from_planar(
@@ -1410,6 +1448,14 @@ mod tests {
                 dyaw.to_degrees()
             );
         }
+        // s1 and s3 each rest on one pair: the caveat says so and names the other end. The
+        // anchor and the surveyed s2 have none.
+        let caveat = |k: usize| site.sensors[k].caveat.clone();
+        for (k, with) in [(1, "s0"), (3, "s2")] {
+            let c = caveat(k).unwrap_or_else(|| panic!("s{k} rests on one pair, no caveat"));
+            assert!(c.contains("one pair") && c.contains(with), "s{k}: {c}");
+        }
+        assert_eq!((caveat(0), caveat(2)), (None, None));
     }
 
     /// A pair that could not decide between `poses` (best first): each is a candidate, scored
