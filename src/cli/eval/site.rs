@@ -14,6 +14,9 @@ pub(super) struct SiteOutcome {
     max_m: f64,
     max_deg: f64,
     ms: f64,
+    /// Placed sensors with a caveat (too few pairs), and how many of those are wrong.
+    flagged: usize,
+    flagged_wrong: usize,
     /// For each sensor not placed right: why, and whether the truth was among its candidates.
     why_wrong: Vec<String>,
 }
@@ -46,6 +49,8 @@ pub(super) struct SiteTotals {
     placed: usize,
     ok: usize,
     reachable: usize,
+    flagged: usize,
+    flagged_wrong: usize,
     slowest_ms: f64,
 }
 
@@ -66,6 +71,8 @@ impl SiteTotals {
         self.placed += o.placed;
         self.ok += o.ok;
         self.reachable += o.reachable;
+        self.flagged += o.flagged;
+        self.flagged_wrong += o.flagged_wrong;
         self.slowest_ms = self.slowest_ms.max(o.ms);
     }
 
@@ -85,6 +92,14 @@ impl SiteTotals {
             self.placed - self.ok,
             self.reachable,
             self.slowest_ms
+        );
+        let wrong = self.placed - self.ok;
+        println!(
+            "flagged \"rests on too few pairs\": {} placed, {} of them wrong; unflagged: {} placed, {} wrong",
+            self.flagged,
+            self.flagged_wrong,
+            self.placed - self.flagged,
+            wrong - self.flagged_wrong
         );
     }
 }
@@ -114,6 +129,13 @@ pub(super) fn solve_site(
         })
         .collect();
     let placed = errors.iter().flatten().count();
+    // Whether each placed sensor the solve flagged (too few pairs) is wrong.
+    let flagged: Vec<bool> = errors
+        .iter()
+        .zip(&site.sensors)
+        .filter(|(_, s)| s.caveat.is_some())
+        .filter_map(|(e, _)| e.map(|e| !within(e)))
+        .collect();
     let ok = errors.iter().flatten().filter(|e| within(**e)).count();
     let max_m = errors.iter().flatten().map(|e| e.0).fold(0.0, f64::max);
     let max_deg = errors
@@ -229,6 +251,8 @@ pub(super) fn solve_site(
         max_m,
         max_deg,
         ms,
+        flagged: flagged.len(),
+        flagged_wrong: flagged.iter().filter(|w| **w).count(),
         why_wrong,
     }
 }
