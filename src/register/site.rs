@@ -660,13 +660,13 @@ impl JoinContext<'_> {
     }
 
     /// The candidates of every pair between sensor `k` and a placed sensor, each with its pair
-    /// index and whether it puts `k` at `anchor_from_k` (within `confirm_m` / `confirm_rad`);
-    /// candidates that contradict free space are left out.
+    /// index, where it puts `k` (anchor's frame) and whether that is `anchor_from_k` (within
+    /// `confirm_m` / `confirm_rad`); candidates that contradict free space are left out.
     fn opinions_on(
         &self,
         k: usize,
         anchor_from_k: Pose2,
-    ) -> impl Iterator<Item = (usize, &Candidate, bool)> + '_ {
+    ) -> impl Iterator<Item = (usize, &Candidate, Pose2, bool)> + '_ {
         self.pairs
             .iter()
             .zip(self.results)
@@ -687,7 +687,9 @@ impl JoinContext<'_> {
                     };
                     let (dt, dyaw) = pose_error(&said, &other_from_k);
                     let agrees = dt <= self.sp.confirm_m && dyaw <= self.sp.confirm_rad;
-                    (c.score.violation() <= self.p.max_violation).then_some((pair, c, agrees))
+                    let proposed = anchor_from_other * said;
+                    (c.score.violation() <= self.p.max_violation)
+                        .then_some((pair, c, proposed, agrees))
                 }))
             })
             .flatten()
@@ -696,7 +698,7 @@ impl JoinContext<'_> {
     /// Whether a candidate with enough shared view and fit to stand alone puts `k` elsewhere
     /// than `anchor_from_k`.
     fn standing_dissent(&self, k: usize, anchor_from_k: Pose2) -> bool {
-        self.opinions_on(k, anchor_from_k).any(|(_, c, agrees)| {
+        self.opinions_on(k, anchor_from_k).any(|(_, c, _, agrees)| {
             !agrees && c.score.overlap() >= self.p.min_overlap && c.score.value >= self.p.min_score
         })
     }
@@ -705,7 +707,7 @@ impl JoinContext<'_> {
     fn support(&self, k: usize, anchor_from_k: Pose2) -> usize {
         let mut pairs: Vec<usize> = self
             .opinions_on(k, anchor_from_k)
-            .filter_map(|(pair, _, agrees)| agrees.then_some(pair))
+            .filter_map(|(pair, _, _, agrees)| agrees.then_some(pair))
             .collect();
         pairs.dedup();
         pairs.len()
@@ -901,7 +903,23 @@ fn second_opinion(
         if !ctx.standing_dissent(k, current) {
             continue;
         }
+        // Overrule the group only on more evidence: the current place contradicts a placed
+        // sensor, or more pairs propose the new one than the current one. (In a symmetric
+        // scene a correctly placed sensor that shares little view with the rest would
+        // otherwise be pulled onto a mirror image that overlaps them more.) `weigh` picks one
+        // of the places the pairs propose, so when none has more support than the current
+        // one, weighing them (the dear part) could not move `k`: count first.
         let alone = [(k, Pose2::identity())];
+        let contradicted = ctx.joint(&alone, &current).violation > p.max_violation;
+        let current_support = ctx.support(k, current);
+        let outvoted = |place: &Pose2| ctx.support(k, *place) > current_support;
+        if !contradicted
+            && !ctx
+                .opinions_on(k, current)
+                .any(|(_, _, place, agrees)| !agrees && outvoted(&place))
+        {
+            continue;
+        }
         let Ok(join) = ctx.weigh(&alone) else {
             continue;
         };
@@ -909,12 +927,7 @@ fn second_opinion(
         if (dt <= sp.confirm_m && dyaw <= sp.confirm_rad) || ctx.slides(&alone, &join).is_some() {
             continue;
         }
-        // Overrule the group only on more evidence: the current place contradicts a placed
-        // sensor, or more pairs propose the new one than the current one. (In a symmetric
-        // scene a correctly placed sensor that shares little view with the rest would
-        // otherwise be pulled onto a mirror image that overlaps them more.)
-        let contradicted = ctx.joint(&alone, &current).violation > p.max_violation;
-        if !contradicted && ctx.support(k, join.anchor_from_root) <= ctx.support(k, current) {
+        if !contradicted && !outvoted(&join.anchor_from_root) {
             continue;
         }
         if k == anchor {
