@@ -190,9 +190,14 @@ fn simulate_models(
             return Ok(None);
         };
         let returns: Vec<f32> = view.ranges_m.iter().copied().filter(|r| *r > 0.0).collect();
-        // Outside the building most beams return nothing; inside a box everything is close.
-        if returns.len() * 2 < view.ranges_m.len()
-            || returns.iter().filter(|r| **r > 1.0).count() * 2 < returns.len()
+        // Outside the building most beams of a long-range unit return nothing (a short-range
+        // one may just stand in a large hall, so for it only `enclosed` decides); inside a box
+        // everything is close.
+        let long_range = info
+            .geometry
+            .is_some_and(|g| g.dmax_mm >= LONG_RANGE_DMAX_MM);
+        if (long_range && returns.len() * 2 < view.ranges_m.len())
+            || returns.iter().filter(|r| **r > 1.0).count() * 2 < returns.len().max(1)
         {
             return Ok(None);
         }
@@ -205,6 +210,9 @@ fn simulate_models(
     }
     Ok(Some(out))
 }
+
+/// A unit that reaches this far (DMAX, mm) sees a wall along most beams from anywhere indoors.
+const LONG_RANGE_DMAX_MM: u32 = 20_000;
 
 /// Seconds simulated per placement; the static view is the median over them.
 const SIM_SECONDS: f64 = 0.5;
