@@ -1,5 +1,6 @@
 //! `scanfuse register` end to end on the fixtures: JSON contract parsed and every sensor checked
-//! against the truth the simulator wrote; bad input exits 2 naming the file.
+//! against the truth the simulator wrote; short-range URG-04LX units placed right or not at
+//! all; bad input exits 2 naming the file.
 
 use scanfuse::geometry::{pose_error, pose2};
 use scanfuse::record;
@@ -130,4 +131,99 @@ fn unreadable_input_exits_2_and_names_the_file() {
         .unwrap();
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("nobody"));
+}
+
+/// A small L-shaped room with a counter, watched by a UTM-30LX-EW and two short-range
+/// URG-04LX units (240°, 5.6 m, no intensities): a model registration was not tuned on.
+const URG_ROOM: &str = r#"
+name = "urg-room"
+[[wall]]
+points = [[0, 0], [8, 0], [8, 6], [3, 6], [3, 4.5], [0, 4.5]]
+closed = true
+height_m = 3.0
+[[box]]
+center = [5, 3]
+size = [0.8, 0.5]
+height_m = 1.2
+[[sensor]]
+id = "u1"
+model = "URG-04LX"
+x = 1.0
+y = 1.0
+yaw_deg = 30
+[[sensor]]
+id = "u2"
+model = "URG-04LX"
+x = 6.5
+y = 1.5
+yaw_deg = 150
+[[sensor]]
+id = "t1"
+model = "UTM-30LX-EW"
+x = 4
+y = 5.5
+yaw_deg = -90
+"#;
+
+#[test]
+fn short_range_urg_units_are_placed_right_or_not_at_all() {
+    let dir = tempfile::tempdir().unwrap();
+    let plan = dir.path().join("urg-room.toml");
+    std::fs::write(&plan, URG_ROOM).unwrap();
+    let mcap = dir.path().join("urg-room.mcap");
+    let out = scanfuse()
+        .args(["simulate", "--seconds", "2", "--seed", "1", "--plan"])
+        .arg(&plan)
+        .arg("--out")
+        .arg(&mcap)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let out = scanfuse()
+        .arg("register")
+        .arg(&mcap)
+        .args(["--anchor", "t1", "--json"])
+        .output()
+        .unwrap();
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let truth = |x: f64, y: f64, yaw_deg: f64| pose2(x, y, yaw_deg.to_radians());
+    let site_from_t1 = truth(4.0, 5.5, -90.0);
+    let truths = [
+        ("u1", truth(1.0, 1.0, 30.0)),
+        ("u2", truth(6.5, 1.5, 150.0)),
+        ("t1", site_from_t1),
+    ];
+    let sensors = json["sensors"].as_array().unwrap();
+    for (id, site_from_s) in truths {
+        let s = sensors.iter().find(|s| s["id"] == id).unwrap();
+        if s["registered"] != true {
+            // Abstaining is allowed; it must say why.
+            assert!(s["reason"].as_str().is_some_and(|r| !r.is_empty()), "{s}");
+            continue;
+        }
+        let est = pose2(
+            s["x_m"].as_f64().unwrap(),
+            s["y_m"].as_f64().unwrap(),
+            s["yaw_deg"].as_f64().unwrap().to_radians(),
+        );
+        let (dt, dyaw) = pose_error(&est, &(site_from_t1.inverse() * site_from_s));
+        assert!(
+            dt <= 0.10 && dyaw <= 1f64.to_radians(),
+            "{id} off by {dt:.3} m {:.2}°",
+            dyaw.to_degrees()
+        );
+    }
+    // u2 shares over half its view with t1: it is placed.
+    let u2 = sensors.iter().find(|s| s["id"] == "u2").unwrap();
+    assert_eq!(u2["registered"], true, "{u2}");
 }
