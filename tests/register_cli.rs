@@ -2,7 +2,7 @@
 //! against the truth the simulator wrote; short-range URG-04LX units placed right or not at
 //! all; bad input exits 2 naming the file.
 
-use scanfuse::geometry::{pose_error, pose2};
+use scanfuse::geometry::{Pose2, pose_error, pose2};
 use scanfuse::record;
 use std::path::Path;
 use std::process::Command;
@@ -11,13 +11,11 @@ fn scanfuse() -> Command {
     Command::new(env!("CARGO_BIN_EXE_scanfuse"))
 }
 
-fn check_fixture(name: &str, anchor: &str) {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("fixtures")
-        .join(format!("{name}.mcap"));
+/// `scanfuse register FILE --anchor ANCHOR --json`, which must exit 0, parsed.
+fn register_json(path: &Path, anchor: &str) -> serde_json::Value {
     let out = scanfuse()
         .arg("register")
-        .arg(&path)
+        .arg(path)
         .args(["--anchor", anchor, "--json"])
         .output()
         .unwrap();
@@ -27,7 +25,29 @@ fn check_fixture(name: &str, anchor: &str) {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+/// Asserts that the JSON sensor `s` stands within 10 cm / 1° of `truth` (anchor's frame).
+fn assert_placed_at(s: &serde_json::Value, truth: &Pose2, what: &str) {
+    let est = pose2(
+        s["x_m"].as_f64().unwrap(),
+        s["y_m"].as_f64().unwrap(),
+        s["yaw_deg"].as_f64().unwrap().to_radians(),
+    );
+    let (dt, dyaw) = pose_error(&est, truth);
+    assert!(
+        dt <= 0.10 && dyaw <= 1f64.to_radians(),
+        "{what} off by {dt:.3} m {:.2}°",
+        dyaw.to_degrees()
+    );
+}
+
+fn check_fixture(name: &str, anchor: &str) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("fixtures")
+        .join(format!("{name}.mcap"));
+    let json = register_json(&path, anchor);
     assert_eq!(json["anchor"], anchor);
     assert!(json["elapsed_ms"].as_u64().is_some());
     let recording = record::read(&path).unwrap();
@@ -50,18 +70,8 @@ fn check_fixture(name: &str, anchor: &str) {
             "{name}: {id} not registered: {}",
             s["reason"]
         );
-        let est = pose2(
-            s["x_m"].as_f64().unwrap(),
-            s["y_m"].as_f64().unwrap(),
-            s["yaw_deg"].as_f64().unwrap().to_radians(),
-        );
         let truth = site_from_anchor.inverse() * truth_of(id);
-        let (dt, dyaw) = pose_error(&est, &truth);
-        assert!(
-            dt <= 0.10 && dyaw <= 1f64.to_radians(),
-            "{name}: {id} off by {dt:.3} m {:.2}°",
-            dyaw.to_degrees()
-        );
+        assert_placed_at(s, &truth, &format!("{name}: {id}"));
         for key in [
             "z_m",
             "pitch_deg",
@@ -183,19 +193,7 @@ fn short_range_urg_units_are_placed_right_or_not_at_all() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let out = scanfuse()
-        .arg("register")
-        .arg(&mcap)
-        .args(["--anchor", "t1", "--json"])
-        .output()
-        .unwrap();
-    assert_eq!(
-        out.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let json = register_json(&mcap, "t1");
     let truth = |x: f64, y: f64, yaw_deg: f64| pose2(x, y, yaw_deg.to_radians());
     let site_from_t1 = truth(4.0, 5.5, -90.0);
     let truths = [
@@ -211,17 +209,7 @@ fn short_range_urg_units_are_placed_right_or_not_at_all() {
             assert!(s["reason"].as_str().is_some_and(|r| !r.is_empty()), "{s}");
             continue;
         }
-        let est = pose2(
-            s["x_m"].as_f64().unwrap(),
-            s["y_m"].as_f64().unwrap(),
-            s["yaw_deg"].as_f64().unwrap().to_radians(),
-        );
-        let (dt, dyaw) = pose_error(&est, &(site_from_t1.inverse() * site_from_s));
-        assert!(
-            dt <= 0.10 && dyaw <= 1f64.to_radians(),
-            "{id} off by {dt:.3} m {:.2}°",
-            dyaw.to_degrees()
-        );
+        assert_placed_at(s, &(site_from_t1.inverse() * site_from_s), id);
     }
     // u2 shares over half its view with t1: it is placed.
     let u2 = sensors.iter().find(|s| s["id"] == "u2").unwrap();
