@@ -525,6 +525,8 @@ enum Refusal {
     },
     /// Sliding the best placement along this direction costs almost nothing.
     Slides { axis_deg: f64 },
+    /// Only placed sensor `with` shares its view, and that pair alone does not register.
+    LonePair { with: usize, why: String },
 }
 
 impl Refusal {
@@ -571,6 +573,10 @@ impl Refusal {
                 "two placements fit the placed sensors about equally (the other, {apart_m:.2} m / {apart_deg:.0}° away, scores {:.0} % as well: a mirror image or repeated structure); {HELP}",
                 ratio * 100.0
             ),
+            Refusal::LonePair { with, why } => format!(
+                "only {} of the placed sensors shares its view, and that pair alone is not registered ({why}); {HELP}",
+                id(*with)
+            ),
             Refusal::Slides { axis_deg } => format!(
                 "its position along {axis_deg:.0}° is not fixed by what the placed sensors see (a corridor seen lengthwise); survey it, or add a sensor that sees across"
             ),
@@ -605,6 +611,8 @@ struct Joint {
     worst: usize,
     /// Members in some pair over the violation limit.
     violating: Vec<usize>,
+    /// (placed, member) pairs that share at least `min_overlap` of their view here.
+    witnesses: Vec<(usize, usize)>,
 }
 
 /// One placement the proposals agree on, with its joint score.
@@ -637,6 +645,7 @@ impl JoinContext<'_> {
             violation: 0.0,
             worst: 0,
             violating: Vec::new(),
+            witnesses: Vec::new(),
         };
         for &(i, anchor_from_i) in &self.placed {
             for &(j, root_from_j) in group {
@@ -653,6 +662,9 @@ impl JoinContext<'_> {
                 }
                 if s.violation() > self.p.max_violation && !joint.violating.contains(&j) {
                     joint.violating.push(j);
+                }
+                if s.overlap() >= self.p.min_overlap {
+                    joint.witnesses.push((i, j));
                 }
             }
         }
@@ -798,6 +810,9 @@ impl JoinContext<'_> {
         if !stands_alone {
             return Err(Refusal::NoPairStands);
         }
+        if let Some(refusal) = self.lone_witness_abstains(&best.joint, &best.sources) {
+            return Err(refusal);
+        }
         if joint.overlap < self.p.min_overlap {
             return Err(Refusal::TooLittle {
                 overlap: joint.overlap,
@@ -839,6 +854,30 @@ impl JoinContext<'_> {
             score: best.joint.clone(),
             ambiguity,
         })
+    }
+
+    /// A placement only one placed sensor shares view with is that pair's answer and nothing
+    /// more: no third sensor checks it. Then it stands only where the pair, registered alone,
+    /// would put it; otherwise the pair's own reason for abstaining is the refusal. (Placing
+    /// through such a pair's other candidates, or past its σ and corridor checks, made a site of
+    /// two sensors confidently wrong more often than the pair alone.)
+    fn lone_witness_abstains(&self, joint: &Joint, sources: &[(usize, usize)]) -> Option<Refusal> {
+        let [(i, j)] = joint.witnesses.as_slice() else {
+            return None;
+        };
+        let k = self
+            .pairs
+            .iter()
+            .position(|&(a, b)| (a, b) == (*i, *j) || (a, b) == (*j, *i))?;
+        let r = self.results.get(k)?;
+        let why = match &r.verdict {
+            Err(why) => why.to_string(),
+            Ok(()) if !sources.contains(&(k, 0)) => {
+                "its best answer is another placement".to_string()
+            }
+            Ok(()) => return None,
+        };
+        Some(Refusal::LonePair { with: *i, why })
     }
 
     /// A slide of the placement (every 15°, by each of `join_slide_m` both ways) that keeps
@@ -1692,6 +1731,53 @@ mod tests {
     }
 
     #[test]
+    fn a_sensor_one_placed_sensor_sees_stands_only_where_that_pair_alone_would_put_it() {
+        let walls = hall();
+        let truth = [pose2(-1.0, 0.0, 0.0), pose2(1.5, 0.5, 0.3)];
+        let sensors: Vec<SensorInput> = truth
+            .iter()
+            .enumerate()
+            .map(|(i, pose)| sensor_at(&walls, *pose, 270f64.to_radians(), &format!("s{i}")))
+            .collect();
+        let truth = truth[0].inverse() * truth[1];
+        let (p, sp) = (RegisterParams::default(), SiteParams::default());
+        // s0 is placed, and its pair with s1 has the true pose as its only candidate.
+        let pairs = [(0, 1)];
+        let weigh = |verdict: Result<(), crate::register::Abstain>| {
+            let results = [PairResult {
+                verdict,
+                ..undecided_pair(&sensors[0], &sensors[1], &[truth])
+            }];
+            let ctx = JoinContext {
+                sensors: &sensors,
+                placed: vec![(0, Pose2::identity())],
+                pairs: &pairs,
+                results: &results,
+                p: &p,
+                sp: &sp,
+            };
+            ctx.weigh(&[(1, Pose2::identity())])
+        };
+        // Registered alone: placed where the pair puts it.
+        let join = weigh(Ok(())).expect("a registered pair places its sensor");
+        let (dt, dyaw) = pose_error(&join.anchor_from_root, &truth);
+        assert!(dt < 1e-6 && dyaw < 1e-6, "{dt} {dyaw}");
+        // Not registered alone (its σ too wide): nothing else checks it, so the pair's own
+        // reason is the refusal, naming the one placed sensor that sees it.
+        let uncertain = crate::register::Abstain::Uncertain {
+            sigma_m: 0.2,
+            sigma_yaw_deg: 0.1,
+        };
+        let refusal = weigh(Err(uncertain)).err();
+        let Some(Refusal::LonePair { with: 0, why }) = &refusal else {
+            panic!("expected the lone pair's refusal, got {refusal:?}");
+        };
+        assert!(why.contains("too uncertain"), "{why}");
+        let said = refusal.map(|r| r.describe(&|k| ["s0", "s1"][k]));
+        assert!(said.is_some_and(|s| s.contains("only s0")));
+    }
+
+    #[test]
     fn a_weak_join_names_the_rival_only_when_there_is_one() {
         let id = |i: usize| ["s0", "s1"][i];
         let alone = Refusal::Weak {
@@ -1725,11 +1811,11 @@ mod tests {
             .map(|(i, pose)| sensor_at(&walls, *pose, 270f64.to_radians(), &format!("s{i}")))
             .collect();
         let pairs = vec![(0, 1)];
-        let results = vec![undecided_pair(
-            &sensors[0],
-            &sensors[1],
-            &[truth[0].inverse() * truth[1]],
-        )];
+        // Registered alone (the pair's own slide check is not what this tests).
+        let results = vec![PairResult {
+            verdict: Ok(()),
+            ..undecided_pair(&sensors[0], &sensors[1], &[truth[0].inverse() * truth[1]])
+        }];
         let (p, sp) = (RegisterParams::default(), SiteParams::default());
         let ctx = JoinContext {
             sensors: &sensors,
