@@ -18,7 +18,8 @@ use serde::Serialize;
 
 use super::BadInput;
 
-/// Scans of this first stretch of each recording make the static view (people removed).
+/// Scans of this first stretch of each recording make the static view (people removed); the
+/// people walking in the first `MotionParams::max_frames` ticks (30 s) check the poses.
 const STATIC_WINDOW_S: f64 = 1.0;
 
 #[derive(clap::Args)]
@@ -32,6 +33,10 @@ pub struct Args {
     /// Print one JSON object instead of a table.
     #[arg(long)]
     pub json: bool,
+    /// Register from the walls alone: do not use people walking in the recordings, neither to
+    /// rule out look-alike places nor to confirm poses (for recordings where no one walked).
+    #[arg(long)]
+    pub walls_only: bool,
 }
 
 #[derive(Serialize)]
@@ -112,9 +117,14 @@ pub fn run(args: Args) -> Result<()> {
                     height_m: info.height_m,
                     pitch_rad: info.pitch_deg.unwrap_or(0.0).to_radians(),
                 };
+                let geometry = info.geometry.as_ref();
+                let mut model = ScanModel::from_scan(&view, geometry, &mount, &params);
+                if !args.walls_only {
+                    model = model.with_motion(&scans, &view, geometry, &mount, &params);
+                }
                 SensorInput {
                     id: info.id.clone(),
-                    model: ScanModel::from_scan(&view, info.geometry.as_ref(), &mount, &params),
+                    model,
                     mount,
                     prior: None,
                 }

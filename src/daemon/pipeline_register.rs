@@ -478,9 +478,11 @@ impl Registrar {
             .filter_map(|(id, t)| {
                 let scans: Vec<Scan> = t.scans.iter().cloned().collect();
                 let view = static_view(&scans, window_s)?;
+                let geometry = t.geometry.as_ref();
                 Some(SensorInput {
                     id: (*id).clone(),
-                    model: ScanModel::from_scan(&view, t.geometry.as_ref(), &t.mount, &self.params),
+                    model: ScanModel::from_scan(&view, geometry, &t.mount, &self.params)
+                        .with_motion(&scans, &view, geometry, &t.mount, &self.params),
                     mount: t.mount,
                     prior: t.survey.map(|s| Prior {
                         anchor_from_sensor: pose2(s.x_m, s.y_m, s.yaw_rad),

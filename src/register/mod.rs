@@ -1,10 +1,12 @@
 //! Registration: each sensor's pose from the scans alone. `pair` registers two scans (global
-//! search, free-space check, refinement, verdict); `site` solves all sensors jointly.
+//! search, free-space check, refinement, verdict); `site` solves all sensors jointly; `motion`
+//! checks poses against people both sensors saw walk.
 
 pub mod hypotheses;
 pub mod icp;
 pub mod matching;
 pub mod model;
+pub mod motion;
 pub mod pair;
 pub mod params;
 pub mod score;

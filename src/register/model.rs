@@ -2,11 +2,13 @@
 //! lookup tables every hypothesis is scored against (nearest-point grid, polar free space).
 
 use super::RegisterParams;
+use super::motion::MotionTrack;
 use crate::features::{self, Features, PointClass};
 use crate::geometry::{Mount, Pose2, ScanPoint, beam_angles_rad, project_scan};
 use crate::scan::{Scan, ScanGeometry};
 use nalgebra::{Point2, Vector2};
 use std::f64::consts::{PI, TAU};
+use std::sync::Arc;
 
 /// Nearest point per cell of a regular grid, for points within `radius` of a cell.
 #[derive(Debug, Clone)]
@@ -133,6 +135,8 @@ pub struct ScanModel {
     pub polar: PolarRanges,
     /// Where the scan plane runs in height, when the mount is known.
     pub plane: Option<ScanPlane>,
+    /// People seen walking over time, when more than the still view was kept.
+    pub motion: Option<Arc<MotionTrack>>,
 }
 
 /// The plane a (possibly tilted) scan sweeps: z = height + x·slope at a horizontal point
@@ -177,6 +181,7 @@ impl ScanModel {
             grid,
             polar,
             plane: None,
+            motion: None,
         }
     }
 
@@ -197,6 +202,30 @@ impl ScanModel {
         ScanModel {
             plane: ScanPlane::of(mount),
             ..Self::new(&points, step_rad, params)
+        }
+    }
+
+    /// The same scan with the people seen walking in `scans` (stamp order), against `still`,
+    /// the static view it was prepared from.
+    pub fn with_motion(
+        self,
+        scans: &[Scan],
+        still: &Scan,
+        geometry: Option<&ScanGeometry>,
+        mount: &Mount,
+        params: &RegisterParams,
+    ) -> Self {
+        let track = MotionTrack::new(
+            scans,
+            still,
+            geometry,
+            mount,
+            &params.project,
+            &params.motion,
+        );
+        ScanModel {
+            motion: track.map(Arc::new),
+            ..self
         }
     }
 

@@ -5,6 +5,7 @@
 use super::hypotheses::hypotheses;
 use super::icp::{IcpResult, refine_guarded};
 use super::matching::match_score;
+use super::motion::{MotionEvidence, co_motion};
 use super::score::{PoseScore, score, score_coarse};
 use super::{RegisterParams, ScanModel};
 use crate::geometry::{Pose2, pose_error, pose2};
@@ -29,6 +30,12 @@ pub enum Abstain {
     Ambiguous { ratio: f64, other: Pose2 },
     /// The geometry does not fix the position along one direction (a corridor seen lengthwise).
     Degenerate { weak_axis_deg: f64 },
+    /// Every candidate puts people one sensor saw walking where the other saw straight through
+    /// at that moment (the best candidate's counts).
+    PeopleDisagree { seen_through: usize, seen: usize },
+    /// The sensors watched together this long (s) and no one walked where both look: the walls
+    /// alone cannot rule out a look-alike place.
+    Unconfirmed { watched_s: f64 },
 }
 
 impl fmt::Display for Abstain {
@@ -59,6 +66,14 @@ impl fmt::Display for Abstain {
             } => write!(
                 f,
                 "too uncertain (σ {sigma_m:.2} m / {sigma_yaw_deg:.1}°): too few points fix it"
+            ),
+            Abstain::PeopleDisagree { seen_through, seen } => write!(
+                f,
+                "people disagree: at the best pose {seen_through} walkers one sensor saw stand where the other saw through at that moment ({seen} seen by both); a look-alike place"
+            ),
+            Abstain::Unconfirmed { watched_s } => write!(
+                f,
+                "not confirmed: in {watched_s:.0} s no one walked where both sensors look, and walls alone can match a look-alike place; walk through their shared view while recording"
             ),
             Abstain::Degenerate { weak_axis_deg } => {
                 write!(
@@ -99,6 +114,8 @@ pub struct PairResult {
     pub candidates: Vec<Candidate>,
     pub hypotheses: usize,
     pub icp_iterations: usize,
+    /// Walkers at the best pose, when both scans carry people seen over time.
+    pub motion: Option<MotionEvidence>,
 }
 
 impl PairResult {
@@ -160,6 +177,29 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
             distinct.push(r);
         }
     }
+    // People both sensors saw walk rule out candidates the walls cannot: the look-alike room,
+    // the corridor turned end for end.
+    let mut refuted: Option<(Candidate, MotionEvidence)> = None;
+    let mut evidence: Vec<Option<MotionEvidence>> = Vec::new();
+    if let (Some(ma), Some(mb)) = (&a.motion, &b.motion) {
+        let all: Vec<MotionEvidence> = distinct
+            .par_iter()
+            .map(|(c, _)| co_motion(ma, mb, &c.a_from_b, &p.motion))
+            .collect();
+        let mut k = 0;
+        distinct.retain(|(c, _)| {
+            let e = all.get(k).copied().unwrap_or_default();
+            k += 1;
+            let refutes = e.refutes(&p.motion);
+            if refutes && refuted.is_none() {
+                refuted = Some((c.clone(), e));
+            }
+            if !refutes {
+                evidence.push(Some(e));
+            }
+            !refutes
+        });
+    }
     // The guarded ICP keeps the iterate the score likes best, and the score is flat within a
     // degree or two of the optimum: polish the winner with plain narrow-gate ICP, both ways,
     // which settles the heading, unless that costs score (it slid off along a weak direction).
@@ -172,17 +212,35 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         }
     }
     let Some((best, icp)) = distinct.first().cloned() else {
+        let (verdict, a_from_b, score, motion) = match refuted {
+            Some((c, e)) => (
+                Err(Abstain::PeopleDisagree {
+                    seen_through: e.seen_through,
+                    seen: e.seen,
+                }),
+                c.a_from_b,
+                c.score,
+                Some(e),
+            ),
+            None => (
+                Err(Abstain::NoHypotheses),
+                Pose2::identity(),
+                PoseScore::default(),
+                None,
+            ),
+        };
         return PairResult {
-            verdict: Err(Abstain::NoHypotheses),
-            a_from_b: Pose2::identity(),
+            verdict,
+            a_from_b,
             covariance: Matrix3::identity() * 1e6,
             match_score: 0.0,
             ambiguity: 0.0,
-            overlap: 0.0,
-            score: PoseScore::default(),
+            overlap: score.overlap(),
+            score,
             candidates: Vec::new(),
             hypotheses: hypotheses_count,
             icp_iterations: 0,
+            motion,
         };
     };
     let runner_up = distinct.get(1).map(|r| r.0.clone());
@@ -215,6 +273,8 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
             ratio: ambiguity,
             other,
         })
+    } else if let Some(watched_s) = unconfirmed(a, b, evidence.first().copied().flatten(), p) {
+        Err(Abstain::Unconfirmed { watched_s })
     } else {
         Ok(())
     };
@@ -240,7 +300,22 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
             .collect(),
         hypotheses: hypotheses_count,
         icp_iterations: icp.iterations,
+        motion: evidence.first().copied().flatten(),
     }
+}
+
+/// How long the two sensors watched together, when that is long enough to expect a walker
+/// both saw at the best pose and none was (`MotionParams::confirm_after_s`).
+fn unconfirmed(
+    a: &ScanModel,
+    b: &ScanModel,
+    best: Option<MotionEvidence>,
+    p: &RegisterParams,
+) -> Option<f64> {
+    let (ma, mb) = (a.motion.as_ref()?, b.motion.as_ref()?);
+    let watched_s = ma.watched_with(mb);
+    let seen = best.is_some_and(|e| e.seen > 0);
+    (watched_s >= p.motion.confirm_after_s && !seen).then_some(watched_s)
 }
 
 /// Where the scans settle from `init`: narrow-gate point-to-line ICP, both ways (the last step

@@ -1,5 +1,6 @@
 //! Every registration threshold in one place, with the reasoning behind each default.
 
+use super::motion::MotionParams;
 use crate::features::FeatureParams;
 use crate::geometry::ProjectParams;
 
@@ -95,6 +96,8 @@ pub struct RegisterParams {
     /// Abstain when the weakest translation direction carries less than this share of the
     /// constraint (a corridor seen lengthwise).
     pub min_constraint_share: f64,
+    /// The check against people both sensors saw walk (when the scans carry them).
+    pub motion: MotionParams,
 }
 
 impl Default for RegisterParams {
@@ -140,6 +143,7 @@ impl Default for RegisterParams {
             min_score: 0.12,
             slide_ratio: 0.95,
             min_constraint_share: 0.005,
+            motion: MotionParams::default(),
         }
     }
 }

@@ -810,7 +810,9 @@ impl JoinContext<'_> {
         if !stands_alone {
             return Err(Refusal::NoPairStands);
         }
-        if let Some(refusal) = self.lone_witness_abstains(&best.joint, &best.sources) {
+        if let [_] = group
+            && let Some(refusal) = self.lone_witness_abstains(&best.joint, &best.sources)
+        {
             return Err(refusal);
         }
         if joint.overlap < self.p.min_overlap {
@@ -856,11 +858,12 @@ impl JoinContext<'_> {
         })
     }
 
-    /// A placement only one placed sensor shares view with is that pair's answer and nothing
-    /// more: no third sensor checks it. Then it stands only where the pair, registered alone,
-    /// would put it; otherwise the pair's own reason for abstaining is the refusal. (Placing
-    /// through such a pair's other candidates, or past its σ and corridor checks, made a site of
-    /// two sensors confidently wrong more often than the pair alone.)
+    /// A lone sensor that only one placed sensor shares view with is that pair's answer and
+    /// nothing more: no third sensor checks it. Then it stands only where the pair, registered
+    /// alone, would put it; otherwise the pair's own reason for abstaining is the refusal.
+    /// (Placing through such a pair's other candidates, or past its σ and corridor checks, made
+    /// a site of two sensors confidently wrong more often than the pair alone.) A group joining
+    /// is checked by its other members' views of the placed sensors' free space as well.
     fn lone_witness_abstains(&self, joint: &Joint, sources: &[(usize, usize)]) -> Option<Refusal> {
         let [(i, j)] = joint.witnesses.as_slice() else {
             return None;
@@ -1541,6 +1544,7 @@ mod tests {
             candidates,
             hypotheses: poses.len(),
             icp_iterations: 0,
+            motion: None,
         }
     }
 

@@ -52,6 +52,10 @@ pub struct Args {
     /// Sensors per site (at least 2).
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u16).range(2..))]
     pub site_sensors: u16,
+    /// Seconds of people walking each simulated sensor keeps beside its still view, for the
+    /// check that both sensors saw the same walkers (0: walls only, as a single scan).
+    #[arg(long, default_value_t = 10.0)]
+    pub motion_seconds: f64,
     /// Parts to run: sim, site, real, classes (comma separated; default all).
     #[arg(long, value_delimiter = ',')]
     pub only: Vec<String>,
@@ -74,7 +78,7 @@ pub fn run(args: Args) -> Result<()> {
                 .with_context(|| format!("{}: cannot create", path.display()))?;
             writeln!(
                 f,
-                "set,pair,overlap,registered,reason,err_m,err_deg,ambiguity,score,est_overlap,violation,match,sigma_m,sigma_yaw_deg,ms"
+                "set,pair,overlap,registered,reason,err_m,err_deg,ambiguity,score,est_overlap,violation,match,sigma_m,sigma_yaw_deg,ms,walkers_seen,walkers_through"
             )?;
             Some(f)
         }
@@ -293,7 +297,7 @@ pub fn evaluate(
                 .unwrap_or_default();
             writeln!(
                 f,
-                "{set},\"{}\",{:.3},{},\"{}\",{:.3},{:.2},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.2},{:.1}",
+                "{set},\"{}\",{:.3},{},\"{}\",{:.3},{:.2},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.2},{:.1},{},{}",
                 case.label,
                 case.overlap,
                 r.registered(),
@@ -307,7 +311,10 @@ pub fn evaluate(
                 r.match_score,
                 r.covariance[(0, 0)].max(r.covariance[(1, 1)]).sqrt(),
                 r.covariance[(2, 2)].sqrt().to_degrees(),
-                times_ms[0].last().copied().unwrap_or(0.0)
+                times_ms[0].last().copied().unwrap_or(0.0),
+                r.motion.map_or(String::new(), |m| m.seen.to_string()),
+                r.motion
+                    .map_or(String::new(), |m| m.seen_through.to_string()),
             )?;
         }
         if case.overlap >= 0.3 {

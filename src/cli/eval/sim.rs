@@ -164,11 +164,13 @@ fn enclosed(walls: &[raycast::Wall], (x, y): (f64, f64)) -> bool {
         .all(|&(dx, dy)| raycast::cast(walls, at, nalgebra::Vector2::new(dx, dy)).is_some())
 }
 
-/// Simulates `plan` for a second and prepares every sensor's static view; `None` when a sensor
+/// Simulates `plan` and prepares every sensor's static view (over the first `SIM_SECONDS`)
+/// and the people it saw walk (over `motion_seconds`, when longer); `None` when a sensor
 /// stands somewhere useless (inside furniture, outside the building).
 fn simulate_models(
     plan: &Plan,
     seed: u64,
+    motion_seconds: f64,
     params: &RegisterParams,
 ) -> Result<Option<Vec<(SensorInfo, ScanModel)>>> {
     // A placement the simulator refuses (inside furniture, in a wall) is simply not drawn.
@@ -177,7 +179,7 @@ fn simulate_models(
     };
     let infos: Vec<SensorInfo> = sim.sensors().to_vec();
     let mut scans: Vec<Vec<Scan>> = vec![Vec::new(); infos.len()];
-    sim.run(SIM_SECONDS, |i, scan| {
+    sim.run(SIM_SECONDS.max(motion_seconds), |i, scan| {
         if let Some(v) = scans.get_mut(i) {
             v.push(scan);
         }
@@ -205,7 +207,10 @@ fn simulate_models(
             height_m: info.height_m,
             pitch_rad: info.pitch_deg.unwrap_or(0.0).to_radians(),
         };
-        let model = ScanModel::from_scan(&view, info.geometry.as_ref(), &mount, params);
+        let mut model = ScanModel::from_scan(&view, info.geometry.as_ref(), &mount, params);
+        if motion_seconds > SIM_SECONDS {
+            model = model.with_motion(&scans, &view, info.geometry.as_ref(), &mount, params);
+        }
         out.push((info, model));
     }
     Ok(Some(out))
@@ -262,7 +267,8 @@ pub(super) fn sim_cases(plans: &[Plan], args: &Args, params: &RegisterParams) ->
         if filled[bin] >= quota {
             continue;
         }
-        let Some(models) = simulate_models(&plan, rng.random(), params)? else {
+        let Some(models) = simulate_models(&plan, rng.random(), args.motion_seconds, params)?
+        else {
             continue;
         };
         let [(ia, ma), (ib, mb)] = <[(SensorInfo, ScanModel); 2]>::try_from(models)
@@ -360,7 +366,8 @@ pub(super) fn sites(
                 None => continue,
             },
         };
-        let Some(models) = simulate_models(&plan, rng.random(), params)? else {
+        let Some(models) = simulate_models(&plan, rng.random(), args.motion_seconds, params)?
+        else {
             continue;
         };
         let truths: Vec<Pose2> = models.iter().filter_map(|(i, _)| truth_pose(i)).collect();
