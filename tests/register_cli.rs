@@ -215,3 +215,99 @@ fn short_range_urg_units_are_placed_right_or_not_at_all() {
     let u2 = sensors.iter().find(|s| s["id"] == "u2").unwrap();
     assert_eq!(u2["registered"], true, "{u2}");
 }
+
+/// Two identical offices side by side, a partition between them; `a` and `b` stand at the same
+/// spot in each, so their walls match exactly at the wrong place. Someone walks in `a`'s
+/// office (`PERSON`, when given).
+fn twin_offices(person: &str) -> String {
+    format!(
+        r#"
+name = "twin-offices"
+[[wall]]
+points = [[0, 0], [12, 0], [12, 5], [0, 5]]
+closed = true
+height_m = 3.0
+[[wall]]
+points = [[6, 0], [6, 5]]
+height_m = 3.0
+[[box]]
+center = [2, 4]
+size = [1.2, 0.6]
+height_m = 1.2
+[[box]]
+center = [8, 4]
+size = [1.2, 0.6]
+height_m = 1.2
+[[sensor]]
+id = "a"
+model = "UTM-30LX-EW"
+x = 1.0
+y = 1.0
+yaw_deg = 30
+[[sensor]]
+id = "b"
+model = "UTM-30LX-EW"
+x = 7.0
+y = 1.0
+yaw_deg = 30
+{person}
+"#
+    )
+}
+
+/// Simulates `plan` for `seconds` into `dir` and returns the recording.
+fn simulated(dir: &Path, plan: &str, seconds: &str) -> std::path::PathBuf {
+    let (toml, mcap) = (dir.join("plan.toml"), dir.join("plan.mcap"));
+    std::fs::write(&toml, plan).unwrap();
+    let out = scanfuse()
+        .args(["simulate", "--seconds", seconds, "--seed", "1", "--plan"])
+        .arg(&toml)
+        .arg("--out")
+        .arg(&mcap)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    mcap
+}
+
+fn sensor<'a>(json: &'a serde_json::Value, id: &str) -> &'a serde_json::Value {
+    let sensors = json["sensors"].as_array().unwrap();
+    sensors.iter().find(|s| s["id"] == id).unwrap()
+}
+
+#[test]
+fn a_look_alike_office_next_door_is_refused_when_people_walk_or_no_one_does() {
+    let walker = "[[person]]\nwaypoints = [[2, 2], [4.5, 3.5], [5, 1.5]]\nspeed_m_s = 1.0";
+    let dir = tempfile::tempdir().unwrap();
+    let mcap = simulated(dir.path(), &twin_offices(walker), "8");
+    // The premise: from the walls alone b is placed in a's office, 6 m from where it stands.
+    let out = scanfuse()
+        .arg("register")
+        .arg(&mcap)
+        .args(["--anchor", "a", "--json", "--walls-only"])
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let walls_only: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let b = sensor(&walls_only, "b");
+    assert_eq!(b["registered"], true, "{b}");
+    assert!(b["x_m"].as_f64().unwrap().abs() < 0.5, "{b}");
+    // The walker in a's office stands where b saw its own office empty.
+    let json = register_json(&mcap, "a");
+    let b = sensor(&json, "b");
+    assert_eq!(b["registered"], false, "{b}");
+    let why = b["reason"].as_str().unwrap_or_default();
+    assert!(why.contains("people disagree"), "{why}");
+    // No one walking for 8 s: nothing confirms the walls' answer, and b says what to do.
+    let dir = tempfile::tempdir().unwrap();
+    let mcap = simulated(dir.path(), &twin_offices(""), "8");
+    let json = register_json(&mcap, "a");
+    let b = sensor(&json, "b");
+    assert_eq!(b["registered"], false, "{b}");
+    let why = b["reason"].as_str().unwrap_or_default();
+    assert!(why.contains("walk through their shared view"), "{why}");
+}

@@ -278,6 +278,17 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
     } else {
         Ok(())
     };
+    // When people ruled out a pose that fitted the walls better than anything left, that is
+    // the reason worth reporting, not the leftover's weakness.
+    let verdict = match (verdict, refuted) {
+        (Err(_), Some((c, e))) if c.score.value > best.score.value => {
+            Err(Abstain::PeopleDisagree {
+                seen_through: e.seen_through,
+                seen: e.seen,
+            })
+        }
+        (verdict, _) => verdict,
+    };
     PairResult {
         verdict,
         a_from_b: best.a_from_b,
