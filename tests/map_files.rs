@@ -83,15 +83,10 @@ fn map_files_open_in_common_tools() {
     )
     .unwrap();
     std::fs::write(dir.path().join("map.ply"), fuse::ply(&cloud)).unwrap();
-    let out = std::process::Command::new(python)
-        .arg(common::repo().join("tests/python/read_map_files.py"))
-        .arg(dir.path())
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let out = common::succeeded(
+        std::process::Command::new(python)
+            .arg(common::repo().join("tests/python/read_map_files.py"))
+            .arg(dir.path()),
     );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let (w, h) = grid.size();

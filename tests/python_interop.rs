@@ -40,15 +40,10 @@ fn python_mcap_reader_decodes_our_laserscans_and_metadata() {
     }
     w.finish().unwrap();
 
-    let out = Command::new(&python)
-        .arg(common::repo().join("tests/python/read_recording.py"))
-        .arg(&path)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let out = common::succeeded(
+        Command::new(&python)
+            .arg(common::repo().join("tests/python/read_recording.py"))
+            .arg(&path),
     );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let t = &v["topics"]["/door/scan"];

@@ -1,6 +1,9 @@
 //! `scanfuse register` end to end on the fixtures: JSON contract parsed and every sensor checked
 //! against the truth the simulator wrote; short-range URG-04LX units placed right or not at
-//! all; bad input exits 2 naming the file.
+//! all; a look-alike office refused by people walking, or unconfirmed when no one does; bad
+//! input exits 2 naming the file.
+
+mod common;
 
 use scanfuse::geometry::{Pose2, pose_error, pose2};
 use scanfuse::record;
@@ -13,17 +16,11 @@ fn scanfuse() -> Command {
 
 /// `scanfuse register FILE --anchor ANCHOR --json`, which must exit 0, parsed.
 fn register_json(path: &Path, anchor: &str) -> serde_json::Value {
-    let out = scanfuse()
-        .arg("register")
-        .arg(path)
-        .args(["--anchor", anchor, "--json"])
-        .output()
-        .unwrap();
-    assert_eq!(
-        out.status.code(),
-        Some(0),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let out = common::succeeded(
+        scanfuse()
+            .arg("register")
+            .arg(path)
+            .args(["--anchor", anchor, "--json"]),
     );
     serde_json::from_slice(&out.stdout).unwrap()
 }
@@ -178,21 +175,7 @@ yaw_deg = -90
 #[test]
 fn short_range_urg_units_are_placed_right_or_not_at_all() {
     let dir = tempfile::tempdir().unwrap();
-    let plan = dir.path().join("urg-room.toml");
-    std::fs::write(&plan, URG_ROOM).unwrap();
-    let mcap = dir.path().join("urg-room.mcap");
-    let out = scanfuse()
-        .args(["simulate", "--seconds", "2", "--seed", "1", "--plan"])
-        .arg(&plan)
-        .arg("--out")
-        .arg(&mcap)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let mcap = simulated(dir.path(), URG_ROOM, "2");
     let json = register_json(&mcap, "t1");
     let truth = |x: f64, y: f64, yaw_deg: f64| pose2(x, y, yaw_deg.to_radians());
     let site_from_t1 = truth(4.0, 5.5, -90.0);
@@ -201,9 +184,8 @@ fn short_range_urg_units_are_placed_right_or_not_at_all() {
         ("u2", truth(6.5, 1.5, 150.0)),
         ("t1", site_from_t1),
     ];
-    let sensors = json["sensors"].as_array().unwrap();
     for (id, site_from_s) in truths {
-        let s = sensors.iter().find(|s| s["id"] == id).unwrap();
+        let s = sensor(&json, id);
         if s["registered"] != true {
             // Abstaining is allowed; it must say why.
             assert!(s["reason"].as_str().is_some_and(|r| !r.is_empty()), "{s}");
@@ -212,7 +194,7 @@ fn short_range_urg_units_are_placed_right_or_not_at_all() {
         assert_placed_at(s, &(site_from_t1.inverse() * site_from_s), id);
     }
     // u2 shares over half its view with t1: it is placed.
-    let u2 = sensors.iter().find(|s| s["id"] == "u2").unwrap();
+    let u2 = sensor(&json, "u2");
     assert_eq!(u2["registered"], true, "{u2}");
 }
 
@@ -259,17 +241,12 @@ yaw_deg = 30
 fn simulated(dir: &Path, plan: &str, seconds: &str) -> std::path::PathBuf {
     let (toml, mcap) = (dir.join("plan.toml"), dir.join("plan.mcap"));
     std::fs::write(&toml, plan).unwrap();
-    let out = scanfuse()
-        .args(["simulate", "--seconds", seconds, "--seed", "1", "--plan"])
-        .arg(&toml)
-        .arg("--out")
-        .arg(&mcap)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    common::succeeded(
+        scanfuse()
+            .args(["simulate", "--seconds", seconds, "--seed", "1", "--plan"])
+            .arg(&toml)
+            .arg("--out")
+            .arg(&mcap),
     );
     mcap
 }
@@ -285,13 +262,12 @@ fn a_look_alike_office_next_door_is_refused_when_people_walk_or_no_one_does() {
     let dir = tempfile::tempdir().unwrap();
     let mcap = simulated(dir.path(), &twin_offices(walker), "8");
     // The premise: from the walls alone b is placed in a's office, 6 m from where it stands.
-    let out = scanfuse()
-        .arg("register")
-        .arg(&mcap)
-        .args(["--anchor", "a", "--json", "--walls-only"])
-        .output()
-        .unwrap();
-    assert!(out.status.success());
+    let out = common::succeeded(scanfuse().arg("register").arg(&mcap).args([
+        "--anchor",
+        "a",
+        "--json",
+        "--walls-only",
+    ]));
     let walls_only: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let b = sensor(&walls_only, "b");
     assert_eq!(b["registered"], true, "{b}");

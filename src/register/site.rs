@@ -1734,33 +1734,57 @@ mod tests {
         );
     }
 
-    #[test]
-    fn a_sensor_one_placed_sensor_sees_stands_only_where_that_pair_alone_would_put_it() {
-        let walls = hall();
-        let truth = [pose2(-1.0, 0.0, 0.0), pose2(1.5, 0.5, 0.3)];
+    /// Two 270° sensors in `walls` at `truth` (site frame) and their pair, whose only
+    /// candidate is the true pose (verdict: undecided).
+    struct TwoSensors {
+        sensors: Vec<SensorInput>,
+        pair: PairResult,
+    }
+
+    fn two_in(walls: &[Wall], truth: [Pose2; 2]) -> TwoSensors {
         let sensors: Vec<SensorInput> = truth
             .iter()
             .enumerate()
-            .map(|(i, pose)| sensor_at(&walls, *pose, 270f64.to_radians(), &format!("s{i}")))
+            .map(|(i, pose)| sensor_at(walls, *pose, 270f64.to_radians(), &format!("s{i}")))
             .collect();
-        let truth = truth[0].inverse() * truth[1];
-        let (p, sp) = (RegisterParams::default(), SiteParams::default());
-        // s0 is placed, and its pair with s1 has the true pose as its only candidate.
-        let pairs = [(0, 1)];
-        let weigh = |verdict: Result<(), crate::register::Abstain>| {
-            let results = [PairResult {
-                verdict,
-                ..undecided_pair(&sensors[0], &sensors[1], &[truth])
-            }];
-            let ctx = JoinContext {
-                sensors: &sensors,
+        let pair = undecided_pair(&sensors[0], &sensors[1], &[truth[0].inverse() * truth[1]]);
+        TwoSensors { sensors, pair }
+    }
+
+    impl TwoSensors {
+        /// `f` on a join context in which s0 is placed at the origin.
+        fn context<T>(
+            &self,
+            p: &RegisterParams,
+            sp: &SiteParams,
+            f: impl FnOnce(&JoinContext<'_>) -> T,
+        ) -> T {
+            let (pairs, results) = ([(0, 1)], [self.pair.clone()]);
+            f(&JoinContext {
+                sensors: &self.sensors,
                 placed: vec![(0, Pose2::identity())],
                 pairs: &pairs,
                 results: &results,
-                p: &p,
-                sp: &sp,
+                p,
+                sp,
+            })
+        }
+    }
+
+    #[test]
+    fn a_sensor_one_placed_sensor_sees_stands_only_where_that_pair_alone_would_put_it() {
+        let two = two_in(&hall(), [pose2(-1.0, 0.0, 0.0), pose2(1.5, 0.5, 0.3)]);
+        let truth = two.pair.a_from_b;
+        let (p, sp) = (RegisterParams::default(), SiteParams::default());
+        let weigh = |verdict: Result<(), crate::register::Abstain>| {
+            let with = TwoSensors {
+                pair: PairResult {
+                    verdict,
+                    ..two.pair.clone()
+                },
+                sensors: two.sensors.clone(),
             };
-            ctx.weigh(&[(1, Pose2::identity())])
+            with.context(&p, &sp, |ctx| ctx.weigh(&[(1, Pose2::identity())]))
         };
         // Registered alone: placed where the pair puts it.
         let join = weigh(Ok(())).expect("a registered pair places its sensor");
@@ -1808,31 +1832,17 @@ mod tests {
             Wall::new(-30.0, -1.5, 30.0, -1.5),
             Wall::new(-30.0, 1.5, 30.0, 1.5),
         ];
-        let truth = [pose2(0.0, 0.0, 0.0), pose2(3.0, 0.2, 0.4)];
-        let sensors: Vec<SensorInput> = truth
-            .iter()
-            .enumerate()
-            .map(|(i, pose)| sensor_at(&walls, *pose, 270f64.to_radians(), &format!("s{i}")))
-            .collect();
-        let pairs = vec![(0, 1)];
+        let mut two = two_in(&walls, [pose2(0.0, 0.0, 0.0), pose2(3.0, 0.2, 0.4)]);
         // Registered alone (the pair's own slide check is not what this tests).
-        let results = vec![PairResult {
-            verdict: Ok(()),
-            ..undecided_pair(&sensors[0], &sensors[1], &[truth[0].inverse() * truth[1]])
-        }];
+        two.pair.verdict = Ok(());
         let (p, sp) = (RegisterParams::default(), SiteParams::default());
-        let ctx = JoinContext {
-            sensors: &sensors,
-            placed: vec![(0, Pose2::identity())],
-            pairs: &pairs,
-            results: &results,
-            p: &p,
-            sp: &sp,
-        };
         let s1 = [(1, Pose2::identity())];
         // One proposal, no rival: only the slide test can refuse it.
-        let join = ctx.weigh(&s1).expect("a lone proposal that fits");
-        let Some(Refusal::Slides { axis_deg }) = ctx.slides(&s1, &join) else {
+        let slid = two.context(&p, &sp, |ctx| {
+            let join = ctx.weigh(&s1).expect("a lone proposal that fits");
+            ctx.slides(&s1, &join)
+        });
+        let Some(Refusal::Slides { axis_deg }) = slid else {
             panic!("a placement free to slide along the corridor was accepted");
         };
         assert!(

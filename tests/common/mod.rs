@@ -2,6 +2,7 @@
 #![allow(dead_code)]
 
 use std::path::PathBuf;
+use std::process::{Command, Output};
 
 /// The Python interpreter of the venv `.ci/run` builds (tests/python/requirements.txt), from
 /// `SCANFUSE_TEST_PYTHON`. Without it the interop tests skip with a message, except under CI,
@@ -24,4 +25,16 @@ pub fn test_python(test: &str) -> Option<PathBuf> {
 /// The repository root.
 pub fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// Runs `cmd` to the end and returns its output, failing the test with its stderr unless it
+/// exited 0.
+pub fn succeeded(cmd: &mut Command) -> Output {
+    let out = cmd.output().unwrap();
+    assert!(
+        out.status.success(),
+        "{cmd:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
 }
