@@ -177,29 +177,7 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
             distinct.push(r);
         }
     }
-    // People both sensors saw walk rule out candidates the walls cannot: the look-alike room,
-    // the corridor turned end for end.
-    let mut refuted: Option<(Candidate, MotionEvidence)> = None;
-    let mut evidence: Vec<Option<MotionEvidence>> = Vec::new();
-    if let (Some(ma), Some(mb)) = (&a.motion, &b.motion) {
-        let all: Vec<MotionEvidence> = distinct
-            .par_iter()
-            .map(|(c, _)| co_motion(ma, mb, &c.a_from_b, &p.motion))
-            .collect();
-        let mut k = 0;
-        distinct.retain(|(c, _)| {
-            let e = all.get(k).copied().unwrap_or_default();
-            k += 1;
-            let refutes = e.refutes(&p.motion);
-            if refutes && refuted.is_none() {
-                refuted = Some((c.clone(), e));
-            }
-            if !refutes {
-                evidence.push(Some(e));
-            }
-            !refutes
-        });
-    }
+    let (mut distinct, evidence, refuted) = sift_by_people(a, b, distinct, p);
     // The guarded ICP keeps the iterate the score likes best, and the score is flat within a
     // degree or two of the optimum: polish the winner with plain narrow-gate ICP, both ways,
     // which settles the heading, unless that costs score (it slid off along a weak direction).
@@ -273,7 +251,7 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
             ratio: ambiguity,
             other,
         })
-    } else if let Some(watched_s) = unconfirmed(a, b, evidence.first().copied().flatten(), p) {
+    } else if let Some(watched_s) = unconfirmed(a, b, evidence.first().copied(), p) {
         Err(Abstain::Unconfirmed { watched_s })
     } else {
         Ok(())
@@ -311,8 +289,43 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
             .collect(),
         hypotheses: hypotheses_count,
         icp_iterations: icp.iterations,
-        motion: evidence.first().copied().flatten(),
+        motion: evidence.first().copied(),
     }
+}
+
+/// Refined candidates with what the walkers say of each.
+type Sifted = (
+    Vec<(Candidate, IcpResult)>,
+    Vec<MotionEvidence>,
+    Option<(Candidate, MotionEvidence)>,
+);
+
+/// People both sensors saw walk rule out candidates the walls cannot: the look-alike room,
+/// the corridor turned end for end. Returns the candidates left (in order) with their
+/// evidence, and the best one ruled out. Without people in both scans, all are left.
+fn sift_by_people(
+    a: &ScanModel,
+    b: &ScanModel,
+    candidates: Vec<(Candidate, IcpResult)>,
+    p: &RegisterParams,
+) -> Sifted {
+    let (Some(ma), Some(mb)) = (&a.motion, &b.motion) else {
+        return (candidates, Vec::new(), None);
+    };
+    let evidence: Vec<MotionEvidence> = candidates
+        .par_iter()
+        .map(|(c, _)| co_motion(ma, mb, &c.a_from_b, &p.motion))
+        .collect();
+    let (mut left, mut left_evidence, mut refuted) = (Vec::new(), Vec::new(), None);
+    for (candidate, e) in candidates.into_iter().zip(evidence) {
+        if e.refutes(&p.motion) {
+            refuted = refuted.or(Some((candidate.0, e)));
+        } else {
+            left.push(candidate);
+            left_evidence.push(e);
+        }
+    }
+    (left, left_evidence, refuted)
 }
 
 /// How long the two sensors watched together, when that is long enough to expect a walker
