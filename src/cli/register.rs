@@ -34,7 +34,8 @@ pub struct Args {
     #[arg(long)]
     pub json: bool,
     /// Register from the walls alone: do not use people walking in the recordings, neither to
-    /// rule out look-alike places nor to confirm poses (for recordings where no one walked).
+    /// rule out look-alike places nor to confirm poses (for recordings where no one walked, or
+    /// made on machines whose clocks were not synchronised: walkers are compared by time).
     #[arg(long)]
     pub walls_only: bool,
 }
