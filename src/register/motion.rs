@@ -6,7 +6,7 @@
 //! nothing shared, or no common time: no evidence either way.
 
 use super::model::ScanPlane;
-use crate::geometry::{Mount, Pose2, ProjectParams, beam_angles_rad, project_scan};
+use crate::geometry::{Mount, Pose2, ProjectParams, ScanPoint, beam_angles_rad, project_scan};
 use crate::scan::{Scan, ScanGeometry};
 use nalgebra::Point2;
 
@@ -129,16 +129,16 @@ impl MotionTrack {
         if beams < 2 {
             return None;
         }
-        let horizontal = |scan: &Scan| {
+        let horizontal = |points: &[ScanPoint]| {
             let mut ranges = vec![f32::NAN; beams];
-            for sp in project_scan(scan, geometry, mount, project) {
+            for sp in points {
                 if let Some(r) = ranges.get_mut(sp.beam) {
                     *r = sp.p.coords.norm() as f32;
                 }
             }
             ranges
         };
-        let still_m = horizontal(still);
+        let still_m = horizontal(&project_scan(still, geometry, mount, project));
         let tick_ns = (p.tick_s * 1e9).max(1.0);
         let mut frames: Vec<Frame> = Vec::new();
         for scan in scans.iter().filter(|s| s.ranges_m.len() == beams) {
@@ -152,8 +152,9 @@ impl MotionTrack {
                 _ if frames.len() >= p.max_frames => break,
                 _ => {}
             }
-            let ranges_m = horizontal(scan);
-            let walkers = walkers(scan, &ranges_m, &still_m, geometry, mount, project, p);
+            let points = project_scan(scan, geometry, mount, project);
+            let ranges_m = horizontal(&points);
+            let walkers = walkers(&points, &ranges_m, &still_m, p);
             frames.push(Frame {
                 tick,
                 t_ns: scan.stamp_ns,
@@ -229,14 +230,12 @@ impl MotionTrack {
     }
 }
 
-/// Runs of moved returns in `scan`, each one walker.
+/// Runs of moved returns among a scan's `points` (its horizontal `ranges_m` per beam), each
+/// one walker.
 fn walkers(
-    scan: &Scan,
+    points: &[ScanPoint],
     ranges_m: &[f32],
     still_m: &[f32],
-    geometry: Option<&ScanGeometry>,
-    mount: &Mount,
-    project: &ProjectParams,
     p: &MotionParams,
 ) -> Vec<Vec<Point2<f64>>> {
     let moved = |beam: usize| {
@@ -260,7 +259,7 @@ fn walkers(
         }
         run.clear();
     };
-    for sp in project_scan(scan, geometry, mount, project) {
+    for sp in points {
         if !moved(sp.beam) {
             continue;
         }
