@@ -126,6 +126,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             every,
             behind_mm: SYNTHETIC_ECHO_BEHIND_MM,
         }),
+        ..EmulatorConfig::default()
     };
     let scans = recording.scans_of(&sensor.id);
     let emulator = Emulator::new(sensor, scans, config).map_err(|e| BadInput(e.to_string()))?;

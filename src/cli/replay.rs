@@ -15,10 +15,6 @@ use scanfuse::record;
 use super::BadInput;
 use super::run::{Terminal, daemon_runtime, finish};
 
-/// `--max` plays this many times faster than recorded: as fast as a driver reliably keeps up
-/// with one emulated unit on loopback.
-const MAX_SPEED: f64 = 20.0;
-
 #[derive(clap::Args)]
 pub struct Args {
     /// Recordings (MCAP); every sensor in them takes part.
@@ -27,7 +23,7 @@ pub struct Args {
     /// Playback speed (2 = twice as fast as recorded).
     #[arg(long, default_value_t = 1.0, conflicts_with = "max")]
     speed: f64,
-    /// Play as fast as the pipeline keeps up (×20).
+    /// Play as fast as the pipeline takes the scans in (the same poses as at ×1).
     #[arg(long)]
     max: bool,
     /// Where poses.toml and the map files go.
@@ -42,8 +38,8 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let speed = if args.max { MAX_SPEED } else { args.speed };
-    if !(speed.is_finite() && speed > 0.0) {
+    let speed = if args.max { f64::INFINITY } else { args.speed };
+    if !(speed > 0.0 && (speed.is_finite() || args.max)) {
         return Err(BadInput(format!("--speed {speed} must be a positive number")).into());
     }
     let mut sensors: Vec<SensorConfig> = Vec::new();
@@ -113,8 +109,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             ..PublishConfig::default()
         },
     };
+    let pace = if args.max {
+        "as fast as the pipeline takes them".to_string()
+    } else {
+        format!("at ×{speed}")
+    };
     println!(
-        "replaying {} sensors at ×{speed}; poses and map files go to {}",
+        "replaying {} sensors {pace}; poses and map files go to {}",
         config.sensors.len(),
         args.out.display()
     );
@@ -123,6 +124,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         serve_socket: args.socket.is_some(),
         replay_speed: speed,
         replay_loop: false,
+        replay_recorded_time: true,
         stop_when_replay_ends: true,
         tap: Some(tap),
         ..RunOptions::default()

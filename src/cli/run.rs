@@ -26,15 +26,27 @@ pub struct Args {
     /// Stop after this long (e.g. 30s, 2m); default: until Ctrl-C or SIGTERM.
     #[arg(long = "for", value_name = "DURATION", value_parser = humantime::parse_duration)]
     duration: Option<Duration>,
+    /// Play `replay:` sensors this many times faster than recorded (tests, demos); the poses
+    /// come out as at ×1, since every timer follows the scans' own clock.
+    #[arg(long, value_name = "N", default_value_t = 1.0)]
+    replay_speed: f64,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let config = Config::load(&args.config).map_err(|e| BadInput(e.to_string()))?;
+    if !(args.replay_speed.is_finite() && args.replay_speed > 0.0) {
+        return Err(BadInput(format!(
+            "--replay-speed {} must be a positive number",
+            args.replay_speed
+        ))
+        .into());
+    }
     let truth = replay_truth(&config);
     let (tap, reports) = mpsc::channel();
     let options = RunOptions {
         duration: args.duration,
         tap: Some(tap),
+        replay_speed: args.replay_speed,
         ..RunOptions::default()
     };
     println!(

@@ -4,7 +4,8 @@
 //!
 //! - [`pipeline`]: shared state (drivers' status, latest scans, poses) and the real
 //!   [`socket::StatusSource`];
-//! - [`pipeline_register`]: the registration worker thread and moved-sensor detection;
+//! - [`pipeline_register`]: the registration worker thread and moved-sensor detection, on
+//!   the scans' own clock (taken in stamp order by [`reorder`]);
 //! - [`local_refine`]: a moved sensor aligned from its old pose before any global search;
 //! - [`pipeline_fuse`]: fused frames, the occupancy grid and the map files;
 //! - [`run`]: the lifecycle (emulators for `replay:`, driver tasks, socket, systemd, signals).
@@ -19,6 +20,7 @@ pub mod pipeline_register;
 pub mod protocol;
 pub mod queue;
 pub mod rate;
+pub mod reorder;
 pub mod run;
 pub mod signals;
 pub mod socket;

@@ -41,6 +41,9 @@ pub struct SensorSpec {
     pub mode: ScanMode,
     pub mount: Mount,
     pub survey: Option<Survey>,
+    /// A replayed sensor's scans carry their recorded time on the unit's clock: stamp =
+    /// this + sensor ms (see [`restamp`]). `None`: the host's receive time, as live.
+    pub stamp_base_ns: Option<u64>,
 }
 
 impl SensorSpec {
@@ -59,6 +62,7 @@ impl SensorSpec {
                 pitch_rad: s.pitch_rad,
             },
             survey: s.survey,
+            stamp_base_ns: None,
         }
     }
 
@@ -177,11 +181,27 @@ pub struct Pipeline {
     save_lock: Mutex<()>,
     /// Host time of the fuser's last pass, ns since the epoch (watchdog liveness).
     fuser_beat_ns: AtomicU64,
+    /// Stream time: the newest scan stamp seen (the recordings' clock in a replay).
+    stream_ns: AtomicU64,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     // A poisoned lock means a panic elsewhere; the state is still the best we have.
     m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// The stamp of a replayed scan whose unit clock read `sensor_ms`: `base_ns` plus that
+/// reading, taking the 24-bit wrap that puts it nearest the sensor's previous stamp (a
+/// reconnect restarts the driver's unwrapping, not the recording's clock).
+pub fn restamp(base_ns: u64, previous_ns: Option<u64>, sensor_ms: u64) -> u64 {
+    const WRAP_NS: i128 = crate::sensor::clock::WRAP_MS as i128 * 1_000_000;
+    let raw_ns = (sensor_ms % crate::sensor::clock::WRAP_MS) as i128 * 1_000_000;
+    let base = base_ns as i128;
+    let wraps = match previous_ns {
+        Some(p) => ((p as i128 - base - raw_ns) as f64 / WRAP_NS as f64).round() as i128,
+        None => 0,
+    };
+    (base + raw_ns + wraps.max(0) * WRAP_NS).clamp(0, u64::MAX as i128) as u64
 }
 
 pub(super) fn now_ns() -> u64 {
@@ -212,6 +232,7 @@ impl Pipeline {
             project: *Fuser::new(&config.publish).project_params(),
             save_lock: Mutex::new(()),
             fuser_beat_ns: AtomicU64::new(now_ns()),
+            stream_ns: AtomicU64::new(0),
         }
     }
 
@@ -348,7 +369,7 @@ impl Pipeline {
                 }
                 self.announce(EventKind::Connected, Some(id), message.trim_end());
             }
-            DriverEvent::Scan(scan) => {
+            DriverEvent::Scan(mut scan) => {
                 let watched = self.publisher.frame_watchers() > 0;
                 let (geometry, posed) = {
                     let mut guard = lock(&self.inner);
@@ -359,7 +380,16 @@ impl Pipeline {
                         return;
                     };
                     slot.state = SensorState::Streaming;
-                    slot.rate.record(scan.scan.stamp_ns);
+                    if let (Some(base_ns), Some(sensor_ms)) =
+                        (slot.spec.stamp_base_ns, scan.scan.sensor_stamp_ms)
+                    {
+                        let previous = slot.last_scan.as_ref().map(|s| s.stamp_ns);
+                        scan.scan.stamp_ns = restamp(base_ns, previous, sensor_ms);
+                    }
+                    self.stream_ns
+                        .fetch_max(scan.scan.stamp_ns, Ordering::Relaxed);
+                    // Rates are of the wall clock (what `status` shows), whatever the stamps.
+                    slot.rate.record(now_ns());
                     slot.last_scan = Some(scan.scan.clone());
                     slot.last_scan_at = Some(Instant::now());
                     let posed = match (watched, pose, index) {
@@ -563,7 +593,7 @@ impl StatusSource for Pipeline {
         self.commands
             .send(Command::Reregister {
                 id: sensor.to_string(),
-                after_ns: now_ns(),
+                after_ns: self.stream_ns.load(Ordering::Relaxed),
             })
             .map_err(|_| Refused("the registration worker has stopped; restart scanfuse".into()))?;
         Ok(format!(
@@ -579,5 +609,27 @@ impl StatusSource for Pipeline {
             format!("saved {} in {}", saved.files.join(", "), saved.dir),
         );
         Ok(saved)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sensor::clock::WRAP_MS;
+
+    #[test]
+    fn a_replayed_stamp_is_the_base_plus_the_unit_clock_across_wraps_and_reconnects() {
+        let base = 1_767_225_600_000_000_000;
+        assert_eq!(restamp(base, None, 1_500), base + 1_500_000_000);
+        // Unwrapped by the driver past the wrap: kept.
+        let late = base + (WRAP_MS + 10) * 1_000_000;
+        assert_eq!(restamp(base, Some(late - 25_000_000), WRAP_MS + 10), late);
+        // A reconnect after the wrap restarts the driver's unwrapping at the raw reading.
+        assert_eq!(restamp(base, Some(late - 25_000_000), 10), late);
+        // A reading from before the previous one by a little is not a wrap forward.
+        assert_eq!(
+            restamp(base, Some(base + 2_000_000_000), 1_990),
+            base + 1_990_000_000
+        );
     }
 }

@@ -5,6 +5,10 @@
 //! is first refined locally from its old pose ([`super::local_refine`]); the global search
 //! runs only when that fit is not clearly good.
 //!
+//! Every timer here (the static view, a move that lasts, the wait for a silent sensor, retries)
+//! runs on the scans' own clock, taken in stamp order: in a replay that is the recordings'
+//! clock, so any playback speed gives the poses ×1 gives.
+//!
 //! [`Registrar`] is the pure part (scans and time in, poses out); [`run_worker`] the thread.
 
 use std::collections::{BTreeMap, VecDeque};
@@ -15,9 +19,10 @@ use crossbeam_channel::{Receiver, select};
 
 use super::config::{RegistrationConfig, Survey};
 use super::local_refine::{LocalBounds, Neighbour, refine_locally};
-use super::pipeline::{Pipeline, PoseEntry, now_ns};
+use super::pipeline::{Pipeline, PoseEntry};
 use super::protocol::{EventKind, PoseSource};
 use super::queue::WorkerEnd;
+use super::reorder::Reorder;
 use crate::features::static_view;
 use crate::geometry::{Mount, Pose3, pose2};
 use crate::register::site::{Prior, SensorInput, SiteParams, register_site};
@@ -33,6 +38,8 @@ pub const RETRY_S: f64 = 30.0;
 pub const CHANGE_TOL_M: f32 = 0.2;
 /// This many unchanged scans in a row end a streak of changed ones (a glitch, a passer-by).
 pub const UNCHANGED_TO_RESET: u32 = 3;
+/// Scans are taken in stamp order; a sensor this far behind the newest stamp holds none back.
+pub const REORDER_HOLD_S: f64 = 0.5;
 
 /// One scan for the worker.
 #[derive(Debug, Clone)]
@@ -57,6 +64,11 @@ pub enum Command {
     Reregister {
         id: String,
         after_ns: u64,
+    },
+    /// The scans have ended (a replay played out): take what is queued, register every
+    /// pending sensor that has a static view, tell the others why not, then answer on `done`.
+    Finish {
+        done: crossbeam_channel::Sender<()>,
     },
     /// Stop the worker (shutdown).
     Shutdown,
@@ -174,6 +186,9 @@ pub struct Registrar {
     bounds: LocalBounds,
     params: RegisterParams,
     site_params: SiteParams,
+    /// Stream time: the newest stamp pushed. Every timer here runs on it, so a replay at any
+    /// speed registers as it would live.
+    stream_ns: u64,
 }
 
 impl Registrar {
@@ -190,7 +205,13 @@ impl Registrar {
             },
             params: RegisterParams::default(),
             site_params: SiteParams::default(),
+            stream_ns: 0,
         }
+    }
+
+    /// The newest stamp pushed, ns.
+    pub fn stream_ns(&self) -> u64 {
+        self.stream_ns
     }
 
     pub fn command(&mut self, command: Command, now_ns: u64) {
@@ -230,7 +251,7 @@ impl Registrar {
             Command::Remove(id) => {
                 self.tracks.remove(&id);
             }
-            Command::Shutdown => {}
+            Command::Shutdown | Command::Finish { .. } => {}
             Command::Reregister { id, after_ns } => {
                 if let Some(t) = self.tracks.get_mut(&id) {
                     t.scans.clear();
@@ -254,6 +275,7 @@ impl Registrar {
         let window_ns = (self.window_s * 1e9) as u64;
         let window_s = self.window_s;
         let params = &self.params;
+        self.stream_ns = self.stream_ns.max(item.scan.stamp_ns);
         let t = self.tracks.get_mut(&item.sensor)?;
         if item.geometry.is_some() {
             t.geometry = item.geometry;
@@ -346,6 +368,17 @@ impl Registrar {
         })
     }
 
+    /// The anchor and some pending sensor have static views.
+    fn can_register_globally(&self) -> bool {
+        self.tracks
+            .get(&self.anchor)
+            .is_some_and(|a| a.ready(self.window_s))
+            && self
+                .tracks
+                .values()
+                .any(|t| t.need != Need::Nothing && t.ready(self.window_s))
+    }
+
     fn due_global(&self, now_ns: u64) -> bool {
         let Some(anchor) = self.tracks.get(&self.anchor) else {
             return false;
@@ -408,6 +441,60 @@ impl Registrar {
     /// Registers every ready sensor jointly; returns outcomes for the pending ones that took
     /// part. A failed sensor with a surveyed pose gets that; any other waits [`RETRY_S`].
     pub fn register(&mut self, now_ns: u64, now: SystemTime) -> Vec<Outcome> {
+        self.register_when(now_ns, now, false)
+    }
+
+    /// At the end of the scans: registers whatever has a static view now, without waiting for
+    /// the others, and says of each pending sensor without one why it stays unplaced.
+    pub fn finish(&mut self, now: SystemTime) -> Vec<Outcome> {
+        let now_ns = self.stream_ns;
+        let mut outcomes = self.register_when(now_ns, now, true);
+        let window_s = self.window_s;
+        let anchor_ready = self
+            .tracks
+            .get(&self.anchor)
+            .is_some_and(|a| a.ready(window_s));
+        for (id, t) in &mut self.tracks {
+            let Need::Pose {
+                source, since_ns, ..
+            } = t.need
+            else {
+                continue;
+            };
+            // Registered just now, or waiting to retry: its reason is already out.
+            if since_ns > now_ns || outcomes.iter().any(|o| &o.id == id) {
+                continue;
+            }
+            let had_s = match (t.scans.front(), t.scans.back()) {
+                (Some(a), Some(b)) => b.stamp_ns.saturating_sub(a.stamp_ns) as f64 / 1e9,
+                _ => 0.0,
+            };
+            let reason = if t.ready(window_s) && !anchor_ready {
+                format!(
+                    "the scans ended before the anchor {} had a static view ({window_s:.1} s of scans, static_view_s)",
+                    self.anchor
+                )
+            } else {
+                format!(
+                    "the scans ended before it had a static view ({had_s:.1} s of its scans since it needed a pose; it needs {window_s:.1} s, static_view_s)"
+                )
+            };
+            t.need = Need::Pose {
+                since_ns: now_ns + (RETRY_S * 1e9) as u64,
+                source,
+                refine_from: None,
+            };
+            outcomes.push(Outcome {
+                id: id.clone(),
+                pose: Err(reason),
+                method: Method::Global,
+                local_refused: t.local_refused.take(),
+            });
+        }
+        outcomes
+    }
+
+    fn register_when(&mut self, now_ns: u64, now: SystemTime, at_end: bool) -> Vec<Outcome> {
         let mut outcomes = Vec::new();
         // Moved sensors first, locally from their old poses.
         let moved: Vec<(String, Pose3, PoseSource)> = self
@@ -458,7 +545,7 @@ impl Registrar {
                 }
             }
         }
-        if !self.due_global(now_ns) {
+        if !(self.due_global(now_ns) || at_end && self.can_register_globally()) {
             return outcomes;
         }
         outcomes.extend(self.register_globally(now_ns, now));
@@ -562,97 +649,160 @@ pub fn surveyed(s: &Survey, mount: &Mount, now: SystemTime) -> PoseEntry {
     }
 }
 
+/// Where the worker tells a replay's clock how far it has taken the scans in.
+#[derive(Debug, Clone)]
+pub struct Consumed {
+    pub gate: crate::emulator::ReplayGate,
+    /// The stamp at the gate's stream offset 0.
+    pub base_ns: u64,
+}
+
 /// The worker thread: takes scans and commands until both channels close, registering when
-/// [`Registrar::due`] says so, and publishes and saves each outcome.
+/// [`Registrar::due`] says so (on the scans' clock), and publishes and saves each outcome.
 pub fn run_worker(
     pipeline: Arc<Pipeline>,
     scans: WorkerEnd<WorkItem>,
     commands: Receiver<Command>,
     mut registrar: Registrar,
+    consumed: Option<Consumed>,
 ) {
+    let mut order = Reorder::new((REORDER_HOLD_S * 1e9) as u64);
+    // Takes one scan in stamp order; registers as soon as that makes a registration due.
+    let take = |registrar: &mut Registrar, item: WorkItem| {
+        if let Some(moved) = registrar.push(item) {
+            pipeline.announce(
+                EventKind::Moved,
+                Some(&moved.id),
+                format!(
+                    "{} moved: it sees past or no longer sees {:.0} % of its static view, and kept doing so; re-registering it",
+                    moved.id,
+                    moved.fraction * 100.0
+                ),
+            );
+        }
+        if registrar.due(registrar.stream_ns()) {
+            register_and_publish(&pipeline, registrar);
+        }
+    };
+    let arrive = |order: &mut Reorder<WorkItem>, item: WorkItem| {
+        if let Some(c) = &consumed {
+            c.gate
+                .consumed(&item.sensor, item.scan.stamp_ns.saturating_sub(c.base_ns));
+        }
+        order.push(&item.sensor.clone(), item.scan.stamp_ns, item);
+    };
     loop {
-        let now = now_ns();
         select! {
             recv(scans) -> item => match item {
                 Ok(item) => {
-                    if let Some(moved) = registrar.push(item) {
-                        pipeline.announce(
-                            EventKind::Moved,
-                            Some(&moved.id),
-                            format!(
-                                "{} moved: it sees past or no longer sees {:.0} % of its static view, and kept doing so; re-registering it",
-                                moved.id,
-                                moved.fraction * 100.0
-                            ),
-                        );
+                    arrive(&mut order, item);
+                    while let Some(item) = order.pop() {
+                        take(&mut registrar, item);
                     }
                 }
                 Err(_) => return,
             },
             recv(commands) -> command => match command {
                 Ok(Command::Shutdown) | Err(_) => return,
-                Ok(command) => registrar.command(command, now),
-            },
-            default(Duration::from_millis(200)) => {}
-        }
-        if !registrar.due(now_ns()) {
-            continue;
-        }
-        let pending = registrar.pending().join(", ");
-        pipeline.announce(
-            EventKind::Registering,
-            None,
-            format!("registering {pending} from their static views…"),
-        );
-        let outcomes = registrar.register(now_ns(), SystemTime::now());
-        for outcome in outcomes {
-            match &outcome.pose {
-                Ok(entry) => {
-                    let p = &entry.site_from_sensor;
-                    let kind = if entry.source == PoseSource::ReRegistered {
-                        EventKind::ReRegistered
-                    } else {
-                        EventKind::Registered
-                    };
-                    let how = match (outcome.method, &outcome.local_refused) {
-                        (Method::Local, _) => "; refined locally from its old pose".to_string(),
-                        (Method::Global, Some(why)) => {
-                            format!("; global search, as local refinement was refused: {why}")
-                        }
-                        (Method::Global, None) => String::new(),
-                    };
-                    let caveat = entry
-                        .caveat
-                        .as_ref()
-                        .map(|c| format!("; it {c}"))
-                        .unwrap_or_default();
-                    pipeline.announce(
-                        kind,
-                        Some(&outcome.id),
-                        format!(
-                            "{} at x {:.3} m, y {:.3} m, yaw {:.2}° ({}{how}){caveat}",
-                            outcome.id,
-                            p.x_m,
-                            p.y_m,
-                            p.yaw_rad.to_degrees(),
-                            entry.source.as_str()
-                        ),
-                    );
+                Ok(Command::Finish { done }) => {
+                    while let Ok(item) = scans.try_recv() {
+                        arrive(&mut order, item);
+                    }
+                    while let Some(item) = order.pop_any() {
+                        take(&mut registrar, item);
+                    }
+                    if !registrar.pending().is_empty() {
+                        let outcomes = registrar.finish(SystemTime::now());
+                        publish(&pipeline, outcomes, false);
+                    }
+                    let _ = done.send(());
                 }
-                Err(reason) => pipeline.announce(
-                    EventKind::Error,
+                Ok(command) => {
+                    if let Command::Remove(id) = &command {
+                        order.forget(id);
+                    }
+                    let now = registrar.stream_ns();
+                    registrar.command(command, now);
+                }
+            },
+            // Retries and the wait for a silent sensor fall due on the stream's clock too.
+            default(Duration::from_millis(200)) => {
+                if registrar.due(registrar.stream_ns()) {
+                    register_and_publish(&pipeline, &mut registrar);
+                }
+            }
+        }
+    }
+}
+
+fn register_and_publish(pipeline: &Pipeline, registrar: &mut Registrar) {
+    let pending = registrar.pending().join(", ");
+    pipeline.announce(
+        EventKind::Registering,
+        None,
+        format!("registering {pending} from their static views…"),
+    );
+    let outcomes = registrar.register(registrar.stream_ns(), SystemTime::now());
+    publish(pipeline, outcomes, true);
+}
+
+/// Announces each outcome, hands it to the pipeline and saves; `retrying`: a failed sensor
+/// is tried again after [`RETRY_S`] (not so once the scans have ended).
+fn publish(pipeline: &Pipeline, outcomes: Vec<Outcome>, retrying: bool) {
+    if outcomes.is_empty() {
+        return;
+    }
+    for outcome in outcomes {
+        match &outcome.pose {
+            Ok(entry) => {
+                let p = &entry.site_from_sensor;
+                let kind = if entry.source == PoseSource::ReRegistered {
+                    EventKind::ReRegistered
+                } else {
+                    EventKind::Registered
+                };
+                let how = match (outcome.method, &outcome.local_refused) {
+                    (Method::Local, _) => "; refined locally from its old pose".to_string(),
+                    (Method::Global, Some(why)) => {
+                        format!("; global search, as local refinement was refused: {why}")
+                    }
+                    (Method::Global, None) => String::new(),
+                };
+                let caveat = entry
+                    .caveat
+                    .as_ref()
+                    .map(|c| format!("; it {c}"))
+                    .unwrap_or_default();
+                pipeline.announce(
+                    kind,
                     Some(&outcome.id),
                     format!(
-                        "{} not registered: {reason}; trying again in {RETRY_S:.0} s",
-                        outcome.id
+                        "{} at x {:.3} m, y {:.3} m, yaw {:.2}° ({}{how}){caveat}",
+                        outcome.id,
+                        p.x_m,
+                        p.y_m,
+                        p.yaw_rad.to_degrees(),
+                        entry.source.as_str()
                     ),
-                ),
+                );
             }
-            pipeline.set_pose(&outcome.id, outcome.pose);
+            Err(reason) => {
+                let again = if retrying {
+                    format!("; trying again in {RETRY_S:.0} s")
+                } else {
+                    String::new()
+                };
+                pipeline.announce(
+                    EventKind::Error,
+                    Some(&outcome.id),
+                    format!("{} not registered: {reason}{again}", outcome.id),
+                )
+            }
         }
-        if let Err(e) = pipeline.save_now() {
-            pipeline.announce(EventKind::Error, None, format!("cannot save poses: {e}"));
-        }
+        pipeline.set_pose(&outcome.id, outcome.pose);
+    }
+    if let Err(e) = pipeline.save_now() {
+        pipeline.announce(EventKind::Error, None, format!("cannot save poses: {e}"));
     }
 }
 
@@ -809,5 +959,33 @@ mod tests {
         feed(&mut r, "b", 3.5, 4.0);
         feed(&mut r, "a", 3.0, 4.0);
         assert!(r.due(4_000_000_000));
+    }
+
+    #[test]
+    fn at_the_end_of_the_scans_a_sensor_without_a_static_view_is_told_so_once() {
+        let mut r = Registrar::new("a", &RegistrationConfig::default());
+        add(&mut r, "a", false);
+        add(&mut r, "b", false);
+        feed(&mut r, "a", 1.0, 2.1);
+        feed(&mut r, "b", 1.8, 2.1);
+        assert!(
+            !r.due(r.stream_ns()),
+            "b has 0.3 s, and 10 s have not passed"
+        );
+        let outcomes = r.finish(SystemTime::now());
+        let reason = |id: &str| {
+            outcomes
+                .iter()
+                .find(|o| o.id == id)
+                .and_then(|o| o.pose.clone().err())
+                .unwrap_or_default()
+        };
+        assert!(
+            reason("b").contains("ended before it had a static view (0.3 s"),
+            "{outcomes:?}"
+        );
+        // The anchor alone registered (it is the site frame), with no pair to fail.
+        assert!(outcomes.iter().any(|o| o.id == "a"), "{outcomes:?}");
+        assert!(r.finish(SystemTime::now()).is_empty(), "said once");
     }
 }

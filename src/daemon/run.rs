@@ -17,25 +17,29 @@ use tokio::task::JoinHandle;
 use super::config::{Config, Connect, SensorConfig};
 use super::notify::{Notifier, status_line};
 use super::pipeline::{Pipeline, PoseEntry, Report, SensorSpec};
-use super::pipeline_register::{Command, Registrar, run_worker};
+use super::pipeline_register::{Command, Consumed, Registrar, run_worker};
 use super::protocol::{EventKind, Saved};
 use super::queue::drop_oldest;
 use super::signals::{Request, Signals};
 use super::socket::{Publisher, ServerOptions, SocketError, StatusServer, StatusSource};
 use super::state::PosesFile;
-use crate::emulator::{Emulator, EmulatorConfig, EmulatorError};
+use crate::emulator::{Emulator, EmulatorConfig, EmulatorError, Gated, ReplayGate};
 use crate::geometry::{Pose3, pose2};
 use crate::record::{self, RecordError};
 use crate::sensor::{Driver, DriverConfig, QUIT_TIMEOUT};
 
 /// Scans a driver may hand over before its forwarding task takes them.
 const DRIVER_CHANNEL: usize = 256;
+/// A replayed unit's watchdog, in scan periods (its clock waits for the pipeline).
+const REPLAY_WATCHDOG_PERIODS: f64 = 2400.0;
 /// systemd's STATUS= line is refreshed this often.
 const STATUS_EVERY_S: u64 = 5;
 /// The fuser must have run within this long for the watchdog to be fed.
 const ALIVE_WITHIN_S: f64 = 10.0;
-/// After a replay ends, registration still running may take this long to finish.
-const REPLAY_SETTLE: Duration = Duration::from_secs(120);
+/// After a replay's last scan, each driver has this long to hand over what it still holds.
+const REPLAY_DRAIN: Duration = Duration::from_secs(2);
+/// A replay may run ahead of the registration worker by at most this share of its queue.
+const REPLAY_LEAD_OF_QUEUE: f64 = 0.5;
 
 /// How to run.
 #[derive(Debug, Clone)]
@@ -44,9 +48,15 @@ pub struct RunOptions {
     pub duration: Option<Duration>,
     /// Serve the status socket at `config.site.socket`.
     pub serve_socket: bool,
-    /// Playback of `replay:` sensors.
+    /// Playback of `replay:` sensors: times the recorded rate; `f64::INFINITY` as fast as the
+    /// pipeline takes the scans. Either way nothing is dropped on the way to registration.
     pub replay_speed: f64,
     pub replay_loop: bool,
+    /// `scanfuse replay`: stamp replayed scans with their recorded time, and hold the replay
+    /// back while the pipeline catches up, so that no scan is dropped. Otherwise (`scanfuse
+    /// run` on `replay:` sensors) they stand in for live units: stamped as if now, and never
+    /// waiting for the pipeline.
+    pub replay_recorded_time: bool,
     /// Stop once every `replay:` emulator has served its recording (needs `replay_loop` off).
     pub stop_when_replay_ends: bool,
     /// Events and once-a-second snapshots for a terminal.
@@ -60,6 +70,7 @@ impl Default for RunOptions {
             serve_socket: true,
             replay_speed: 1.0,
             replay_loop: true,
+            replay_recorded_time: false,
             stop_when_replay_ends: false,
             tap: None,
         }
@@ -107,6 +118,80 @@ struct Emulators {
     recordings: BTreeMap<PathBuf, Arc<record::Recording>>,
     running: BTreeMap<String, (Emulator, JoinHandle<()>)>,
     drivers: Vec<JoinHandle<()>>,
+    /// Tasks handing each driver's events to the pipeline; done once a stopped driver's last
+    /// scan is in.
+    forwarders: Vec<JoinHandle<()>>,
+    clock: Option<ReplayClock>,
+}
+
+/// The clock every `replay:` sensor of one run plays on.
+#[derive(Debug, Clone)]
+struct ReplayClock {
+    gate: ReplayGate,
+    /// The recorded stamp at stream offset 0: the earliest first scan of the recordings.
+    origin_ns: u64,
+    /// The stamp replayed scans get at stream offset 0.
+    base_ns: u64,
+}
+
+impl Emulators {
+    /// Reads the recordings of `replay:` sensors and sets up their shared clock; `None`
+    /// without any. A recording that cannot be read is left for [`start_sensor`] to report.
+    fn replay_clock(&mut self, config: &Config, options: &RunOptions) -> Option<ReplayClock> {
+        let mut origin_ns = u64::MAX;
+        let mut scans_per_s = 0.0;
+        let mut longest_period_s: f64 = 0.025;
+        let mut count = 0;
+        for sensor in &config.sensors {
+            let Connect::Replay { file, sensor: rid } = &sensor.connect else {
+                continue;
+            };
+            count += 1;
+            let Some(recording) = self.recording(file).ok() else {
+                continue;
+            };
+            if let Some(first) = recording.scans_of(rid).first() {
+                origin_ns = origin_ns.min(first.stamp_ns);
+            }
+            if let Some(g) = recording.sensor(rid).and_then(|i| i.geometry) {
+                scans_per_s += 1.0 / g.period_s().max(1e-3);
+                longest_period_s = longest_period_s.max(g.period_s());
+            }
+        }
+        if count == 0 {
+            return None;
+        }
+        let origin_ns = if origin_ns == u64::MAX { 0 } else { origin_ns };
+        let speed = options.replay_speed;
+        // Two scans of the slowest unit ahead, less if the queue could not hold that much.
+        let lead_s = (2.0 * longest_period_s)
+            .min(
+                REPLAY_LEAD_OF_QUEUE * config.registration.queue_scans as f64
+                    / scans_per_s.max(1.0),
+            )
+            .max(1.2 * longest_period_s);
+        let lead = options
+            .replay_recorded_time
+            .then(|| Duration::from_secs_f64(lead_s));
+        Some(ReplayClock {
+            gate: ReplayGate::new(count, speed.is_finite().then_some(speed), lead),
+            origin_ns,
+            base_ns: if options.replay_recorded_time {
+                origin_ns
+            } else {
+                super::pipeline::now_ns()
+            },
+        })
+    }
+
+    fn recording(&mut self, file: &PathBuf) -> Result<Arc<record::Recording>, RecordError> {
+        if let Some(r) = self.recordings.get(file) {
+            return Ok(Arc::clone(r));
+        }
+        let r = Arc::new(record::read(file)?);
+        self.recordings.insert(file.clone(), Arc::clone(&r));
+        Ok(r)
+    }
 }
 
 impl Emulators {
@@ -119,19 +204,11 @@ impl Emulators {
         config: EmulatorConfig,
     ) -> Result<String, RunError> {
         self.stop(id);
-        let recording = match self.recordings.get(file) {
-            Some(r) => Arc::clone(r),
-            None => {
-                let r = record::read(file).map_err(|source| RunError::Recording {
-                    sensor: id.to_string(),
-                    file: file.clone(),
-                    source,
-                })?;
-                let r = Arc::new(r);
-                self.recordings.insert(file.clone(), Arc::clone(&r));
-                r
-            }
-        };
+        let recording = self.recording(file).map_err(|source| RunError::Recording {
+            sensor: id.to_string(),
+            file: file.clone(),
+            source,
+        })?;
         let info = recording
             .sensor(sensor)
             .ok_or_else(|| RunError::NoSuchSensor {
@@ -178,14 +255,22 @@ async fn start_sensor(
     sensor: &SensorConfig,
     options: &RunOptions,
 ) -> Result<(), RunError> {
-    let spec = SensorSpec::from_config(sensor);
+    let mut spec = SensorSpec::from_config(sensor);
+    let mut replayed = false;
     let uri = match &sensor.connect {
         Connect::Replay { file, sensor: rid } => {
             let config = EmulatorConfig {
                 speed: options.replay_speed,
                 looping: options.replay_loop,
+                gate: emulators.clock.as_ref().map(|c| Gated {
+                    gate: c.gate.clone(),
+                    id: sensor.id.clone(),
+                    origin_ns: c.origin_ns,
+                }),
                 ..EmulatorConfig::default()
             };
+            spec.stamp_base_ns = emulators.clock.as_ref().map(|c| c.base_ns);
+            replayed = true;
             let uri = emulators.start(&sensor.id, file, rid, config).await?;
             if let Some((emulator, _)) = emulators.running.get(&sensor.id)
                 && !options.replay_loop
@@ -203,6 +288,10 @@ async fn start_sensor(
     };
     let mut driver_config = DriverConfig::new(&sensor.id, uri);
     driver_config.mode = spec.mode;
+    if replayed {
+        // The replay's clock pauses while the pipeline catches up: that is no dead link.
+        driver_config.watchdog_periods = REPLAY_WATCHDOG_PERIODS;
+    }
     let driver = Driver::new(driver_config);
     let (stop_tx, stop_rx) = watch::channel(false);
     pipeline.add_sensor(spec, driver.counters(), stop_tx);
@@ -213,11 +302,12 @@ async fn start_sensor(
         .push(tokio::spawn(driver.run(tx, stop_rx)));
     let p = Arc::clone(pipeline);
     let id = sensor.id.clone();
-    tokio::spawn(async move {
+    emulators.forwarders.retain(|f| !f.is_finished());
+    emulators.forwarders.push(tokio::spawn(async move {
         while let Some(event) = rx.recv().await {
             p.on_driver_event(&id, event);
         }
-    });
+    }));
     Ok(())
 }
 
@@ -282,11 +372,17 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
     ));
     load_saved_poses(&config, &pipeline);
 
+    let mut emulators = Emulators::default();
+    emulators.clock = emulators.replay_clock(&config, &options);
     let worker_pipeline = Arc::clone(&pipeline);
     let registrar = Registrar::new(config.site.anchor.clone(), &config.registration);
+    let consumed = emulators.clock.as_ref().map(|c| Consumed {
+        gate: c.gate.clone(),
+        base_ns: c.base_ns,
+    });
     std::thread::Builder::new()
         .name("registration".into())
-        .spawn(move || run_worker(worker_pipeline, queue_rx, command_rx, registrar))?;
+        .spawn(move || run_worker(worker_pipeline, queue_rx, command_rx, registrar, consumed))?;
 
     let fuser_stop = Arc::new(AtomicBool::new(false));
     let fuser_thread = {
@@ -310,7 +406,6 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
             })?
     };
 
-    let mut emulators = Emulators::default();
     for sensor in &config.sensors {
         if let Err(e) = start_sensor(&pipeline, &mut emulators, sensor, &options).await {
             // A recording that cannot be replayed is the user's mistake: refuse to start.
@@ -421,7 +516,12 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
             }
             _ = &mut deadline => break,
             _ = &mut replay_end => {
-                settle_registration(&pipeline).await;
+                tokio::select! {
+                    _ = finish_replay(&pipeline, &mut emulators, &command_tx) => {}
+                    _ = signals.next() => {
+                        pipeline.announce(EventKind::Saved, None, "stopping: saving poses and map files");
+                    }
+                }
                 break;
             }
         }
@@ -462,26 +562,32 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
     Ok(RunSummary { saved })
 }
 
-/// After a replay: wait (boundedly) until every sensor that streamed has a pose.
-async fn settle_registration(pipeline: &Pipeline) {
-    let started = tokio::time::Instant::now();
-    while started.elapsed() < REPLAY_SETTLE {
-        let status = pipeline.status();
-        let poses = pipeline.poses();
-        let waiting = status.sensors.iter().any(|s| {
-            s.scans > 0
-                && poses.sensors.iter().any(|p| {
-                    p.id == s.id
-                        && !p.registered
-                        && p.reason
-                            .as_deref()
-                            .is_some_and(|r| r.starts_with("waiting"))
-                })
-        });
-        if !waiting {
-            return;
+/// After a replay's last scan: once every driver has handed over what it holds, the worker
+/// takes the rest of its queue and registers what it can (on the scans' clock, so no waiting
+/// in wall time); returns when it has answered.
+async fn finish_replay(
+    pipeline: &Pipeline,
+    emulators: &mut Emulators,
+    commands: &crossbeam_channel::Sender<Command>,
+) {
+    // Each driver was stopped when its recording ended; its forwarder ends after its last scan.
+    let drained = tokio::time::Instant::now() + REPLAY_DRAIN;
+    for forwarder in emulators.forwarders.drain(..) {
+        if tokio::time::timeout_at(drained, forwarder).await.is_err() {
+            tracing::warn!("a replayed sensor's last scans were not handed over in time");
+            break;
         }
-        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    let (done, answered) = crossbeam_channel::bounded(1);
+    if commands.send(Command::Finish { done }).is_err() {
+        return;
+    }
+    if let Err(e) = tokio::task::spawn_blocking(move || answered.recv()).await {
+        pipeline.announce(
+            EventKind::Error,
+            None,
+            format!("the registration worker did not finish: {e}"),
+        );
     }
 }
 

@@ -6,14 +6,17 @@
 //!   reply bytes out.
 //! - [`playback`]: which recorded scan is current at what time, at `--speed`, with `--loop`.
 //! - [`faults`]: failures to inject (drop, corrupt, stall, garbage, refuse).
+//! - [`gate`]: a replay's shared clock, held back by the pipeline it feeds.
 //! - [`server`]: the tokio edge: sockets, timers, fault injection.
 
 pub mod faults;
+pub mod gate;
 pub mod playback;
 pub mod server;
 pub mod unit;
 
 pub use faults::{EmulatorStats, Faults};
+pub use gate::ReplayGate;
 pub use playback::Playback;
-pub use server::{Emulator, EmulatorConfig, EmulatorError};
+pub use server::{Emulator, EmulatorConfig, EmulatorError, Gated};
 pub use unit::{ClockSetting, SourceScan, SyntheticEchoes, Unit};

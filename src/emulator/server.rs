@@ -12,6 +12,7 @@ use tokio::sync::watch;
 use tokio::time::Instant;
 
 use super::faults::{EmulatorStats, Faults, GARBAGE};
+use super::gate::ReplayGate;
 use super::playback::Playback;
 use super::unit::{ClockSetting, SourceScan, SyntheticEchoes, Unit};
 use crate::scan::{Scan, SensorInfo};
@@ -41,6 +42,19 @@ pub struct EmulatorConfig {
     pub clock: ClockSetting,
     /// Made-up second echoes in multi-echo scans (off by default).
     pub synthetic_echoes: Option<SyntheticEchoes>,
+    /// Play on a replay's shared clock instead of this emulator's own (`speed` is then the
+    /// gate's): scans fall due at their recorded time and carry it as their stamp.
+    pub gate: Option<Gated>,
+}
+
+/// An emulator on a [`ReplayGate`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Gated {
+    pub gate: ReplayGate,
+    /// The name it goes by on the gate (the pipeline's sensor id).
+    pub id: String,
+    /// The recorded stamp (ns) at stream offset 0: the earliest first scan of the replay.
+    pub origin_ns: u64,
 }
 
 impl Default for EmulatorConfig {
@@ -51,6 +65,7 @@ impl Default for EmulatorConfig {
             faults: Faults::default(),
             clock: ClockSetting::default(),
             synthetic_echoes: None,
+            gate: None,
         }
     }
 }
@@ -74,6 +89,10 @@ struct Shared {
     play_start: Mutex<Option<Instant>>,
     state: Mutex<FaultState>,
     finished: watch::Sender<bool>,
+    /// The replay clock, this sensor's id on it, and its first scan's offset on it (ns).
+    gate: Option<(ReplayGate, String, u64)>,
+    /// Whether a client has joined the gate yet.
+    joined: Mutex<bool>,
 }
 
 /// One emulated sensor; cheap to clone (shared state).
@@ -103,12 +122,17 @@ impl Emulator {
             .iter()
             .map(|s| SourceScan::from_scan(s, &geometry))
             .collect();
-        let playback = Playback::new(
-            scans,
-            geometry.period_s() * 1000.0,
-            config.speed,
-            config.looping,
-        );
+        // On a gate the speed is the gate's: the playback keeps recorded time.
+        let speed = if config.gate.is_some() {
+            1.0
+        } else {
+            config.speed
+        };
+        let playback = Playback::new(scans, geometry.period_s() * 1000.0, speed, config.looping);
+        let first_ns = scans.first().map_or(0, |s| s.stamp_ns);
+        let gate = config
+            .gate
+            .map(|g| (g.gate, g.id, first_ns.saturating_sub(g.origin_ns)));
         let (finished, _) = watch::channel(false);
         Ok(Emulator {
             shared: Arc::new(Shared {
@@ -128,6 +152,8 @@ impl Emulator {
                 play_start: Mutex::new(None),
                 state: Mutex::new(FaultState::default()),
                 finished,
+                gate,
+                joined: Mutex::new(false),
             }),
         })
     }
@@ -214,22 +240,28 @@ impl Emulator {
         let mut streams_seen = unit.streams_started();
         let mut next_k: u64 = 0;
         loop {
-            let streaming = unit.is_streaming();
-            let play_start = *lock(&shared.play_start);
-            let due = match (streaming, play_start) {
-                (true, Some(start)) => match shared.playback.due_ms(next_k) {
-                    Some(ms) => Some(start + Duration::from_secs_f64(ms / 1000.0)),
+            let due = if unit.is_streaming() {
+                match self.due(next_k) {
+                    Some(due) => due,
                     None => {
                         // A non-looping recording has been played to its end.
+                        if let Some((gate, id, _)) = &shared.gate {
+                            gate.finished(id);
+                        }
                         let _ = shared.finished.send(true);
                         return Ok(());
                     }
-                },
-                _ => None,
+                }
+            } else {
+                Due::Never
             };
-            let sleep = tokio::time::sleep_until(
-                due.unwrap_or_else(|| Instant::now() + Duration::from_secs(3600)),
-            );
+            let wait = async {
+                match &due {
+                    Due::At(at) => tokio::time::sleep_until(*at).await,
+                    Due::OnGate(gate, offset_ns) => gate.wait_until(*offset_ns).await,
+                    Due::Never => std::future::pending().await,
+                }
+            };
             tokio::select! {
                 n = rd.read(&mut chunk) => {
                     let n = n?;
@@ -252,13 +284,27 @@ impl Emulator {
                         }
                     }
                 }
-                _ = sleep, if due.is_some() => {
+                _ = wait => {
                     if !self.emit(unit, wr, &mut next_k).await? {
                         return Ok(());
                     }
                 }
             }
         }
+    }
+
+    /// When sequence number `k` falls due; `None` past the end of a non-looping recording.
+    fn due(&self, k: u64) -> Option<Due> {
+        let shared = &self.shared;
+        if let Some((gate, _, shift_ns)) = &shared.gate {
+            let offset_ns = shift_ns + (shared.playback.due_ms(k)? * 1e6) as u64;
+            return Some(Due::OnGate(gate.clone(), offset_ns));
+        }
+        let due_ms = shared.playback.due_ms(k)?;
+        Some(match *lock(&shared.play_start) {
+            Some(start) => Due::At(start + Duration::from_secs_f64(due_ms / 1000.0)),
+            None => Due::Never,
+        })
     }
 
     fn answer(&self, unit: &mut Unit, line: &[u8]) -> Vec<u8> {
@@ -278,37 +324,71 @@ impl Emulator {
         unit.handle(line, now_ms, current.or(shared.sources.first()))
     }
 
+    /// Time into this recording's playback, ms (recorded time on a gate); `None` before it
+    /// started.
+    fn played_ms(&self) -> Option<f64> {
+        match &self.shared.gate {
+            Some((gate, _, shift_ns)) => (*lock(&self.shared.joined))
+                .then(|| (gate.now_ns() as f64 - *shift_ns as f64) / 1e6),
+            None => {
+                let start = (*lock(&self.shared.play_start))?;
+                Some(start.elapsed().as_secs_f64() * 1000.0)
+            }
+        }
+    }
+
     fn current_k(&self) -> Option<u64> {
-        let start = (*lock(&self.shared.play_start))?;
-        self.shared
-            .playback
-            .current(start.elapsed().as_secs_f64() * 1000.0)
+        self.shared.playback.current(self.played_ms()?)
     }
 
     /// Sequence number a new stream starts with: the first scan if playback has not started,
     /// else the next one to fall due.
     fn first_due_after_now(&self) -> u64 {
-        let mut start = lock(&self.shared.play_start);
-        match *start {
-            None => {
+        let shared = &self.shared;
+        if let Some((gate, id, shift_ns)) = &shared.gate {
+            let mut joined = lock(&shared.joined);
+            if !*joined {
+                *joined = true;
+                drop(joined);
+                gate.join(id, *shift_ns);
+                return 0;
+            }
+        } else {
+            let mut start = lock(&shared.play_start);
+            if start.is_none() {
                 *start = Some(Instant::now());
-                0
+                return 0;
             }
-            Some(s) => {
-                let elapsed = s.elapsed().as_secs_f64() * 1000.0;
-                self.shared.playback.current(elapsed).map_or(0, |k| k + 1)
-            }
+        }
+        match self.played_ms() {
+            // Before this recording's first scan (a later start than another's).
+            Some(ms) if ms < 0.0 => 0,
+            Some(ms) => shared.playback.current(ms).map_or(0, |k| k + 1),
+            None => 0,
         }
     }
 
-    /// When sequence number `k` falls due, on the clock of [`Self::now_ms`].
-    fn due_on_clock_ms(&self, k: u64) -> Option<u64> {
-        let start = (*lock(&self.shared.play_start))?;
-        let offset_ms = start
-            .checked_duration_since(self.shared.boot)?
-            .as_secs_f64()
-            * 1000.0;
-        Some((offset_ms + self.shared.playback.due_ms(k)?) as u64)
+    /// The sensor clock stamped on sequence number `k`: on a gate its recorded time (ms from
+    /// the replay's origin), else when it was due on the clock of [`Self::now_ms`].
+    fn stamp_ms(&self, k: u64, now_ms: u64) -> u64 {
+        let shared = &self.shared;
+        if let Some((_, _, shift_ns)) = &shared.gate {
+            let due_ms = shared.playback.due_ms(k).unwrap_or(0.0);
+            return ((*shift_ns as f64 / 1e6) + due_ms).round() as u64;
+        }
+        let Some(start) = *lock(&shared.play_start) else {
+            return now_ms;
+        };
+        let Some(offset_ms) = start
+            .checked_duration_since(shared.boot)
+            .map(|d| d.as_secs_f64() * 1000.0)
+        else {
+            return now_ms;
+        };
+        shared
+            .playback
+            .due_ms(k)
+            .map_or(now_ms, |due| ((offset_ms + due) as u64).min(now_ms))
     }
 
     /// Sends the block for `next_k` (or the latest scan if this connection fell behind).
@@ -328,11 +408,13 @@ impl Emulator {
         };
         // A real unit stamps a scan when it measures it, not when it is sent: a block sent late
         // by a busy host keeps the time it was due.
-        let now_ms = self.now_ms();
-        let stamp_ms = self
-            .due_on_clock_ms(k)
-            .map_or(now_ms, |due| due.min(now_ms));
-        let Some(mut block) = unit.stream_block(source, stamp_ms) else {
+        let stamp_ms = self.stamp_ms(k, self.now_ms());
+        let block = if shared.gate.is_some() {
+            unit.stream_block_stamped(source, (stamp_ms & 0xFF_FFFF) as u32)
+        } else {
+            unit.stream_block(source, stamp_ms)
+        };
+        let Some(mut block) = block else {
             return Ok(true);
         };
         let faults = &shared.faults;
@@ -380,6 +462,13 @@ impl Emulator {
         }
         Ok(true)
     }
+}
+
+/// What a connection waits for before its next scan.
+enum Due {
+    At(Instant),
+    OnGate(ReplayGate, u64),
+    Never,
 }
 
 /// Breaks the checksum of the first data line of a scan block; `false` if it has none.

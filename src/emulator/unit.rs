@@ -482,6 +482,11 @@ impl Unit {
     /// interval skips this scan. Ends a finite stream after its last block.
     pub fn stream_block(&mut self, source: &SourceScan, now_ms: u64) -> Option<Vec<u8>> {
         let clock = self.clock_ms(now_ms);
+        self.stream_block_stamped(source, clock)
+    }
+
+    /// [`Self::stream_block`] with the sensor clock reading given (a replay's recorded time).
+    pub fn stream_block_stamped(&mut self, source: &SourceScan, clock: u32) -> Option<Vec<u8>> {
         let Mode::Streaming(stream) = &mut self.mode else {
             return None;
         };
