@@ -161,7 +161,7 @@ async fn tm0_refused_while_the_unit_boots_is_retried() {
     assert_eq!(started.elapsed(), Duration::from_millis(300));
     let c = counters.snapshot();
     assert_eq!((c.connects, c.reconnects, c.time_syncs), (1, 0, 1));
-    assert!(c.last_error.unwrap().contains("0M"));
+    assert!(c.last_error.unwrap().contains("laser off (10)"));
     stop.send(true).unwrap();
     task.await.unwrap();
 }
