@@ -2,7 +2,8 @@
 //! `scanfuse run`. An emulator killed mid-stream → that sensor shows disconnected while the
 //! others keep their rates, and it reconnects when the emulator returns. Kills during saves
 //! leave `poses.toml` whole (the old or the new file, never a partial one). A stopping daemon
-//! stops every laser (QT) before it closes the links.
+//! stops every laser (QT) before it closes the links. A unit that cannot stream (a mode it
+//! lacks, a fault reboots do not clear) shows `failed` with the reason, the others stream on.
 
 mod daemon_run_common;
 
@@ -141,6 +142,64 @@ fn kills_during_saves_leave_poses_toml_old_or_new_never_partial() {
         replaced >= 4,
         "poses.toml was replaced in only {replaced} of 5 rounds"
     );
+}
+
+#[test]
+fn units_that_cannot_stream_show_failed_with_the_reason_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let lab = fixture("lab.mcap");
+    let (_entrance, entrance) = start_emulator(&lab, "entrance", "127.0.0.1:0");
+    // bench has no multi-echo but is configured for ND; north stays in its abnormal state (0L).
+    let (_bench, bench) =
+        start_emulator_faulty(&lab, "bench", "127.0.0.1:0", None, &["--no-multi-echo"]);
+    let never = u32::MAX.to_string();
+    let (_north, north) = start_emulator_faulty(
+        &lab,
+        "north",
+        "127.0.0.1:0",
+        None,
+        &["--abnormal-until-reboots", &never],
+    );
+    let sensors = [
+        ("entrance", format!("tcp://{entrance}"), ""),
+        ("bench", format!("tcp://{bench}"), "mode = \"ND\""),
+        ("north", format!("tcp://{north}"), ""),
+    ];
+    let config = write_config(dir.path(), "entrance", &sensors, "save_interval_s = 0");
+    let mut daemon = start_daemon(&config, dir.path());
+    let mut client = Client::connect(&dir.path().join("s.sock"), Duration::from_secs(30));
+    let sensor = |client: &mut Client, id: &str| {
+        let status = client.status();
+        status.sensors.into_iter().find(|s| s.id == id)
+    };
+    // While north is retried, the socket names its state.
+    let named = wait_for(Duration::from_secs(30), "north's state named", || {
+        sensor(&mut client, "north")?.last_error
+    });
+    assert!(named.contains("abnormal state (0L)"), "{named}");
+    let bench = wait_for(Duration::from_secs(30), "bench failed", || {
+        sensor(&mut client, "bench").filter(|s| s.state == SensorState::Failed)
+    });
+    assert!(
+        bench.last_error.as_deref().is_some_and(
+            |e| e.contains("answers 0E to ND: it has no multi-echo mode; use MD or ME")
+        ),
+        "{bench:?}"
+    );
+    assert_eq!(bench.reconnects, 0, "{bench:?}");
+    // Three connections per reboot, two reboots, then it is given up (backoff up to 10 s).
+    let north = wait_for(Duration::from_secs(120), "north failed", || {
+        sensor(&mut client, "north").filter(|s| s.state == SensorState::Failed)
+    });
+    let error = north.last_error.unwrap_or_default();
+    assert!(
+        error.contains("abnormal state (0L), still after 2 reboots: power-cycle the unit"),
+        "{error}"
+    );
+    let entrance = sensor(&mut client, "entrance").unwrap();
+    assert_eq!(entrance.state, SensorState::Streaming, "{entrance:?}");
+    daemon.signal("TERM");
+    assert!(daemon.wait_exit(Duration::from_secs(30)).success());
 }
 
 /// Sends `save` requests back to back until the daemon goes away; returns how many were

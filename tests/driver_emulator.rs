@@ -312,3 +312,23 @@ async fn multi_echo_streams_carry_the_emulators_synthetic_second_echoes() {
         driver.stop().await;
     }
 }
+
+/// `no_returns`: a unit that sees nothing (covered window) still streams, every range 0.
+#[tokio::test]
+async fn a_unit_with_no_returns_streams_scans_without_a_single_range() {
+    let (info, scans) = recording(10);
+    let faults = Faults {
+        no_returns: true,
+        ..Faults::default()
+    };
+    let (_emu, uri) = emulator_with(&info, &scans, faults, false).await;
+    let mut driver = Harness::start(&uri, ScanMode::Me, |_| {});
+    let got = driver.scans(10, Duration::from_secs(10)).await;
+    assert_eq!(got.len(), 10);
+    for scan in &got {
+        assert_eq!(scan.scan.ranges_m.len(), scans[0].ranges_m.len());
+        assert!(scan.scan.ranges_m.iter().all(|&r| r == 0.0 || r.is_nan()));
+        assert!(scan.scan.intensities.iter().all(|&i| i == 0.0));
+    }
+    driver.stop().await;
+}

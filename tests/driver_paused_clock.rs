@@ -9,6 +9,7 @@ use std::time::Duration;
 use driver_support::{mm, recording};
 use scanfuse::emulator::{Emulator, EmulatorConfig, Faults};
 use scanfuse::scan::{Scan, SensorInfo};
+use scanfuse::sensor::driver::{ABNORMAL_SESSIONS_BEFORE_REBOOT, MAX_REBOOTS};
 use scanfuse::sensor::{
     Connector, Driver, DriverConfig, DriverEvent, Link, ScanMode, TransportError,
 };
@@ -161,7 +162,11 @@ async fn tm0_refused_while_the_unit_boots_is_retried() {
     assert_eq!(started.elapsed(), Duration::from_millis(300));
     let c = counters.snapshot();
     assert_eq!((c.connects, c.reconnects, c.time_syncs), (1, 0, 1));
-    assert!(c.last_error.unwrap().contains("0M"));
+    let last_error = c.last_error.unwrap();
+    assert!(
+        last_error.contains("laser off (10)") && last_error.contains("may still be booting"),
+        "{last_error}"
+    );
     stop.send(true).unwrap();
     task.await.unwrap();
 }
@@ -198,4 +203,187 @@ async fn shutdown_waits_for_qt_no_longer_than_its_bound() {
         quits,
         "the stalled unit never read the QT"
     );
+}
+
+/// A unit still booting when the driver's TM0 attempts run out: the connection ends with
+/// "still booting; retrying" (not "no valid TM1 answer"), and the next one gets through.
+#[tokio::test(start_paused = true)]
+async fn a_unit_booting_longer_than_the_tm0_attempts_is_reported_as_booting() {
+    let (info, scans) = recording(20);
+    let faults = Faults {
+        booting_for: Some(Duration::from_secs(2)),
+        ..Faults::default()
+    };
+    let emulator = looping_emulator(&info, &scans, faults);
+    let driver = Driver::with_connector(config(), connector(emulator, 0, Arc::default()));
+    let counters = driver.counters();
+    let (mut rx, stop, task) = spawn(driver);
+    let mut reasons = Vec::new();
+    loop {
+        match rx.recv().await.unwrap() {
+            DriverEvent::Scan(_) => break,
+            DriverEvent::Disconnected { reason } => reasons.push(reason),
+            _ => {}
+        }
+    }
+    // Five TM0s 100..400 ms apart take the first connection to 1.5 s; the second gets through.
+    assert_eq!(reasons.len(), 1, "{reasons:?}");
+    assert_eq!(
+        reasons[0],
+        "the unit is still booting (it refused TM0 5 times, with laser off (10)); retrying"
+    );
+    let c = counters.snapshot();
+    assert_eq!((c.connects, c.reconnects), (1, 1));
+    stop.send(true).unwrap();
+    task.await.unwrap();
+}
+
+/// Events until the driver ends by itself; panics on a scan.
+async fn events_until_the_driver_ends(
+    rx: &mut mpsc::Receiver<DriverEvent>,
+) -> (Vec<String>, Option<String>) {
+    let mut disconnects = Vec::new();
+    let mut failed = None;
+    while let Some(event) = rx.recv().await {
+        match event {
+            DriverEvent::Disconnected { reason } => disconnects.push(reason),
+            DriverEvent::Failed { reason } => failed = Some(reason),
+            DriverEvent::Scan(_) => panic!("a scan from a unit that cannot stream"),
+            _ => {}
+        }
+    }
+    (disconnects, failed)
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_unit_in_its_abnormal_state_is_rebooted_and_streams_again() {
+    let (info, scans) = recording(20);
+    let faults = Faults {
+        abnormal_until_reboots: Some(1),
+        ..Faults::default()
+    };
+    let emulator = looping_emulator(&info, &scans, faults);
+    let attempts = Arc::new(Mutex::new(Vec::new()));
+    let driver = Driver::with_connector(config(), connector(emulator.clone(), 0, attempts.clone()));
+    let (mut rx, stop, task) = spawn(driver);
+    let mut reasons = Vec::new();
+    loop {
+        match rx.recv().await.unwrap() {
+            DriverEvent::Scan(_) => break,
+            DriverEvent::Disconnected { reason } => reasons.push(reason),
+            DriverEvent::Failed { reason } => panic!("failed: {reason}"),
+            _ => {}
+        }
+    }
+    // Connections 1 and 2 end in 0L, the 3rd too and reboots the unit; the 4th streams.
+    assert_eq!(emulator.stats().reboots, 1);
+    assert_eq!(
+        attempts.lock().unwrap().len(),
+        ABNORMAL_SESSIONS_BEFORE_REBOOT as usize + 1
+    );
+    assert_eq!(reasons.len(), ABNORMAL_SESSIONS_BEFORE_REBOOT as usize);
+    for reason in &reasons {
+        assert_eq!(reason, "sensor answered RS with abnormal state (0L)");
+    }
+    stop.send(true).unwrap();
+    task.await.unwrap();
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_unit_that_stays_abnormal_through_the_reboots_is_failed_and_left_alone() {
+    let (info, scans) = recording(20);
+    let faults = Faults {
+        abnormal_until_reboots: Some(u32::MAX),
+        ..Faults::default()
+    };
+    let emulator = looping_emulator(&info, &scans, faults);
+    let attempts = Arc::new(Mutex::new(Vec::new()));
+    let driver = Driver::with_connector(config(), connector(emulator.clone(), 0, attempts.clone()));
+    let counters = driver.counters();
+    let (mut rx, _stop, task) = spawn(driver);
+    let (disconnects, failed) = events_until_the_driver_ends(&mut rx).await;
+    // The driver ended by itself: no stop was sent.
+    task.await.unwrap();
+    let failed = failed.expect("a Failed event");
+    assert_eq!(
+        failed,
+        format!(
+            "sensor answered RS with abnormal state (0L), still after {MAX_REBOOTS} reboots: power-cycle the unit and check it (its LED, the manual's error list); scanfuse stopped retrying it"
+        )
+    );
+    assert_eq!(emulator.stats().reboots, MAX_REBOOTS as u64);
+    let sessions = (ABNORMAL_SESSIONS_BEFORE_REBOOT * (MAX_REBOOTS + 1)) as usize;
+    assert_eq!(attempts.lock().unwrap().len(), sessions);
+    assert_eq!(disconnects.len(), sessions - 1);
+    assert_eq!(counters.snapshot().last_error, Some(failed));
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_mode_the_unit_lacks_fails_the_sensor_at_the_first_connection() {
+    let (info, scans) = recording(20);
+    let faults = Faults {
+        no_multi_echo: true,
+        ..Faults::default()
+    };
+    let emulator = looping_emulator(&info, &scans, faults);
+    let attempts = Arc::new(Mutex::new(Vec::new()));
+    let mut config = config();
+    config.mode = ScanMode::Nd;
+    let driver = Driver::with_connector(config, connector(emulator.clone(), 0, attempts.clone()));
+    let counters = driver.counters();
+    let (mut rx, _stop, task) = spawn(driver);
+    let mut connected = false;
+    let mut failed = None;
+    while let Some(event) = rx.recv().await {
+        match event {
+            DriverEvent::Connected(_) => connected = true,
+            DriverEvent::Failed { reason } => failed = Some(reason),
+            DriverEvent::Disconnected { reason } => panic!("retried: {reason}"),
+            _ => {}
+        }
+    }
+    task.await.unwrap();
+    assert_eq!(
+        failed.as_deref(),
+        Some("this UTM-30LX-EW answers 0E to ND: it has no multi-echo mode; use MD or ME")
+    );
+    assert!(
+        !connected,
+        "never reported connected in a mode it cannot stream"
+    );
+    assert_eq!(attempts.lock().unwrap().len(), 1);
+    let c = counters.snapshot();
+    assert_eq!((c.connects, c.reconnects), (0, 0));
+    // The driver stopped the unit (QT) before leaving.
+    assert!(emulator.stats().quits >= 2, "{:?}", emulator.stats());
+}
+
+/// A link that opens but never answers, as a TCP unit held by another client.
+#[tokio::test(start_paused = true)]
+async fn a_link_that_opens_but_never_answers_names_another_client() {
+    let held = Arc::new(Mutex::new(Vec::new()));
+    let connector: Connector = Arc::new({
+        let held = held.clone();
+        move || {
+            let held = held.clone();
+            Box::pin(async move {
+                let (ours, theirs) = tokio::io::duplex(1024);
+                held.lock().unwrap().push(theirs);
+                Ok(Link::Memory(ours))
+            })
+        }
+    });
+    let driver = Driver::with_connector(config(), connector);
+    let (mut rx, stop, task) = spawn(driver);
+    let reason = loop {
+        if let Some(DriverEvent::Disconnected { reason }) = rx.recv().await {
+            break reason;
+        }
+    };
+    assert_eq!(
+        reason,
+        "memory://emulator accepted the connection but sent no answer to QT within 2s: another client may hold the unit (Hokuyo units serve one client at a time), or it is not a SCIP 2.0 unit"
+    );
+    stop.send(true).unwrap();
+    task.await.unwrap();
 }

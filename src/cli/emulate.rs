@@ -51,9 +51,19 @@ pub struct Args {
     /// Fault: close every connection for the first MS ms.
     #[arg(long, value_name = "MS")]
     refuse_ms: Option<u64>,
-    /// Fault: refuse TM0 and scans (status 0M) for the first MS ms, like a booting unit.
+    /// Fault: refuse TM0 and scans (status 10) for the first MS ms, like a booting unit.
     #[arg(long, value_name = "MS")]
     booting_ms: Option<u64>,
+    /// Fault: answer 0L (abnormal state) to all but RB QT VV PP II until rebooted (RB twice)
+    /// N times; each reboot drops the connection. 4294967295: never recovers.
+    #[arg(long, value_name = "N")]
+    abnormal_until_reboots: Option<u32>,
+    /// Fault: answer 0E (undefined command) to ND NE HD HE, like a unit without multi-echo.
+    #[arg(long)]
+    no_multi_echo: bool,
+    /// Fault: every range of every scan is 0 (no return), like a unit with a covered window.
+    #[arg(long)]
+    no_returns: bool,
     /// Sensor clock reading at start and after each reset (RS/RT/RB), ms; e.g. 16775000 puts
     /// the 24-bit wrap (16777216) two seconds after the driver's handshake. Real units start at 0.
     #[arg(long, value_name = "MS", default_value_t = 0)]
@@ -117,6 +127,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             garbage_every: args.garbage_every,
             refuse_for: args.refuse_ms.map(Duration::from_millis),
             booting_for: args.booting_ms.map(Duration::from_millis),
+            abnormal_until_reboots: args.abnormal_until_reboots,
+            no_multi_echo: args.no_multi_echo,
+            no_returns: args.no_returns,
         },
         clock: ClockSetting {
             start_ms: args.clock_start_ms,

@@ -62,6 +62,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         // Bytes read before the handshake finished belong to the recording too.
         let mut early_raw: Vec<(u64, Vec<u8>)> = Vec::new();
         let mut scans = 0u64;
+        // Why the sensor last dropped or failed, for the error when nothing was recorded.
+        let mut last_reason: Option<String> = None;
+        let mut failed = false;
         loop {
             let sleep = tokio::time::sleep_until(
                 deadline
@@ -102,6 +105,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 }
                 DriverEvent::Disconnected { reason } => {
                     tracing::warn!(sensor = %args.id, %reason, "sensor link lost");
+                    last_reason = Some(reason);
+                }
+                DriverEvent::Failed { reason } => {
+                    // The driver has given up; waiting longer records nothing more.
+                    last_reason = Some(reason);
+                    failed = true;
+                    break;
                 }
             }
         }
@@ -115,17 +125,33 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             skipped_bytes = c.skipped_bytes,
             "recording done"
         );
-        anyhow::Ok((added, scans))
+        anyhow::Ok((added, scans, last_reason, failed))
     })?;
-    let (added, scans) = written;
-    if !added {
+    let (added, scans, last_reason, failed) = written;
+    if !added || scans == 0 {
+        // Nothing worth keeping: no file is left that looks like a recording.
         drop(writer);
         let _ = std::fs::remove_file(scanfuse::record::partial_path(&args.out));
-        anyhow::bail!("no sensor answered at {}; nothing recorded", args.connect);
+        let why = match (last_reason, added) {
+            (Some(reason), _) => reason,
+            (None, false) => "no sensor answered".to_string(),
+            (None, true) => "the sensor connected but sent no scans".to_string(),
+        };
+        anyhow::bail!(
+            "nothing recorded from {}, {} not written: {why}",
+            args.connect,
+            args.out.display()
+        );
     }
     writer
         .finish()
         .with_context(|| format!("finishing {}", args.out.display()))?;
     println!("{}: {scans} scans from {}", args.out.display(), args.id);
+    if failed {
+        anyhow::bail!(
+            "the recording stops early: {}",
+            last_reason.unwrap_or_default()
+        );
+    }
     Ok(())
 }

@@ -434,6 +434,20 @@ impl Pipeline {
                 }
                 self.announce(EventKind::Disconnected, Some(id), reason);
             }
+            DriverEvent::Failed { reason } => {
+                {
+                    let mut inner = lock(&self.inner);
+                    let Some(slot) = inner.sensors.get_mut(id) else {
+                        return;
+                    };
+                    if slot.state == SensorState::Stopped {
+                        return;
+                    }
+                    slot.state = SensorState::Failed;
+                    slot.last_error_at = Some(Instant::now());
+                }
+                self.announce(EventKind::Error, Some(id), format!("failed: {reason}"));
+            }
             DriverEvent::Raw { .. } => {}
         }
     }

@@ -16,9 +16,18 @@ pub struct Faults {
     pub garbage_every: Option<u64>,
     /// Close every connection at once for this long after the emulator starts.
     pub refuse_for: Option<Duration>,
-    /// Refuse TM0 and scan commands (status `0M`) for this long after the emulator starts,
+    /// Refuse TM0 and scan commands (status `10`) for this long after the emulator starts,
     /// like a unit still booting.
     pub booting_for: Option<Duration>,
+    /// Answer `0L` (abnormal state) to every command but RB, QT, VV, PP and II until rebooted
+    /// (RB twice) this many times; `u32::MAX` never recovers. Each reboot drops the
+    /// connection, as a real unit's restart does.
+    pub abnormal_until_reboots: Option<u32>,
+    /// Answer `0E` (undefined command) to the multi-echo commands ND NE HD HE, like a unit
+    /// without multi-echo (UTM-30LX).
+    pub no_multi_echo: bool,
+    /// Every range of every scan is 0 (no return), like a unit with a covered window.
+    pub no_returns: bool,
 }
 
 /// Junk of the kind a half-read reply or line noise leaves behind.
@@ -38,4 +47,8 @@ pub struct EmulatorStats {
     pub quits: u64,
     /// Connections the client ended (end of stream), as opposed to a fault or an error.
     pub client_closes: u64,
+    /// Reboots (RB twice), each ending its connection.
+    pub reboots: u64,
+    /// Commands answered `0L` (abnormal state).
+    pub abnormal_answers: u64,
 }

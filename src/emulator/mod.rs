@@ -5,7 +5,8 @@
 //! - [`unit`]: the sensor's state machine (idle, streaming, time-adjust), pure: command line in,
 //!   reply bytes out.
 //! - [`playback`]: which recorded scan is current at what time, at `--speed`, with `--loop`.
-//! - [`faults`]: failures to inject (drop, corrupt, stall, garbage, refuse).
+//! - [`faults`]: failures to inject (drop, corrupt, stall, garbage, refuse, booting, an abnormal
+//!   state until rebooted, no multi-echo, no returns).
 //! - [`gate`]: a replay's shared clock, held back by the pipeline it feeds.
 //! - [`server`]: the tokio edge: sockets, timers, fault injection.
 

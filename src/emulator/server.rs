@@ -16,6 +16,7 @@ use super::gate::ReplayGate;
 use super::playback::Playback;
 use super::unit::{ClockSetting, SourceScan, SyntheticEchoes, Unit};
 use crate::scan::{Scan, SensorInfo};
+use crate::scip::reply::encode_status;
 
 #[derive(Debug, Error)]
 #[non_exhaustive]
@@ -118,9 +119,17 @@ impl Emulator {
         if scans.is_empty() {
             return Err(EmulatorError::NoScans(info.id.clone()));
         }
+        let no_returns = config.faults.no_returns;
         let sources = scans
             .iter()
-            .map(|s| SourceScan::from_scan(s, &geometry))
+            .map(|s| {
+                let mut source = SourceScan::from_scan(s, &geometry);
+                if no_returns {
+                    source.ranges_mm.fill(0);
+                    source.intensities.fill(0);
+                }
+                source
+            })
             .collect();
         // On a gate the speed is the gate's: the playback keeps recorded time.
         let speed = if config.gate.is_some() {
@@ -134,9 +143,13 @@ impl Emulator {
             .gate
             .map(|g| (g.gate, g.id, first_ns.saturating_sub(g.origin_ns)));
         let (finished, _) = watch::channel(false);
+        let mut unit = Unit::new(info, geometry);
+        if config.faults.no_multi_echo {
+            unit = unit.without_multi_echo();
+        }
         Ok(Emulator {
             shared: Arc::new(Shared {
-                unit: Unit::new(info, geometry)
+                unit: unit
                     .booting_until(
                         config
                             .faults
@@ -238,6 +251,7 @@ impl Emulator {
         let mut pending: Vec<u8> = Vec::new();
         let mut chunk = [0u8; 1024];
         let mut streams_seen = unit.streams_started();
+        let reboots_seen = unit.reboots();
         let mut next_k: u64 = 0;
         loop {
             let due = if unit.is_streaming() {
@@ -277,6 +291,13 @@ impl Emulator {
                         }
                         let reply = self.answer(unit, &line);
                         wr.write_all(&reply).await?;
+                        if unit.reboots() != reboots_seen {
+                            // A rebooting unit restarts: the connection goes with it.
+                            lock(&shared.state).stats.reboots += 1;
+                            wr.flush().await?;
+                            tracing::info!("rebooted (RB twice); dropping the connection");
+                            return Ok(());
+                        }
                         let started = unit.streams_started();
                         if started != streams_seen {
                             streams_seen = started;
@@ -314,6 +335,14 @@ impl Emulator {
             if unit.is_streaming() {
                 // A client that stops the laser before leaving says so in the log.
                 tracing::info!("QT while streaming: the client stopped the laser");
+            }
+        }
+        if let Some(needed) = shared.faults.abnormal_until_reboots {
+            let mut state = lock(&shared.state);
+            let exempt = matches!(line.get(..2), Some(b"RB" | b"QT" | b"VV" | b"PP" | b"II"));
+            if state.stats.reboots < u64::from(needed) && !exempt {
+                state.stats.abnormal_answers += 1;
+                return encode_status(line, *b"0L");
             }
         }
         let now_ms = self.now_ms();

@@ -105,10 +105,15 @@ pub struct Unit {
     clock_zero_ms: u64,
     clock: ClockSetting,
     synthetic_echoes: Option<SyntheticEchoes>,
-    /// Until this host time the unit is booting: TM0 and scans are refused (status `0M`).
+    /// Until this host time the unit is booting: TM0 and scans are refused (status `10`).
     booting_until_ms: u64,
     reboot_armed_at_ms: Option<u64>,
     streams_started: u64,
+    /// Reboots done (a second RB within a second of the first).
+    reboots: u64,
+    /// Whether the unit knows the multi-echo commands ND NE HD HE (SCIP 2.2 units such as the
+    /// UXM-30LX-E and UTM-30LX-EW do; the UTM-30LX does not).
+    multi_echo: bool,
 }
 
 /// The emulated sensor clock. A real unit starts at 0 when powered on or reset and keeps
@@ -193,11 +198,26 @@ impl Unit {
             reboot_armed_at_ms: None,
             booting_until_ms: 0,
             streams_started: 0,
+            reboots: 0,
+            multi_echo: true,
         }
     }
 
-    /// Makes the unit refuse TM0 and scans until host time `until_ms`, as a UTM-30LX-EW does
-    /// while it boots.
+    /// Makes the unit answer the multi-echo commands (ND NE HD HE) with `0E`, undefined
+    /// command, as a unit without multi-echo does.
+    pub fn without_multi_echo(mut self) -> Self {
+        self.multi_echo = false;
+        self
+    }
+
+    /// Reboots done so far; a change tells the server to drop the connection, as a real
+    /// unit's restart does.
+    pub fn reboots(&self) -> u64 {
+        self.reboots
+    }
+
+    /// Makes the unit refuse TM0 and scans (status `10`) until host time `until_ms`, as a
+    /// UTM-30LX-EW does while it boots.
     pub fn booting_until(mut self, until_ms: u64) -> Self {
         self.booting_until_ms = until_ms;
         self
@@ -272,6 +292,12 @@ impl Unit {
             self.reboot_armed_at_ms = None;
         }
         let ok = || encode_status(line, *b"00");
+        if let Command::Scan(scan) = request.command
+            && scan.kind.is_multi_echo()
+            && !self.multi_echo
+        {
+            return encode_status(line, *b"0E");
+        }
         if self.mode == Mode::TimeAdjust
             && !matches!(
                 request.command,
@@ -340,6 +366,7 @@ impl Unit {
                 Some(at) if now_ms.saturating_sub(at) <= 1000 => {
                     self.reboot_armed_at_ms = None;
                     self.reset(now_ms, false);
+                    self.reboots += 1;
                     ok()
                 }
                 _ => {
@@ -350,7 +377,7 @@ impl Unit {
             Command::Time(TimeControl::Enter) | Command::Scan(_)
                 if now_ms < self.booting_until_ms =>
             {
-                encode_status(line, *b"0M")
+                encode_status(line, *b"10")
             }
             Command::Time(control) => self.time_reply(line, control, now_ms),
             Command::BitRate(bps) => {
@@ -652,6 +679,39 @@ mod tests {
         assert_eq!(u.handle(b"RB", 0, None), b"RB\n01Q\n\n");
         assert_eq!(u.handle(b"RB", 500, None), b"RB\n00P\n\n");
         assert_eq!(u.clock_ms(600), 100);
+    }
+
+    #[test]
+    fn a_unit_without_multi_echo_does_not_know_nd_ne_hd_he() {
+        let mut u = unit().without_multi_echo();
+        for line in [
+            &b"ND0000108001000"[..],
+            b"NE0000108001000",
+            b"HD0000108001",
+            b"HE0000108001",
+        ] {
+            let reply = reply_of(&u.handle(line, 0, Some(&source())));
+            assert_eq!(Reply::parse(&reply).unwrap().status, Status(*b"0E"));
+        }
+        assert!(!u.is_streaming());
+        assert_eq!(
+            u.handle(b"MD0000108001000", 0, None),
+            b"MD0000108001000\n00P\n\n"
+        );
+        assert_eq!(
+            unit().handle(b"ND0000108001000", 0, None),
+            b"ND0000108001000\n00P\n\n"
+        );
+    }
+
+    #[test]
+    fn a_second_rb_within_a_second_reboots_and_is_counted() {
+        let mut u = unit();
+        u.handle(b"RB", 0, None);
+        u.handle(b"RB", 1500, None);
+        assert_eq!(u.reboots(), 0, "too late: the second RB only arms again");
+        u.handle(b"RB", 2000, None);
+        assert_eq!(u.reboots(), 1);
     }
 
     #[test]

@@ -62,6 +62,9 @@ pub enum StatusKind {
     BadTag,
     /// 0I: firmware update mode.
     FirmwareUpdate,
+    /// 0L: the sensor is in an abnormal state (a fault it cannot clear itself); reference
+    /// drivers reboot it (RB twice).
+    Abnormal,
     /// Anything else, e.g. a command-specific refusal (`CR` 03/04).
     Other,
 }
@@ -74,6 +77,7 @@ impl StatusKind {
             (_, b"0D" | b"0E") => StatusKind::UndefinedCommand,
             (_, b"0G" | b"0H") => StatusKind::BadTag,
             (_, b"0I") => StatusKind::FirmwareUpdate,
+            (_, b"0L") => StatusKind::Abnormal,
             (b"BM" | b"HS", b"02") => StatusKind::AlreadyInState,
             (b"TM", b"02" | b"03") => StatusKind::AlreadyInState,
             (b"TM", b"04") => StatusKind::NotInTimeAdjust,
@@ -98,13 +102,55 @@ impl StatusKind {
     }
 }
 
-/// A sensor refused a command; names the command and keeps the raw status.
+impl StatusKind {
+    /// The state or refusal by name, as a person reads it in a log or on the status socket;
+    /// `None` for [`StatusKind::Other`], whose meaning depends on the command.
+    pub fn name(self) -> Option<&'static str> {
+        Some(match self {
+            StatusKind::BadParameter => "bad parameter",
+            StatusKind::AlreadyInState => "already in that state",
+            StatusKind::NotInTimeAdjust => "not in time-adjust mode",
+            StatusKind::LaserOff => "laser off",
+            StatusKind::Stopped => "stopped to check an error",
+            StatusKind::Hardware => "hardware trouble",
+            StatusKind::Resumed => "resumed",
+            StatusKind::Busy => "busy",
+            StatusKind::InsufficientParameters => "too few parameters",
+            StatusKind::UndefinedCommand => "undefined command",
+            StatusKind::BadTag => "bad tag",
+            StatusKind::FirmwareUpdate => "firmware update mode",
+            StatusKind::Abnormal => "abnormal state",
+            StatusKind::Other => return None,
+        })
+    }
+}
+
+/// A sensor refused a command; names the command and keeps the raw status. Reads e.g.
+/// "sensor answered RS with abnormal state (0L)", or "… with status 04" when the code has no
+/// name of its own.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Error)]
-#[error("sensor answered {} with status {} ({:?})", String::from_utf8_lossy(.command), String::from_utf8_lossy(.code), .kind)]
 pub struct StatusError {
     pub command: [u8; 2],
     pub code: [u8; 2],
     pub kind: StatusKind,
+}
+
+impl StatusError {
+    /// The status alone: "abnormal state (0L)", or "status 04" when it has no name.
+    pub fn status_text(&self) -> String {
+        let code = String::from_utf8_lossy(&self.code);
+        match self.kind.name() {
+            Some(name) => format!("{name} ({code})"),
+            None => format!("status {code}"),
+        }
+    }
+}
+
+impl std::fmt::Display for StatusError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let command = String::from_utf8_lossy(&self.command);
+        write!(f, "sensor answered {command} with {}", self.status_text())
+    }
 }
 
 #[cfg(test)]
@@ -138,5 +184,23 @@ mod tests {
         );
         assert!(Status(*b"99").check(*b"MD").is_ok());
         assert!(err.to_string().contains("BM") && err.to_string().contains("02"));
+    }
+
+    #[test]
+    fn an_abnormal_state_is_named_not_other() {
+        let err = Status(*b"0L").check(*b"RS").unwrap_err();
+        assert_eq!(err.kind, StatusKind::Abnormal);
+        assert_eq!(
+            err.to_string(),
+            "sensor answered RS with abnormal state (0L)"
+        );
+        assert_eq!(
+            Status(*b"10").check(*b"TM").unwrap_err().to_string(),
+            "sensor answered TM with laser off (10)"
+        );
+        assert_eq!(
+            Status(*b"04").check(*b"CR").unwrap_err().to_string(),
+            "sensor answered CR with status 04"
+        );
     }
 }

@@ -1,10 +1,17 @@
-//! The driver state machine: connect → handshake (QT RS VV PP II) → TM sync → stream →
-//! (silence or error) → back off → reconnect. It never gives up on a sensor and never panics
-//! on what the sensor sends; every failure is counted and the last one kept as text.
+//! The driver state machine: connect → handshake (QT RS VV PP II) → TM sync → start the
+//! stream → stream → (silence or error) → back off → reconnect. It never panics on what the
+//! sensor sends; every failure is counted and the last one kept as text.
+//!
+//! It gives up on a sensor (a [`DriverEvent::Failed`], then the task ends) only when retrying
+//! cannot help and a person must act: the unit answers the configured mode's scan command with
+//! "undefined command" (e.g. ND on a unit without multi-echo), or it stays in its abnormal
+//! state (`0L`) through [`MAX_REBOOTS`] reboots.
 //!
 //! Known UTM-30LX-EW habits it tolerates: TM0 fails while the unit boots (retried), QT also
 //! ends time-adjust mode (used as the fallback when TM2 fails), II says `Measuring` after QT
-//! (II is read for the record, never trusted for state).
+//! (II is read for the record, never trusted for state). A unit in its abnormal state answers
+//! `0L`; as the reference drivers do, after [`ABNORMAL_SESSIONS_BEFORE_REBOOT`] connections
+//! ending that way it is rebooted (RB twice within a second, as SCIP 2.0 requires).
 
 use std::future::Future;
 use std::pin::Pin;
@@ -23,8 +30,14 @@ use crate::scan::{Scan, ScanGeometry, SensorInfo};
 use crate::scip::command::{Command, DataKind, Request, ScanRequest, TimeControl};
 use crate::scip::info::{Parameters, StateInfo, VersionInfo, parse_tm1};
 use crate::scip::scan::{Echo, ScanError, ScipScan};
-use crate::scip::status::StatusError;
+use crate::scip::status::{StatusError, StatusKind};
 use crate::scip::{Frame, Framer, Reply};
+
+/// Connections in a row ending in `0L` (abnormal state) before the driver reboots the unit.
+pub const ABNORMAL_SESSIONS_BEFORE_REBOOT: u32 = 3;
+/// Reboots without a scan in between before the driver gives up on a unit in its abnormal
+/// state and reports it failed. A unit that streams again starts the count afresh.
+pub const MAX_REBOOTS: u32 = 2;
 
 /// Shortest no-data watchdog, whatever the scan rate.
 const MIN_WATCHDOG: Duration = Duration::from_millis(50);
@@ -52,6 +65,16 @@ impl ScanMode {
             ScanMode::Me => DataKind::RangeIntensity,
             ScanMode::Nd => DataKind::MultiRange,
             ScanMode::Ne => DataKind::MultiRangeIntensity,
+        }
+    }
+
+    /// The command's two letters, as in the config.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ScanMode::Md => "MD",
+            ScanMode::Me => "ME",
+            ScanMode::Nd => "ND",
+            ScanMode::Ne => "NE",
         }
     }
 
@@ -130,6 +153,11 @@ pub enum DriverEvent {
     Disconnected {
         reason: String,
     },
+    /// The driver gave up on the sensor: retrying cannot help (a mode it does not have, a
+    /// fault reboots did not clear). `reason` says what a person should do. The task ends.
+    Failed {
+        reason: String,
+    },
 }
 
 #[derive(Debug, Error)]
@@ -151,8 +179,49 @@ pub enum DriverError {
     BadReply { what: &'static str, why: String },
     #[error("the sensor's clock could not be read (no valid TM1 answer)")]
     NoTimeSync,
+    #[error("the unit is still booting (it refused TM0 {attempts} times, with {}); retrying", .refusal.status_text())]
+    StillBooting { attempts: u32, refusal: StatusError },
+    #[error("{}", silent(.uri, *.serial, .timeout))]
+    NotAnswering {
+        uri: String,
+        serial: bool,
+        timeout: Duration,
+    },
+    #[error("this {model} answers {} to {}: {}", String::from_utf8_lossy(.code), .mode.as_str(), unsupported_advice(*.mode))]
+    UnsupportedMode {
+        model: String,
+        mode: ScanMode,
+        code: [u8; 2],
+    },
+    #[error(
+        "{last}, still after {reboots} reboots: power-cycle the unit and check it (its LED, the manual's error list); scanfuse stopped retrying it"
+    )]
+    AbnormalAfterReboots { reboots: u32, last: StatusError },
     #[error("shutting down")]
     Shutdown,
+}
+
+/// What to do about a unit that answers `mode`'s scan command "undefined command".
+fn unsupported_advice(mode: ScanMode) -> &'static str {
+    match mode {
+        ScanMode::Nd | ScanMode::Ne => "it has no multi-echo mode; use MD or ME",
+        ScanMode::Me => "it sends no intensities; use MD",
+        ScanMode::Md => "it does not stream ranges; check that it is a SCIP 2.0 unit",
+    }
+}
+
+/// Why a link that opened may stay silent. Over TCP the unit (or something) accepted the
+/// connection, so it is powered: the likely cause is another client holding it.
+fn silent(uri: &str, serial: bool, timeout: &Duration) -> String {
+    if serial {
+        format!(
+            "no answer to QT within {timeout:?} on {uri}: the unit may be unpowered, not a SCIP 2.0 unit or at another baud rate, or another program holds the port"
+        )
+    } else {
+        format!(
+            "{uri} accepted the connection but sent no answer to QT within {timeout:?}: another client may hold the unit (Hokuyo units serve one client at a time), or it is not a SCIP 2.0 unit"
+        )
+    }
 }
 
 /// Host time as ns since the epoch, advancing with tokio's clock (so paused tests control it).
@@ -216,6 +285,9 @@ impl Driver {
     pub async fn run(self, events: mpsc::Sender<DriverEvent>, mut shutdown: watch::Receiver<bool>) {
         let mut backoff = self.config.backoff_initial;
         let mut first = true;
+        // Connections in a row that ended in `0L`, and reboots since the last scan.
+        let mut abnormal_sessions = 0u32;
+        let mut reboots = 0u32;
         loop {
             if *shutdown.borrow() || events.is_closed() {
                 return;
@@ -238,8 +310,60 @@ impl Driver {
                 Err(e) => e,
                 Ok(()) => DriverError::Closed,
             };
-            tracing::warn!(sensor = %self.config.id, error = %error, "sensor link lost; reconnecting");
+            if delivered {
+                reboots = 0;
+            }
+            let mut fatal = matches!(error, DriverError::UnsupportedMode { .. });
+            let error = match error {
+                DriverError::Status(last) if last.kind == StatusKind::Abnormal => {
+                    abnormal_sessions += 1;
+                    if abnormal_sessions < ABNORMAL_SESSIONS_BEFORE_REBOOT {
+                        DriverError::Status(last)
+                    } else if reboots >= MAX_REBOOTS {
+                        fatal = true;
+                        DriverError::AbnormalAfterReboots { reboots, last }
+                    } else {
+                        abnormal_sessions = 0;
+                        reboots += 1;
+                        tracing::warn!(sensor = %self.config.id, error = %last, reboot = reboots, max_reboots = MAX_REBOOTS, "sensor in its abnormal state; rebooting it (RB twice)");
+                        let rebooted = tokio::select! {
+                            r = session.reboot() => r,
+                            _ = shutdown.wait_for(|s| *s) => return,
+                        };
+                        match rebooted {
+                            Ok(()) => {
+                                tracing::info!(sensor = %self.config.id, "reboot accepted; reconnecting")
+                            }
+                            Err(e) => {
+                                tracing::warn!(sensor = %self.config.id, error = %e, "reboot not accepted")
+                            }
+                        }
+                        DriverError::Status(last)
+                    }
+                }
+                other => {
+                    abnormal_sessions = 0;
+                    other
+                }
+            };
             self.counters.set_last_error(error.to_string());
+            if fatal {
+                tracing::error!(sensor = %self.config.id, error = %error, "sensor failed; not retrying");
+                session.quit(QUIT_TIMEOUT).await;
+                let failed = DriverEvent::Failed {
+                    reason: error.to_string(),
+                };
+                tokio::select! {
+                    _ = events.send(failed) => {}
+                    _ = shutdown.wait_for(|s| *s) => {}
+                }
+                return;
+            }
+            if matches!(error, DriverError::StillBooting { .. }) {
+                tracing::warn!(sensor = %self.config.id, error = %error, "sensor still booting; reconnecting");
+            } else {
+                tracing::warn!(sensor = %self.config.id, error = %error, "sensor link lost; reconnecting");
+            }
             let _ = events.try_send(DriverEvent::Disconnected {
                 reason: error.to_string(),
             });
@@ -298,10 +422,38 @@ impl<'a> Session<'a> {
         }
         let (info, geometry) = self.handshake().await?;
         let clock = self.time_sync().await?;
+        // Started before the sensor is reported connected: a mode the unit does not have is
+        // found here, and the sensor is never reported as streaming it.
+        let symbol = self.start_stream(&geometry, &info.model).await?;
         Counters::add(&self.driver.counters.connects, 1);
         tracing::info!(sensor = %config.id, model = %info.model, "sensor connected");
         let _ = self.events.send(DriverEvent::Connected(info)).await;
-        self.stream(geometry, clock).await
+        self.stream(geometry, clock, symbol).await
+    }
+
+    /// Reboots a unit in its abnormal state: RB twice within a second (SCIP 2.0: the first is
+    /// answered `01`, the second `00`, then the unit restarts and drops the link). The link is
+    /// closed afterwards whatever the unit did.
+    async fn reboot(&mut self) -> Result<(), DriverError> {
+        let request = Request::new(Command::Reboot);
+        let outcome = async {
+            self.command(&request).await?;
+            match self.command(&request).await {
+                Ok(frame) => {
+                    let reply = parse_reply(&frame, "RB")?;
+                    reply.status.check(*b"RB")?;
+                    Ok(())
+                }
+                // A unit may restart before its answer gets out.
+                Err(DriverError::Closed | DriverError::Io(_) | DriverError::NoReply(..)) => Ok(()),
+                Err(e) => Err(e),
+            }
+        }
+        .await;
+        if let Some(mut link) = self.link.take() {
+            let _ = tokio::time::timeout(QUIT_TIMEOUT, link.shutdown()).await;
+        }
+        outcome
     }
 
     fn counters(&self) -> &Counters {
@@ -409,7 +561,16 @@ impl<'a> Session<'a> {
 
     async fn handshake(&mut self) -> Result<(SensorInfo, ScanGeometry), DriverError> {
         // QT stops a stream left running by an earlier client; RS puts settings back.
-        self.checked(Command::Quit).await?;
+        match self.checked(Command::Quit).await {
+            Err(DriverError::NoReply(_, timeout)) => {
+                return Err(DriverError::NotAnswering {
+                    uri: self.driver.config.connect.clone(),
+                    serial: matches!(self.link, Some(Link::Serial(_))),
+                    timeout,
+                });
+            }
+            answered => answered?,
+        };
         self.checked(Command::Reset).await?;
         let vv = self.checked(Command::Version).await?;
         let version =
@@ -435,6 +596,7 @@ impl<'a> Session<'a> {
     async fn time_sync(&mut self) -> Result<ClockModel, DriverError> {
         let attempts = self.driver.config.tm0_attempts.max(1);
         let mut entered = false;
+        let mut refusal = None;
         for attempt in 1..=attempts {
             match self.checked(Command::Time(TimeControl::Enter)).await {
                 Ok(_) => {
@@ -446,16 +608,21 @@ impl<'a> Session<'a> {
                     entered = true;
                     break;
                 }
-                Err(DriverError::Status(e)) => {
+                Err(DriverError::Status(e)) if e.kind != StatusKind::Abnormal => {
                     tracing::debug!(sensor = %self.driver.config.id, attempt, code = %String::from_utf8_lossy(&e.code), "TM0 refused; the unit may still be booting");
-                    self.counters().set_last_error(e.to_string());
+                    self.counters()
+                        .set_last_error(format!("{e}; the unit may still be booting"));
+                    refusal = Some(e);
                     tokio::time::sleep(Duration::from_millis(100 * attempt as u64)).await;
                 }
                 Err(e) => return Err(e),
             }
         }
         if !entered {
-            return Err(DriverError::NoTimeSync);
+            return Err(match refusal {
+                Some(refusal) => DriverError::StillBooting { attempts, refusal },
+                None => DriverError::NoTimeSync,
+            });
         }
         let mut samples = Vec::with_capacity(self.driver.config.sync_samples);
         for _ in 0..self.driver.config.sync_samples.max(1) {
@@ -494,14 +661,16 @@ impl<'a> Session<'a> {
         Ok(ClockModel::new(result, reference_ms))
     }
 
-    async fn stream(
+    /// Sends the configured mode's scan command; returns the symbol its blocks echo. A unit
+    /// that does not know the command is [`DriverError::UnsupportedMode`].
+    async fn start_stream(
         &mut self,
-        geometry: ScanGeometry,
-        mut clock: ClockModel,
-    ) -> Result<(), DriverError> {
-        let config = &self.driver.config;
+        geometry: &ScanGeometry,
+        model: &str,
+    ) -> Result<[u8; 2], DriverError> {
+        let mode = self.driver.config.mode;
         let request = ScanRequest {
-            kind: config.mode.kind(),
+            kind: mode.kind(),
             continuous: true,
             start_step: geometry.amin as u16,
             end_step: geometry.amax as u16,
@@ -509,8 +678,28 @@ impl<'a> Session<'a> {
             interval: 0,
             scans: 0,
         };
-        let symbol = request.kind.symbol(true);
-        self.checked(Command::Scan(request)).await?;
+        match self.checked(Command::Scan(request)).await {
+            Ok(_) => Ok(request.kind.symbol(true)),
+            Err(DriverError::Status(e)) if e.kind == StatusKind::UndefinedCommand => {
+                // PP's MODL often ends in the maker: "UTM-30LX(Hokuyo Automatic Co.,Ltd.)".
+                let model = model.split('(').next().unwrap_or(model).trim();
+                Err(DriverError::UnsupportedMode {
+                    model: model.to_string(),
+                    mode,
+                    code: e.code,
+                })
+            }
+            Err(e) => Err(e),
+        }
+    }
+
+    async fn stream(
+        &mut self,
+        geometry: ScanGeometry,
+        mut clock: ClockModel,
+        symbol: [u8; 2],
+    ) -> Result<(), DriverError> {
+        let config = &self.driver.config;
         let watchdog = Duration::try_from_secs_f64(geometry.period_s() * config.watchdog_periods)
             .unwrap_or(Duration::ZERO)
             .max(MIN_WATCHDOG);
@@ -543,6 +732,10 @@ impl<'a> Session<'a> {
                     Counters::add(&self.counters().checksum_errors, 1);
                     tracing::debug!(sensor = %config.id, line, "scan dropped: bad checksum");
                     continue;
+                }
+                Err(ScanError::Status(e)) if e.kind == StatusKind::Abnormal => {
+                    Counters::add(&self.counters().status_errors, 1);
+                    return Err(e.into());
                 }
                 Err(ScanError::Status(e)) => {
                     Counters::add(&self.counters().status_errors, 1);

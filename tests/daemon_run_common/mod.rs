@@ -78,7 +78,7 @@ pub fn replay_sensors<'a>(
         .collect()
 }
 
-/// `[[sensor]]` tables: (id, connect, extra lines).
+/// `[[sensor]]` tables: (id, connect, extra lines); `mode = "MD"` unless the extra lines set one.
 pub fn write_config(
     dir: &Path,
     anchor: &str,
@@ -91,8 +91,13 @@ pub fn write_config(
         dir.join("s.sock").display()
     );
     for (id, connect, extra) in sensors {
+        let mode = if extra.contains("mode =") {
+            ""
+        } else {
+            "mode = \"MD\"\n"
+        };
         text.push_str(&format!(
-            "\n[[sensor]]\nid = \"{id}\"\nconnect = \"{connect}\"\nmode = \"MD\"\n{extra}\n"
+            "\n[[sensor]]\nid = \"{id}\"\nconnect = \"{connect}\"\n{mode}{extra}\n"
         ));
     }
     text.push_str(&format!("\n[publish]\n{publish}\n"));
@@ -127,6 +132,17 @@ pub fn start_emulator_logged(
     listen: &str,
     log: Option<&Path>,
 ) -> (Proc, String) {
+    start_emulator_faulty(file, sensor, listen, log, &[])
+}
+
+/// `start_emulator_logged` with more `emulate` arguments (its faults).
+pub fn start_emulator_faulty(
+    file: &Path,
+    sensor: &str,
+    listen: &str,
+    log: Option<&Path>,
+    args: &[&str],
+) -> (Proc, String) {
     let stderr = match log {
         Some(path) => Stdio::from(std::fs::File::create(path).expect("emulator log file")),
         None => Stdio::null(),
@@ -135,6 +151,7 @@ pub fn start_emulator_logged(
         .arg("emulate")
         .arg(file)
         .args(["--sensor", sensor, "--loop", "--listen", listen])
+        .args(args)
         .stdout(Stdio::piped())
         .stderr(stderr)
         .spawn()
