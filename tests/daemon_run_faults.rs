@@ -3,7 +3,8 @@
 //! others keep their rates, and it reconnects when the emulator returns. Kills during saves
 //! leave `poses.toml` whole (the old or the new file, never a partial one). A stopping daemon
 //! stops every laser (QT) before it closes the links. A unit that cannot stream (a mode it
-//! lacks, a fault reboots do not clear) shows `failed` with the reason, the others stream on.
+//! lacks, a fault reboots do not clear) shows `failed` with the reason, the others stream on;
+//! one that returns nothing is named as blind, on the socket and as its registration reason.
 
 mod daemon_run_common;
 
@@ -160,10 +161,13 @@ fn units_that_cannot_stream_show_failed_with_the_reason_by_name() {
         None,
         &["--abnormal-until-reboots", &never],
     );
+    // east streams, but not a single beam returns (a covered lens).
+    let (_east, east) = start_emulator_faulty(&lab, "east", "127.0.0.1:0", None, &["--no-returns"]);
     let sensors = [
         ("entrance", format!("tcp://{entrance}"), ""),
         ("bench", format!("tcp://{bench}"), "mode = \"ND\""),
         ("north", format!("tcp://{north}"), ""),
+        ("east", format!("tcp://{east}"), ""),
     ];
     let config = write_config(dir.path(), "entrance", &sensors, "save_interval_s = 0");
     let mut daemon = start_daemon(&config, dir.path());
@@ -187,6 +191,33 @@ fn units_that_cannot_stream_show_failed_with_the_reason_by_name() {
         "{bench:?}"
     );
     assert_eq!(bench.reconnects, 0, "{bench:?}");
+    // A unit that sees nothing is named, on the socket and as its registration reason.
+    let east = wait_for(Duration::from_secs(30), "east named blind", || {
+        sensor(&mut client, "east").filter(|s| s.warning.is_some())
+    });
+    assert_eq!(east.state, SensorState::Streaming, "{east:?}");
+    assert_eq!(east.valid_returns, Some(0.0), "{east:?}");
+    let blind = "it sees almost nothing: 0 % of its beams return";
+    assert!(
+        east.warning
+            .as_deref()
+            .is_some_and(|w| w.starts_with(blind)),
+        "{east:?}"
+    );
+    let east_pose = client
+        .poses()
+        .sensors
+        .into_iter()
+        .find(|p| p.id == "east")
+        .unwrap();
+    assert!(!east_pose.registered, "{east_pose:?}");
+    assert!(
+        east_pose
+            .reason
+            .as_deref()
+            .is_some_and(|r| r.starts_with(blind)),
+        "{east_pose:?}"
+    );
     // Three connections per reboot, two reboots, then it is given up (backoff up to 10 s).
     let north = wait_for(Duration::from_secs(120), "north failed", || {
         sensor(&mut client, "north").filter(|s| s.state == SensorState::Failed)

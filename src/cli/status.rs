@@ -230,7 +230,9 @@ fn row(id: &str, s: Option<&SensorStatus>, p: Option<&SensorPose>) -> String {
         }
         None => "-".to_string(),
     };
-    let error = match s.and_then(|s| s.last_error.as_deref()) {
+    // What it sees outranks its last link error: that is what to go and fix.
+    let error = match s.and_then(|s| s.warning.as_deref().or(s.last_error.as_deref())) {
+        Some(e) if s.is_some_and(|s| s.warning.is_some()) => e.to_string(),
         Some(e) => match s.and_then(|s| s.last_error_age_s) {
             Some(age) => format!("{e} ({} ago)", duration(age)),
             None => e.to_string(),

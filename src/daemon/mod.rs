@@ -8,6 +8,7 @@
 //!   the scans' own clock (taken in stamp order by [`reorder`]);
 //! - [`local_refine`]: a moved sensor aligned from its old pose before any global search;
 //! - [`pipeline_fuse`]: fused frames, the occupancy grid and the map files;
+//! - [`returns`]: how much each sensor sees (a covered lens is named, not guessed at);
 //! - [`run`]: the lifecycle (emulators for `replay:`, driver tasks, socket, systemd, signals).
 
 pub mod config;
@@ -21,6 +22,7 @@ pub mod protocol;
 pub mod queue;
 pub mod rate;
 pub mod reorder;
+pub mod returns;
 pub mod run;
 pub mod signals;
 pub mod socket;

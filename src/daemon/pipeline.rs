@@ -24,6 +24,7 @@ use super::protocol::{
 };
 use super::queue::DropOldestSender;
 use super::rate::RateMeter;
+use super::returns::{Returns, Verdict};
 use super::socket::{Publisher, Refused, StatusSource};
 use crate::geometry::{Mount, Pose3, ProjectParams};
 use crate::scan::{Scan, ScanGeometry};
@@ -131,6 +132,8 @@ struct Slot {
     last_error_at: Option<Instant>,
     /// Why the sensor has no pose, when it has none.
     unposed_reason: String,
+    /// The share of its beams that return.
+    returns: Returns,
     /// Turns true to stop the sensor's driver.
     stop: watch::Sender<bool>,
 }
@@ -309,6 +312,7 @@ impl Pipeline {
                 last_scan_at: None,
                 last_error_at: None,
                 unposed_reason: "waiting for a static view".into(),
+                returns: Returns::default(),
                 stop,
             },
         );
@@ -364,6 +368,7 @@ impl Pipeline {
                         return;
                     };
                     slot.state = SensorState::Connecting;
+                    slot.returns.reset();
                     slot.model = Some(info.model.clone());
                     slot.geometry = info.geometry;
                 }
@@ -371,7 +376,7 @@ impl Pipeline {
             }
             DriverEvent::Scan(mut scan) => {
                 let watched = self.publisher.frame_watchers() > 0;
-                let (geometry, posed) = {
+                let (geometry, posed, verdict) = {
                     let mut guard = lock(&self.inner);
                     let inner = &mut *guard;
                     let pose = inner.poses.get(id).map(|p| p.site_from_sensor);
@@ -390,6 +395,7 @@ impl Pipeline {
                         .fetch_max(scan.scan.stamp_ns, Ordering::Relaxed);
                     // Rates are of the wall clock (what `status` shows), whatever the stamps.
                     slot.rate.record(now_ns());
+                    let verdict = slot.returns.observe(&scan.scan.ranges_m);
                     slot.last_scan = Some(scan.scan.clone());
                     slot.last_scan_at = Some(Instant::now());
                     let posed = match (watched, pose, index) {
@@ -403,8 +409,23 @@ impl Pipeline {
                         }),
                         _ => None,
                     };
-                    (slot.geometry, posed)
+                    (slot.geometry, posed, verdict)
                 };
+                match verdict {
+                    Some(Verdict::Blind { .. }) => {
+                        let why = self.blind_reason(id).unwrap_or_default();
+                        self.announce(EventKind::Error, Some(id), format!("{id}: {why}"));
+                    }
+                    Some(Verdict::Seeing { share }) => self.announce(
+                        EventKind::Connected,
+                        Some(id),
+                        format!(
+                            "{id} sees again: {:.0} % of its beams return",
+                            share * 100.0
+                        ),
+                    ),
+                    None => {}
+                }
                 // The fused stream is event-driven: the scan goes to watchers now, outside
                 // the lock; the grid takes it on the fuser's next pass.
                 if let Some(posed) = posed {
@@ -466,6 +487,15 @@ impl Pipeline {
                 }
             }
         }
+    }
+
+    /// Why sensor `id` cannot be placed whatever registration says, while it sees almost
+    /// nothing.
+    pub fn blind_reason(&self, id: &str) -> Option<String> {
+        lock(&self.inner)
+            .sensors
+            .get(id)
+            .and_then(|s| s.returns.blind_reason())
     }
 
     pub fn pose_of(&self, id: &str) -> Option<PoseEntry> {
@@ -564,6 +594,8 @@ impl StatusSource for Pipeline {
                 s.last_scan_age_s = slot.last_scan_at.map(|t| t.elapsed().as_secs_f64());
                 s.last_error = counters.last_error;
                 s.last_error_age_s = slot.last_error_at.map(|t| t.elapsed().as_secs_f64());
+                s.valid_returns = slot.returns.share();
+                s.warning = slot.returns.blind_reason();
                 s
             })
             .collect();
@@ -583,7 +615,12 @@ impl StatusSource for Pipeline {
             .iter()
             .map(|(id, slot)| match inner.poses.get(id) {
                 Some(p) => p.to_sensor_pose(id, now),
-                None => SensorPose::unregistered(id.clone(), slot.unposed_reason.clone()),
+                None => SensorPose::unregistered(
+                    id.clone(),
+                    slot.returns
+                        .blind_reason()
+                        .unwrap_or_else(|| slot.unposed_reason.clone()),
+                ),
             })
             .collect();
         Poses {

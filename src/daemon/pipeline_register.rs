@@ -787,6 +787,8 @@ fn publish(pipeline: &Pipeline, outcomes: Vec<Outcome>, retrying: bool) {
                 );
             }
             Err(reason) => {
+                // A unit that sees nothing fails for that reason, whatever the walls say.
+                let reason = pipeline.blind_reason(&outcome.id).unwrap_or(reason.clone());
                 let again = if retrying {
                     format!("; trying again in {RETRY_S:.0} s")
                 } else {
@@ -799,7 +801,10 @@ fn publish(pipeline: &Pipeline, outcomes: Vec<Outcome>, retrying: bool) {
                 )
             }
         }
-        pipeline.set_pose(&outcome.id, outcome.pose);
+        let pose = outcome
+            .pose
+            .map_err(|reason| pipeline.blind_reason(&outcome.id).unwrap_or(reason));
+        pipeline.set_pose(&outcome.id, pose);
     }
     if let Err(e) = pipeline.save_now() {
         pipeline.announce(EventKind::Error, None, format!("cannot save poses: {e}"));

@@ -169,6 +169,13 @@ pub struct SensorStatus {
     /// Seconds since `last_error`.
     #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
     pub last_error_age_s: Option<f64>,
+    /// Share of its beams that return (0–1, over about the last second); absent before
+    /// the first scan.
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+    pub valid_returns: Option<f64>,
+    /// Something wrong with what it sees (a covered lens), a sentence; absent when all is well.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub warning: Option<String>,
 }
 
 impl SensorStatus {
@@ -186,6 +193,8 @@ impl SensorStatus {
             last_scan_age_s: None,
             last_error: None,
             last_error_age_s: None,
+            valid_returns: None,
+            warning: None,
         }
     }
 }
