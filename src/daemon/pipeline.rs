@@ -32,6 +32,13 @@ use crate::sensor::{Counters, DriverEvent, ScanMode};
 /// Window of the scan-rate meter shown by `status`.
 const RATE_WINDOW_S: f64 = 2.0;
 
+/// The rate `status` shows for a sensor in `state` whose meter reads `measured_hz`: only
+/// while it streams (a disconnected, failed or stopped sensor has no rate, whatever came just
+/// before), and only while scans arrive (the meter reads `None` after a window of silence).
+fn shown_rate(state: SensorState, measured_hz: Option<f64>) -> Option<f64> {
+    measured_hz.filter(|_| state == SensorState::Streaming)
+}
+
 /// What the pipeline needs to know about one configured sensor.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SensorSpec {
@@ -475,6 +482,7 @@ impl Pipeline {
                         pose.age_s = None;
                         (pose, p.source, p.updated)
                     }
+                    // No pose, so no source: `from_pose` leaves it out of the file.
                     None => (
                         SensorPose::unregistered(
                             id.clone(),
@@ -513,7 +521,7 @@ impl StatusSource for Pipeline {
                 let mut s = SensorStatus::new(id.clone(), slot.state);
                 s.connect = Some(slot.spec.connect.clone());
                 s.model = slot.model.clone();
-                s.rate_hz = slot.rate.rate_hz(now);
+                s.rate_hz = shown_rate(slot.state, slot.rate.rate_hz(now));
                 s.scans = counters.scans;
                 s.checksum_errors = counters.checksum_errors;
                 s.reconnects = counters.reconnects;
@@ -579,5 +587,95 @@ impl StatusSource for Pipeline {
             format!("saved {} in {}", saved.files.join(", "), saved.dir),
         );
         Ok(saved)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::daemon::queue::drop_oldest;
+    use crate::sensor::SensorScan;
+
+    fn pipeline() -> Pipeline {
+        let config = Config::parse(
+            "[site]\nname = \"s\"\nanchor = \"a\"\n[[sensor]]\nid = \"a\"\nconnect = \"tcp://127.0.0.1:1\"\n",
+            std::path::Path::new("/c/site.toml"),
+        )
+        .unwrap();
+        // The worker's ends are dropped: scans pushed to the queue are simply not registered.
+        let (queue, _worker) = drop_oldest(16);
+        let (commands, _) = crossbeam_channel::unbounded();
+        let pipeline = Pipeline::new(&config, queue, commands, Publisher::new(4), None);
+        let spec = SensorSpec::from_config(&config.sensors[0]);
+        pipeline.add_sensor(spec, Arc::default(), watch::channel(false).0);
+        pipeline
+    }
+
+    fn scan_at(stamp_ns: u64) -> DriverEvent {
+        DriverEvent::Scan(SensorScan {
+            scan: Scan {
+                stamp_ns,
+                sensor_stamp_ms: None,
+                start_angle_rad: -1.0,
+                end_angle_rad: 1.0,
+                ranges_m: vec![1.0; 3],
+                intensities: Vec::new(),
+            },
+            measured_ns: None,
+            extra_echoes: Vec::new(),
+        })
+    }
+
+    fn rate(p: &Pipeline) -> Option<f64> {
+        p.status().sensors[0].rate_hz
+    }
+
+    #[test]
+    fn a_rate_is_shown_only_while_scans_arrive() {
+        let p = pipeline();
+        assert_eq!(rate(&p), None, "before the first scan");
+        // Scans that stopped arriving 10 s ago: streaming, but no rate.
+        let old = now_ns() - 10_000_000_000;
+        for i in 0..40 {
+            p.on_driver_event("a", scan_at(old + i * 25_000_000));
+        }
+        assert_eq!(p.status().sensors[0].state, SensorState::Streaming);
+        assert_eq!(rate(&p), None, "no scans within the window");
+        // Scans arriving now: a rate.
+        let recent = now_ns() - 500_000_000;
+        for i in 0..10 {
+            p.on_driver_event("a", scan_at(recent + i * 25_000_000));
+        }
+        assert!(
+            rate(&p).is_some_and(|hz| (hz - 40.0).abs() < 1e-6),
+            "{:?}",
+            rate(&p)
+        );
+        // Disconnected right after: no rate, though the window still holds scans.
+        p.on_driver_event(
+            "a",
+            DriverEvent::Disconnected {
+                reason: "sensor closed the connection".into(),
+            },
+        );
+        let status = p.status();
+        assert_eq!(status.sensors[0].state, SensorState::Disconnected);
+        assert_eq!(status.sensors[0].rate_hz, None);
+        let line = super::super::protocol::Message::Status(status).to_line();
+        assert!(!line.contains("rate_hz"), "{line}");
+    }
+
+    #[test]
+    fn only_a_streaming_sensor_has_a_rate() {
+        for state in [
+            SensorState::Connecting,
+            SensorState::Disconnected,
+            SensorState::Failed,
+            SensorState::Stopped,
+        ] {
+            assert_eq!(shown_rate(state, Some(40.0)), None, "{state:?}");
+        }
+        assert_eq!(shown_rate(SensorState::Streaming, Some(40.0)), Some(40.0));
+        assert_eq!(shown_rate(SensorState::Streaming, None), None);
     }
 }
