@@ -19,6 +19,22 @@ use std::process::ExitCode;
 #[error("{0}")]
 pub struct BadInput(pub String);
 
+/// Stdout's reader went away (`scanfuse status --watch | head -5`): the command stops and
+/// exits 0 without a word, as command-line tools do.
+#[derive(Debug, thiserror::Error)]
+#[error("stdout was closed by its reader")]
+pub struct StdoutClosed;
+
+/// The error for a failed write to stdout: [`StdoutClosed`] for a closed pipe, else the
+/// write error itself.
+pub fn stdout_error(e: std::io::Error) -> anyhow::Error {
+    if e.kind() == std::io::ErrorKind::BrokenPipe {
+        StdoutClosed.into()
+    } else {
+        anyhow::Error::new(e).context("cannot write to stdout")
+    }
+}
+
 /// Logs go to stderr, filtered by `RUST_LOG`. The default is `info` for the journal and pipes,
 /// `warn` at a terminal, where the subcommands print their own lines for a person.
 pub fn init_logging() {
@@ -40,6 +56,7 @@ pub fn init_logging() {
 pub fn exit_code(result: anyhow::Result<()>) -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
+        Err(err) if err.chain().any(|e| e.is::<StdoutClosed>()) => ExitCode::SUCCESS,
         Err(err) => {
             eprintln!("error: {err:#}");
             if err.chain().any(|e| e.is::<BadInput>()) || is_input_error(&err) {
