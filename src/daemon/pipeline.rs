@@ -230,10 +230,22 @@ impl Pipeline {
         &self.state_dir
     }
 
-    /// Publishes an event to watchers, the log and the terminal.
+    /// Publishes an event to watchers, the log and the terminal. The log line has the target
+    /// `scanfuse::event`, which a terminal that prints the event itself leaves out.
     pub fn announce(&self, kind: EventKind, sensor: Option<&str>, message: impl Into<String>) {
         let message = message.into();
-        tracing::info!(sensor = sensor.unwrap_or(""), kind = ?kind, "{message}");
+        let sensor_id = sensor.unwrap_or("");
+        if kind == EventKind::Error {
+            tracing::warn!(target: "scanfuse::event", sensor = %sensor_id, kind = ?kind, "{message}");
+        } else {
+            tracing::info!(target: "scanfuse::event", sensor = %sensor_id, kind = ?kind, "{message}");
+        }
+        self.publish_event(kind, sensor, message);
+    }
+
+    /// Publishes an event to watchers and the terminal, not the log: for what the driver has
+    /// logged itself ("sensor connected", "sensor link lost"), so the journal has it once.
+    fn publish_event(&self, kind: EventKind, sensor: Option<&str>, message: String) {
         let event = Event {
             time: humantime::format_rfc3339_millis(SystemTime::now()).to_string(),
             kind,
@@ -353,7 +365,7 @@ impl Pipeline {
                     slot.model = Some(info.model.clone());
                     slot.geometry = info.geometry;
                 }
-                self.announce(EventKind::Connected, Some(id), message.trim_end());
+                self.publish_event(EventKind::Connected, Some(id), message.trim_end().into());
             }
             DriverEvent::Scan(scan) => {
                 let watched = self.publisher.frame_watchers() > 0;
@@ -409,7 +421,7 @@ impl Pipeline {
                     slot.state = SensorState::Disconnected;
                     slot.last_error_at = Some(Instant::now());
                 }
-                self.announce(EventKind::Disconnected, Some(id), reason);
+                self.publish_event(EventKind::Disconnected, Some(id), reason);
             }
             DriverEvent::Raw { .. } => {}
         }
