@@ -8,6 +8,7 @@ pub mod emulator;
 pub mod features;
 pub mod fuse;
 pub mod geometry;
+pub mod human;
 pub mod record;
 pub mod register;
 pub mod scan;

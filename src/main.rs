@@ -43,8 +43,8 @@ enum Command {
 }
 
 fn main() -> ExitCode {
-    cli::init_logging();
     let cli = Cli::parse();
+    cli::init_logging(matches!(cli.command, Command::Run(_) | Command::Replay(_)));
     let result = match cli.command {
         Command::Emulate(args) => cli::emulate::run(args),
         Command::Info(args) => cli::info::run(args),

@@ -269,3 +269,65 @@ async fn status_watch_follows_events() {
         .unwrap();
     assert_eq!(status.code(), Some(1));
 }
+
+/// `scanfuse status --watch | head -5`: once its reader has gone, the client exits 0 at its
+/// next line, with nothing on stderr.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn status_watch_whose_reader_went_away_exits_quietly() {
+    let dir = tempfile::tempdir().unwrap();
+    let sock = dir.path().join("s.sock");
+    let server = start(&sock, dir.path(), ServerOptions::default(), 64);
+    let mut child = Command::new(BIN)
+        .args(["status", "--watch", "--socket", sock.to_str().unwrap()])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stdout = child.stdout.take().unwrap();
+    // Read up to the watching line, as `head` would, then close the pipe.
+    let read = tokio::task::spawn_blocking(move || {
+        use std::io::BufRead;
+        let mut lines = Vec::new();
+        let mut reader = std::io::BufReader::new(stdout);
+        loop {
+            let mut line = String::new();
+            if reader.read_line(&mut line).unwrap() == 0 {
+                break;
+            }
+            let watching = line.starts_with("watching events");
+            lines.push(line);
+            if watching {
+                break;
+            }
+        }
+        lines
+    });
+    let lines = tokio::time::timeout(Duration::from_secs(20), read)
+        .await
+        .expect("the table and the watching line")
+        .unwrap();
+    assert!(
+        lines
+            .last()
+            .is_some_and(|l| l.starts_with("watching events")),
+        "{lines:?}"
+    );
+    // The reader is dropped: the next event the client prints meets a closed pipe.
+    let mut exited = None;
+    for i in 0..200 {
+        server
+            .publisher
+            .announce(EventKind::Moved, Some("dock"), format!("dock moved {i}"));
+        if let Some(status) = child.try_wait().unwrap() {
+            exited = Some(status);
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let status = exited.expect("the client exits once its reader is gone");
+    let mut stderr = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut stderr).unwrap();
+    assert_eq!(status.code(), Some(0), "{stderr}");
+    assert_eq!(stderr, "", "nothing on stderr");
+    server.shutdown().await;
+}

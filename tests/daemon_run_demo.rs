@@ -85,7 +85,7 @@ fn the_demo_site_streams_registers_to_truth_and_saves_whole_files() {
         saved
             .sensors
             .iter()
-            .all(|s| s.registered && s.source == PoseSource::Registered)
+            .all(|s| s.registered && s.source == Some(PoseSource::Registered))
     );
     assert!(
         !dir.path().join("s.sock").exists(),

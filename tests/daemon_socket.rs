@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use daemon_common::{LineClient, error_text, start};
 use scanfuse::daemon::protocol::{EventKind, Frame, FrameScan, Message, SensorState};
-use scanfuse::daemon::socket::{ServerOptions, SocketError, StatusServer};
+use scanfuse::daemon::socket::{FIRST_REQUEST_WITHIN, ServerOptions, SocketError, StatusServer};
 use scanfuse::daemon::state::PosesFile;
 
 fn options() -> ServerOptions {
@@ -17,6 +17,7 @@ fn options() -> ServerOptions {
         socket_mode: 0o640,
         max_clients: 4,
         write_timeout: Duration::from_millis(300),
+        first_request_within: FIRST_REQUEST_WITHIN,
     }
 }
 
@@ -178,6 +179,78 @@ async fn clients_beyond_the_cap_are_told_and_closed() {
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
     assert!(admitted, "a freed slot is reused");
+    server.shutdown().await;
+}
+
+/// Connections that never ask anything cannot keep the operator out: each is told why and
+/// closed once the first-request limit passes, while a watcher and a client that asked once
+/// keep their connections.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn silent_clients_are_closed_so_the_operator_gets_in() {
+    let dir = tempfile::tempdir().unwrap();
+    let sock = dir.path().join("s.sock");
+    let opts = ServerOptions {
+        max_clients: 5,
+        first_request_within: Duration::from_millis(300),
+        ..options()
+    };
+    let server = start(&sock, dir.path(), opts, 64);
+    let mut watcher = LineClient::connect_past_banner(&sock).await;
+    assert!(matches!(
+        watcher.ask(r#"{"cmd":"watch"}"#).await,
+        Message::Watch(_)
+    ));
+    let mut asker = LineClient::connect_past_banner(&sock).await;
+    assert!(matches!(
+        asker.ask(r#"{"cmd":"status"}"#).await,
+        Message::Status(_)
+    ));
+    let mut silent = Vec::new();
+    for _ in 0..3 {
+        let mut c = LineClient::connect_past_banner(&sock).await;
+        // Blank lines are not requests.
+        c.send(b"").await;
+        silent.push(c);
+    }
+    // Every slot is taken now.
+    let mut refused = LineClient::connect(&sock).await;
+    let refusal = refused.message().await.expect("an ERROR");
+    assert!(error_text(&refusal).contains("at most 5"), "{refusal:?}");
+    // Each silent client is told why, then closed.
+    for c in &mut silent {
+        let goodbye = c.message().await.expect("an ERROR before closing");
+        let text = error_text(&goodbye);
+        assert!(text.contains("no request within 300 ms"), "{text}");
+        assert!(text.contains(r#"{"cmd":"status"}"#), "{text}");
+        assert_eq!(c.line().await, None, "then the connection is closed");
+    }
+    // The operator gets in (a freed slot may take the server a moment to notice).
+    let mut answered = false;
+    for _ in 0..100 {
+        let mut operator = LineClient::connect(&sock).await;
+        if matches!(operator.message().await, Some(Message::Version(_))) {
+            assert!(matches!(
+                operator.ask(r#"{"cmd":"status"}"#).await,
+                Message::Status(_)
+            ));
+            answered = true;
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    assert!(answered, "the operator's status request is answered");
+    // The watcher and the client that asked once are still served.
+    server
+        .publisher
+        .announce(EventKind::Moved, Some("dock"), "dock moved");
+    match watcher.message().await {
+        Some(Message::Event(e)) => assert_eq!(e.kind, EventKind::Moved),
+        other => panic!("{other:?}"),
+    }
+    assert!(matches!(
+        asker.ask(r#"{"cmd":"poses"}"#).await,
+        Message::Poses(_)
+    ));
     server.shutdown().await;
 }
 

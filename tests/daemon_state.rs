@@ -119,7 +119,7 @@ fn write_atomic_writes_exactly_the_bytes() {
 }
 
 /// `SavedPose` stays a separate struct from the socket's `SensorPose` (the file refuses
-/// unknown keys, which serde's `flatten` would switch off, and its `source` is required), so
+/// unknown keys, which serde's `flatten` would switch off), so
 /// this pins the two vocabularies together: every socket field but `age_s` is in the file,
 /// under the same name and with the same value, plus `updated`.
 #[test]
@@ -156,5 +156,35 @@ fn the_file_and_the_socket_use_one_pose_vocabulary() {
     assert_eq!(
         (back.x_m, back.sigma_yaw_deg),
         (pose.x_m, pose.sigma_yaw_deg)
+    );
+}
+
+/// A sensor without a pose was obtained by nothing: `poses.toml` writes no `source` beside
+/// `registered = false`, and the socket form read back from the file has none either.
+#[test]
+fn an_unregistered_sensor_is_saved_without_a_source() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut file = poses(45.0);
+    file.sensors.push(SavedPose::from_pose(
+        &SensorPose::unregistered("c", "it shares no usable view with any placed sensor"),
+        PoseSource::Registered,
+        UNIX_EPOCH + Duration::from_secs(1_800_000_000),
+    ));
+    let path = file.save(dir.path()).unwrap();
+    let text = std::fs::read_to_string(&path).unwrap();
+    let c = text
+        .split("[[sensor]]")
+        .find(|t| t.contains("id = \"c\""))
+        .expect("c's table");
+    assert!(c.contains("registered = false"), "{c}");
+    assert!(!c.contains("source"), "{c}");
+    // The registered ones keep theirs.
+    assert_eq!(text.matches("source = ").count(), 2, "{text}");
+    let back = PosesFile::load(dir.path()).unwrap().unwrap();
+    assert_eq!(back, file);
+    let socket = serde_json::to_string(&back.sensors[2].to_pose(UNIX_EPOCH)).unwrap();
+    assert!(
+        !socket.contains("source") && !socket.contains("null"),
+        "{socket}"
     );
 }

@@ -3,6 +3,8 @@
 //! truth for `replay:` sensors that have one), then live rates; map files go to the state dir.
 
 use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::io::Write;
 use std::path::PathBuf;
 use std::sync::mpsc;
 use std::time::Duration;
@@ -10,13 +12,13 @@ use std::time::Duration;
 use anyhow::Context as _;
 use scanfuse::daemon::config::{Config, Connect};
 use scanfuse::daemon::pipeline::Report;
-use scanfuse::daemon::protocol::{EventKind, Poses, SensorState, Status};
+use scanfuse::daemon::protocol::{Event, EventKind, Poses, SensorPose, SensorState, Status};
 use scanfuse::daemon::run::{RunOptions, RunSummary, run_daemon};
 use scanfuse::geometry::{pose_error, pose2};
 use scanfuse::record;
 use scanfuse::scan::TruthPose;
 
-use super::BadInput;
+use super::{BadInput, Console, stdout_error};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -49,15 +51,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         replay_speed: args.replay_speed,
         ..RunOptions::default()
     };
-    println!(
+    let mut out = std::io::stdout();
+    writeln!(
+        out,
         "site {:?}: {} sensors, anchor {}; map files go to {}; status socket {}",
         config.site.name,
         config.sensors.len(),
         config.site.anchor,
         config.site.state_dir.display(),
         config.site.socket.display()
-    );
-    println!(
+    )
+    .map_err(stdout_error)?;
+    writeln!(
+        out,
         "{}",
         match args.duration {
             Some(d) => format!(
@@ -66,7 +72,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             ),
             None => "running until Ctrl-C".to_string(),
         }
-    );
+    )
+    .map_err(stdout_error)?;
     let printer = std::thread::spawn(move || Terminal::new(truth).follow(reports));
     let summary = daemon_runtime()?.block_on(run_daemon(config.clone(), options));
     let _ = printer.join();
@@ -84,10 +91,13 @@ pub(super) fn daemon_runtime() -> anyhow::Result<tokio::runtime::Runtime> {
 
 pub(super) fn finish(summary: RunSummary, dir: &std::path::Path) -> anyhow::Result<()> {
     match summary.saved {
-        Ok(saved) => {
-            println!("\nwrote {} in {}", saved.files.join(", "), dir.display());
-            Ok(())
-        }
+        Ok(saved) => writeln!(
+            std::io::stdout(),
+            "\nwrote {} in {}",
+            saved.files.join(", "),
+            dir.display()
+        )
+        .map_err(stdout_error),
         Err(e) => anyhow::bail!("the final save failed: {e}"),
     }
 }
@@ -114,21 +124,52 @@ fn replay_truth(config: &Config) -> BTreeMap<String, TruthPose> {
     truth
 }
 
-/// Prints reports for a person: events as they come, the poses once registered, then rates.
+/// Prints reports: events as they come, the poses once registration has answered (again
+/// whenever a sensor is placed or lost), then rates. On a terminal ([`Console::Human`]) every
+/// line; otherwise the events are the log's, and only the pose table is printed here.
 pub(super) struct Terminal {
     truth: BTreeMap<String, TruthPose>,
-    shown_poses: bool,
+    console: Console,
+    out: Box<dyn Write + Send>,
+    /// Which sensors were placed in the pose table last printed; `None` before one.
+    shown: Option<Vec<(String, bool)>>,
     last_waiting: String,
     ticks: u64,
+    /// Stdout's reader went away: nothing more is printed.
+    closed: bool,
 }
 
 impl Terminal {
     pub(super) fn new(truth: BTreeMap<String, TruthPose>) -> Terminal {
+        Terminal::with(truth, Console::detect(), Box::new(std::io::stdout()))
+    }
+
+    fn with(
+        truth: BTreeMap<String, TruthPose>,
+        console: Console,
+        out: Box<dyn Write + Send>,
+    ) -> Terminal {
         Terminal {
             truth,
-            shown_poses: false,
+            console,
+            out,
+            shown: None,
             last_waiting: String::new(),
             ticks: 0,
+            closed: false,
+        }
+    }
+
+    /// Prints `text` (lines); a reader that went away silences the rest, quietly.
+    fn print(&mut self, text: &str) {
+        if self.closed {
+            return;
+        }
+        if writeln!(self.out, "{text}")
+            .and_then(|()| self.out.flush())
+            .is_err()
+        {
+            self.closed = true;
         }
     }
 
@@ -137,21 +178,13 @@ impl Terminal {
         for report in reports {
             match report {
                 Report::Event(e) => {
-                    let who = e.sensor.as_deref().unwrap_or("");
-                    let time = e.time.get(11..19).unwrap_or(&e.time);
-                    match e.kind {
-                        EventKind::Registering
-                        | EventKind::Registered
-                        | EventKind::ReRegistered
-                            if who.is_empty() =>
-                        {
-                            println!("{time}  {}", e.message)
-                        }
-                        EventKind::Registered | EventKind::ReRegistered => {}
-                        _ => println!("{time}  {who:<8} {}", e.message),
-                    }
                     if e.kind == EventKind::ReRegistered {
-                        self.shown_poses = false;
+                        self.shown = None;
+                    }
+                    if self.console == Console::Human
+                        && let Some(line) = event_line(&e)
+                    {
+                        self.print(&line);
                     }
                 }
                 Report::Tick { status, poses } => {
@@ -161,47 +194,43 @@ impl Terminal {
             }
         }
         if let Some((status, poses)) = last
-            && !self.shown_poses
+            && self.shown.is_none()
         {
             self.print_poses(&poses);
-            self.print_rates(&status);
+            if self.console == Console::Human {
+                self.print(&rate_line(&status));
+            }
         }
     }
 
     fn tick(&mut self, status: &Status, poses: &Poses) {
         self.ticks += 1;
-        let registered = poses.sensors.iter().filter(|p| p.registered).count();
-        let total = poses.sensors.len();
-        if registered == total && total > 0 {
-            if !self.shown_poses {
+        if registration_answered(status, poses) {
+            let placed = placement(poses);
+            if self.shown.as_ref() != Some(&placed) {
                 self.print_poses(poses);
-                self.shown_poses = true;
-            } else if self.ticks.is_multiple_of(2) {
-                self.print_rates(status);
+                self.shown = Some(placed);
+            } else if self.console == Console::Human && self.ticks.is_multiple_of(2) {
+                self.print(&rate_line(status));
             }
             return;
         }
-        let streaming = status
-            .sensors
-            .iter()
-            .filter(|s| s.state == SensorState::Streaming)
-            .count();
-        let waiting = format!(
-            "{streaming}/{total} sensors streaming, {registered}/{total} registered; registration waits for ~1 s of scans from each"
-        );
-        if waiting != self.last_waiting {
-            println!("          {waiting}");
+        let waiting = waiting_line(status, poses);
+        if self.console == Console::Human && waiting != self.last_waiting {
+            self.print(&format!("          {waiting}"));
             self.last_waiting = waiting;
         }
     }
 
-    fn print_poses(&self, poses: &Poses) {
+    fn print_poses(&mut self, poses: &Poses) {
+        let mut text = String::new();
         // Truth is in the simulator's world frame; the site frame is the anchor's.
         let world_from_anchor = self
             .truth
             .get(&poses.anchor)
             .map(|t| pose2(t.x_m, t.y_m, t.yaw_deg.to_radians()));
-        println!(
+        let _ = writeln!(
+            text,
             "\nposes in the frame of {:?}:\n{:<10} {:>9} {:>9} {:>8} {:>7} {:>8}   {:>9} {:>9} {:>8}  {:>7} {:>6}",
             poses.anchor,
             "sensor",
@@ -218,15 +247,12 @@ impl Terminal {
         );
         for p in &poses.sensors {
             let (Some(x), Some(y), Some(yaw)) = (p.x_m, p.y_m, p.yaw_deg) else {
-                println!(
-                    "{:<10} not registered: {}",
-                    p.id,
-                    p.reason.as_deref().unwrap_or("")
-                );
+                let _ = writeln!(text, "{}", unplaced_line(p));
                 continue;
             };
             let sigma_cm = p.sigma_x_m.unwrap_or(0.0).max(p.sigma_y_m.unwrap_or(0.0)) * 100.0;
-            let mut line = format!(
+            let _ = write!(
+                text,
                 "{:<10} {x:>9.3} {y:>9.3} {yaw:>8.2} {sigma_cm:>7.1} {:>8}",
                 p.id,
                 p.source.map_or("", |s| s.as_str())
@@ -234,16 +260,17 @@ impl Terminal {
             if let (Some(w_a), Some(t)) = (world_from_anchor, self.truth.get(&p.id)) {
                 let truth = w_a.inverse() * pose2(t.x_m, t.y_m, t.yaw_deg.to_radians());
                 let (err_m, err_rad) = pose_error(&pose2(x, y, yaw.to_radians()), &truth);
-                line.push_str(&format!(
+                let _ = write!(
+                    text,
                     "   {:>9.3} {:>9.3} {:>8.2}  {:>7.1} {:>6.2}",
                     truth.translation.x,
                     truth.translation.y,
                     scanfuse::geometry::yaw_rad(&truth).to_degrees(),
                     err_m * 100.0,
                     err_rad.to_degrees().abs()
-                ));
+                );
             }
-            println!("{line}");
+            text.push('\n');
         }
         for (id, caveat) in poses
             .sensors
@@ -251,25 +278,332 @@ impl Terminal {
             .filter(|p| p.registered)
             .filter_map(|p| Some((&p.id, p.reason.as_deref()?)))
         {
-            println!("{id}: {caveat}");
+            let _ = writeln!(text, "{id}: {caveat}");
         }
-        println!();
+        self.print(&text);
+    }
+}
+
+/// An event as one line for a person, or `None` for one the pose table shows (a sensor's
+/// registration). A message that starts with its sensor's id does not repeat it.
+fn event_line(e: &Event) -> Option<String> {
+    let time = e.time.get(11..19).unwrap_or(&e.time);
+    let who = e.sensor.as_deref().unwrap_or("");
+    let registration = matches!(
+        e.kind,
+        EventKind::Registering | EventKind::Registered | EventKind::ReRegistered
+    );
+    if who.is_empty() {
+        return Some(if registration {
+            format!("{time}  {}", e.message)
+        } else {
+            format!("{time}  {who:<8} {}", e.message)
+        });
+    }
+    if registration && e.kind != EventKind::Registering {
+        return None;
+    }
+    let message = e
+        .message
+        .strip_prefix(who)
+        .and_then(|rest| rest.strip_prefix(' '))
+        .unwrap_or(&e.message);
+    Some(format!("{time}  {who:<8} {message}"))
+}
+
+/// The pose table's line for a sensor without a pose: its id once, then why.
+fn unplaced_line(p: &SensorPose) -> String {
+    format!(
+        "{:<10} not registered: {}",
+        p.id,
+        p.reason.as_deref().unwrap_or("no reason given")
+    )
+}
+
+/// True once registration has answered for every sensor that streams: each has a pose or a
+/// reason it has none other than waiting for scans (`waiting …`).
+fn registration_answered(status: &Status, poses: &Poses) -> bool {
+    let answered = |id: &str| {
+        poses.sensors.iter().any(|p| {
+            p.id == id
+                && (p.registered || !p.reason.as_deref().unwrap_or("").starts_with("waiting"))
+        })
+    };
+    let streaming: Vec<&str> = status
+        .sensors
+        .iter()
+        .filter(|s| s.state == SensorState::Streaming)
+        .map(|s| s.id.as_str())
+        .collect();
+    !streaming.is_empty() && streaming.iter().all(|id| answered(id))
+}
+
+/// Which sensors are placed: the pose table is printed again when this changes.
+fn placement(poses: &Poses) -> Vec<(String, bool)> {
+    poses
+        .sensors
+        .iter()
+        .map(|p| (p.id.clone(), p.registered))
+        .collect()
+}
+
+/// The state line shown while registration has not answered.
+fn waiting_line(status: &Status, poses: &Poses) -> String {
+    let total = poses.sensors.len();
+    let registered = poses.sensors.iter().filter(|p| p.registered).count();
+    let streaming = status
+        .sensors
+        .iter()
+        .filter(|s| s.state == SensorState::Streaming)
+        .count();
+    format!(
+        "{streaming}/{total} sensors streaming, {registered}/{total} registered; registration waits for ~1 s of scans from each"
+    )
+}
+
+/// Every sensor's rate, placed or not; a sensor whose scans stopped says for how long.
+fn rate_line(status: &Status) -> String {
+    let rates: Vec<String> = status
+        .sensors
+        .iter()
+        .map(|s| match (s.state, s.rate_hz, s.last_scan_age_s) {
+            (SensorState::Streaming, Some(hz), _) => format!("{} {hz:.1} Hz", s.id),
+            (SensorState::Streaming, None, Some(age)) => format!(
+                "{} no scans for {}",
+                s.id,
+                scanfuse::human::duration(Duration::from_secs_f64(age.max(0.0)))
+            ),
+            (state, _, _) => format!("{} {}", s.id, state.as_str()),
+        })
+        .collect();
+    format!(
+        "{:>8.0} s  {}  · queue drops {}",
+        status.uptime_s,
+        rates.join(" · "),
+        status.queue_drops
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use scanfuse::daemon::protocol::{PoseSource, SensorStatus};
+    use std::sync::{Arc, Mutex};
+
+    fn event(kind: EventKind, sensor: Option<&str>, message: &str) -> Event {
+        Event {
+            time: "2026-01-31T12:00:01.250Z".into(),
+            kind,
+            sensor: sensor.map(str::to_string),
+            message: message.into(),
+        }
     }
 
-    fn print_rates(&self, status: &Status) {
-        let rates: Vec<String> = status
-            .sensors
+    #[test]
+    fn an_event_line_names_its_sensor_once() {
+        let e = event(
+            EventKind::Error,
+            Some("ust"),
+            "ust not registered: it shares no usable view; trying again in 30 s",
+        );
+        assert_eq!(
+            event_line(&e).unwrap(),
+            "12:00:01  ust      not registered: it shares no usable view; trying again in 30 s"
+        );
+        // A message that does not start with the id is kept whole.
+        let e = event(
+            EventKind::Connected,
+            Some("gate"),
+            "connected: UTM-30LX-EW H1",
+        );
+        assert_eq!(
+            event_line(&e).unwrap(),
+            "12:00:01  gate     connected: UTM-30LX-EW H1"
+        );
+        // An id that is only a prefix of the first word is not cut.
+        let e = event(EventKind::Moved, Some("us"), "ust moved");
+        assert!(event_line(&e).unwrap().ends_with("us       ust moved"));
+        // A sensor's registration is the pose table's to show; the start of one is a line.
+        let e = event(EventKind::Registered, Some("gate"), "gate at x 0 m");
+        assert_eq!(event_line(&e), None);
+        let e = event(EventKind::Registering, None, "registering a, b…");
+        assert_eq!(event_line(&e).unwrap(), "12:00:01  registering a, b…");
+    }
+
+    #[test]
+    fn the_pose_table_names_an_unplaced_sensor_once() {
+        let p = SensorPose::unregistered("ust", "it shares no usable view");
+        assert_eq!(
+            unplaced_line(&p),
+            "ust        not registered: it shares no usable view"
+        );
+    }
+
+    #[test]
+    fn a_rate_line_has_every_sensor_and_no_stale_rate() {
+        let mut a = SensorStatus::new("a", SensorState::Streaming);
+        a.rate_hz = Some(39.96);
+        let mut b = SensorStatus::new("b", SensorState::Streaming);
+        b.last_scan_age_s = Some(3.25);
+        let c = SensorStatus::new("c", SensorState::Disconnected);
+        let line = rate_line(&Status {
+            site: "s".into(),
+            uptime_s: 12.0,
+            queue_drops: 0,
+            sensors: vec![a, b, c],
+        });
+        assert_eq!(
+            line,
+            "      12 s  a 40.0 Hz · b no scans for 3.2 s · c disconnected  · queue drops 0"
+        );
+    }
+
+    /// A writer the test reads back.
+    #[derive(Clone, Default)]
+    struct Shared(Arc<Mutex<Vec<u8>>>);
+
+    impl Write for Shared {
+        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+            self.0.lock().unwrap().extend_from_slice(buf);
+            Ok(buf.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    fn status(uptime_s: f64) -> Status {
+        let sensors = ["gate", "ust"]
             .iter()
-            .map(|s| match (s.state, s.rate_hz) {
-                (SensorState::Streaming, Some(hz)) => format!("{} {hz:.1} Hz", s.id),
-                (state, _) => format!("{} {}", s.id, state.as_str()),
+            .map(|id| {
+                let mut s = SensorStatus::new(*id, SensorState::Streaming);
+                s.rate_hz = Some(40.0);
+                s
             })
             .collect();
-        println!(
-            "{:>8.0} s  {}  · queue drops {}",
-            status.uptime_s,
-            rates.join(" · "),
-            status.queue_drops
-        );
+        Status {
+            site: "s".into(),
+            uptime_s,
+            queue_drops: 0,
+            sensors,
+        }
+    }
+
+    fn poses(answered: bool) -> Poses {
+        let mut gate = SensorPose::unregistered("gate", "waiting for a static view");
+        let mut ust = gate.clone();
+        ust.id = "ust".into();
+        if answered {
+            gate.registered = true;
+            gate.reason = None;
+            (gate.x_m, gate.y_m, gate.yaw_deg) = (Some(0.0), Some(0.0), Some(0.0));
+            gate.source = Some(PoseSource::Registered);
+            ust.reason = Some("it shares no usable view".into());
+        }
+        Poses {
+            anchor: "gate".into(),
+            sensors: vec![gate, ust],
+        }
+    }
+
+    /// The reports of a start where one sensor stays unplaced, through a terminal.
+    fn console(console: Console) -> String {
+        let out = Shared::default();
+        let terminal = Terminal::with(BTreeMap::new(), console, Box::new(out.clone()));
+        let (tx, rx) = mpsc::channel();
+        let tick = |t: f64, answered: bool| Report::Tick {
+            status: status(t),
+            poses: poses(answered),
+        };
+        tx.send(Report::Event(event(
+            EventKind::Connected,
+            Some("gate"),
+            "connected: UTM-30LX-EW H1",
+        )))
+        .unwrap();
+        tx.send(tick(1.0, false)).unwrap();
+        tx.send(Report::Event(event(
+            EventKind::Registering,
+            None,
+            "registering gate, ust from their static views…",
+        )))
+        .unwrap();
+        tx.send(Report::Event(event(
+            EventKind::Registered,
+            Some("gate"),
+            "gate at x 0.000 m",
+        )))
+        .unwrap();
+        tx.send(Report::Event(event(
+            EventKind::Error,
+            Some("ust"),
+            "ust not registered: it shares no usable view; trying again in 30 s",
+        )))
+        .unwrap();
+        for t in 2..8 {
+            tx.send(tick(f64::from(t), true)).unwrap();
+        }
+        drop(tx);
+        terminal.follow(rx);
+        String::from_utf8(out.0.lock().unwrap().clone()).unwrap()
+    }
+
+    #[test]
+    fn at_a_terminal_the_state_lines_stay_true_while_a_sensor_is_unplaced() {
+        let text = console(Console::Human);
+        let lines: Vec<&str> = text.lines().collect();
+        let at = |needle: &str| {
+            let found: Vec<usize> = (0..lines.len())
+                .filter(|&i| lines[i].contains(needle))
+                .collect();
+            assert_eq!(found.len(), 1, "{needle:?} once in:\n{text}");
+            found[0]
+        };
+        at("gate     connected: UTM-30LX-EW H1");
+        let waiting = at("registration waits");
+        let failed = at("ust      not registered: it shares no usable view; trying again");
+        let table = at("poses in the frame of");
+        at("ust        not registered: it shares no usable view");
+        assert!(waiting < failed && failed < table, "{text}");
+        assert_eq!(text.matches("ust ust").count(), 0, "{text}");
+        // Rates go on after the table, the unplaced sensor's too.
+        let rates: Vec<usize> = (0..lines.len())
+            .filter(|&i| lines[i].contains("queue drops"))
+            .collect();
+        assert!(rates.len() >= 2, "{text}");
+        assert!(rates.iter().all(|&i| i > table), "{text}");
+        assert!(lines[rates[0]].contains("ust 40.0 Hz"), "{text}");
+    }
+
+    #[test]
+    fn off_a_terminal_only_the_pose_table_is_printed() {
+        let text = console(Console::Journal);
+        assert!(text.contains("poses in the frame of \"gate\""), "{text}");
+        assert!(text.contains("ust        not registered:"), "{text}");
+        for absent in [
+            "connected",
+            "registering",
+            "trying again",
+            "waits",
+            "queue drops",
+        ] {
+            assert!(!text.contains(absent), "{absent:?} in:\n{text}");
+        }
+    }
+
+    #[test]
+    fn a_reader_that_went_away_silences_the_terminal_without_a_panic() {
+        struct Closed;
+        impl Write for Closed {
+            fn write(&mut self, _: &[u8]) -> std::io::Result<usize> {
+                Err(std::io::ErrorKind::BrokenPipe.into())
+            }
+            fn flush(&mut self) -> std::io::Result<()> {
+                Ok(())
+            }
+        }
+        let mut t = Terminal::with(BTreeMap::new(), Console::Human, Box::new(Closed));
+        t.print("a line");
+        assert!(t.closed);
     }
 }

@@ -13,7 +13,7 @@ use scanfuse::daemon::protocol::{
     Event, Message, PROTO_MAJOR, PoseSource, Poses, SensorPose, SensorStatus, Status,
 };
 
-use super::BadInput;
+use super::{BadInput, stdout_error};
 
 /// How long to wait for a reply before deciding the daemon is wedged.
 const REPLY_TIMEOUT: Duration = Duration::from_secs(10);
@@ -57,36 +57,38 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let mut out = std::io::stdout().lock();
     if args.json {
-        writeln!(out, "{status_line}\n{poses_line}")?;
+        writeln!(out, "{status_line}\n{poses_line}").map_err(stdout_error)?;
     } else {
-        write!(out, "{}", render_table(&status, &poses))?;
+        write!(out, "{}", render_table(&status, &poses)).map_err(stdout_error)?;
     }
-    out.flush()?;
+    out.flush().map_err(stdout_error)?;
     if !args.watch {
         return Ok(());
     }
     let reply = client.request(r#"{"cmd":"watch","status":true}"#)?;
     if args.json {
-        writeln!(out, "{reply}")?;
+        writeln!(out, "{reply}").map_err(stdout_error)?;
     } else {
-        writeln!(out, "\nwatching events (Ctrl-C to stop)")?;
+        writeln!(out, "\nwatching events (Ctrl-C to stop)").map_err(stdout_error)?;
     }
-    out.flush()?;
+    out.flush().map_err(stdout_error)?;
     client.stream.set_read_timeout(None)?;
     loop {
         let Some(line) = client.next_line()? else {
             bail!("the daemon closed the connection (it stopped or dropped this client)");
         };
         if args.json {
-            writeln!(out, "{line}")?;
+            writeln!(out, "{line}").map_err(stdout_error)?;
         } else {
             match serde_json::from_str::<Message>(&line) {
-                Ok(Message::Event(e)) => writeln!(out, "{}", render_event(&e))?,
+                Ok(Message::Event(e)) => {
+                    writeln!(out, "{}", render_event(&e)).map_err(stdout_error)?
+                }
                 Ok(Message::Error(e)) => bail!("the daemon says: {}", e.message),
                 _ => {}
             }
         }
-        out.flush()?;
+        out.flush().map_err(stdout_error)?;
     }
 }
 

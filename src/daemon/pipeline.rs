@@ -33,6 +33,13 @@ use crate::sensor::{Counters, DriverEvent, ScanMode};
 /// Window of the scan-rate meter shown by `status`.
 const RATE_WINDOW_S: f64 = 2.0;
 
+/// The rate `status` shows for a sensor in `state` whose meter reads `measured_hz`: only
+/// while it streams (a disconnected, failed or stopped sensor has no rate, whatever came just
+/// before), and only while scans arrive (the meter reads `None` after a window of silence).
+fn shown_rate(state: SensorState, measured_hz: Option<f64>) -> Option<f64> {
+    measured_hz.filter(|_| state == SensorState::Streaming)
+}
+
 /// What the pipeline needs to know about one configured sensor.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SensorSpec {
@@ -247,10 +254,22 @@ impl Pipeline {
         &self.state_dir
     }
 
-    /// Publishes an event to watchers, the log and the terminal.
+    /// Publishes an event to watchers, the log and the terminal. The log line has the target
+    /// `scanfuse::event`, which a terminal that prints the event itself leaves out.
     pub fn announce(&self, kind: EventKind, sensor: Option<&str>, message: impl Into<String>) {
         let message = message.into();
-        tracing::info!(sensor = sensor.unwrap_or(""), kind = ?kind, "{message}");
+        let sensor_id = sensor.unwrap_or("");
+        if kind == EventKind::Error {
+            tracing::warn!(target: "scanfuse::event", sensor = %sensor_id, kind = ?kind, "{message}");
+        } else {
+            tracing::info!(target: "scanfuse::event", sensor = %sensor_id, kind = ?kind, "{message}");
+        }
+        self.publish_event(kind, sensor, message);
+    }
+
+    /// Publishes an event to watchers and the terminal, not the log: for what the driver has
+    /// logged itself ("sensor connected", "sensor link lost"), so the journal has it once.
+    fn publish_event(&self, kind: EventKind, sensor: Option<&str>, message: String) {
         let event = Event {
             time: humantime::format_rfc3339_millis(SystemTime::now()).to_string(),
             kind,
@@ -372,7 +391,7 @@ impl Pipeline {
                     slot.model = Some(info.model.clone());
                     slot.geometry = info.geometry;
                 }
-                self.announce(EventKind::Connected, Some(id), message.trim_end());
+                self.publish_event(EventKind::Connected, Some(id), message.trim_end().into());
             }
             DriverEvent::Scan(mut scan) => {
                 let watched = self.publisher.frame_watchers() > 0;
@@ -453,7 +472,7 @@ impl Pipeline {
                     slot.state = SensorState::Disconnected;
                     slot.last_error_at = Some(Instant::now());
                 }
-                self.announce(EventKind::Disconnected, Some(id), reason);
+                self.publish_event(EventKind::Disconnected, Some(id), reason);
             }
             DriverEvent::Failed { reason } => {
                 {
@@ -549,6 +568,7 @@ impl Pipeline {
                         pose.age_s = None;
                         (pose, p.source, p.updated)
                     }
+                    // No pose, so no source: `from_pose` leaves it out of the file.
                     None => (
                         SensorPose::unregistered(
                             id.clone(),
@@ -587,7 +607,7 @@ impl StatusSource for Pipeline {
                 let mut s = SensorStatus::new(id.clone(), slot.state);
                 s.connect = Some(slot.spec.connect.clone());
                 s.model = slot.model.clone();
-                s.rate_hz = slot.rate.rate_hz(now);
+                s.rate_hz = shown_rate(slot.state, slot.rate.rate_hz(now));
                 s.scans = counters.scans;
                 s.checksum_errors = counters.checksum_errors;
                 s.reconnects = counters.reconnects;
@@ -666,7 +686,83 @@ impl StatusSource for Pipeline {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::daemon::queue::drop_oldest;
+    use crate::sensor::SensorScan;
     use crate::sensor::clock::WRAP_MS;
+
+    fn pipeline() -> Pipeline {
+        let config = Config::parse(
+            "[site]\nname = \"s\"\nanchor = \"a\"\n[[sensor]]\nid = \"a\"\nconnect = \"tcp://127.0.0.1:1\"\n",
+            std::path::Path::new("/c/site.toml"),
+        )
+        .unwrap();
+        // The worker's ends are dropped: scans pushed to the queue are simply not registered.
+        let (queue, _worker) = drop_oldest(16);
+        let (commands, _) = crossbeam_channel::unbounded();
+        let pipeline = Pipeline::new(&config, queue, commands, Publisher::new(4), None);
+        let spec = SensorSpec::from_config(&config.sensors[0]);
+        pipeline.add_sensor(spec, Arc::default(), watch::channel(false).0);
+        pipeline
+    }
+
+    fn scan_at(stamp_ns: u64) -> DriverEvent {
+        DriverEvent::Scan(SensorScan {
+            scan: Scan {
+                stamp_ns,
+                sensor_stamp_ms: None,
+                start_angle_rad: -1.0,
+                end_angle_rad: 1.0,
+                ranges_m: vec![1.0; 3],
+                intensities: Vec::new(),
+            },
+            measured_ns: None,
+            extra_echoes: Vec::new(),
+        })
+    }
+
+    fn rate(p: &Pipeline) -> Option<f64> {
+        p.status().sensors[0].rate_hz
+    }
+
+    #[test]
+    fn a_rate_is_shown_only_while_scans_arrive() {
+        let p = pipeline();
+        assert_eq!(rate(&p), None, "before the first scan");
+        // Rates are of arrival (wall) time, whatever the stamps: a replay's scans carry their
+        // recorded time. (RateMeter's own tests cover the window running dry.)
+        let recorded = 1_767_225_600_000_000_000;
+        for i in 0..10 {
+            p.on_driver_event("a", scan_at(recorded + i * 25_000_000));
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+        assert!(rate(&p).is_some_and(|hz| hz > 0.0), "{:?}", rate(&p));
+        // Disconnected right after: no rate, though the window still holds scans.
+        p.on_driver_event(
+            "a",
+            DriverEvent::Disconnected {
+                reason: "sensor closed the connection".into(),
+            },
+        );
+        let status = p.status();
+        assert_eq!(status.sensors[0].state, SensorState::Disconnected);
+        assert_eq!(status.sensors[0].rate_hz, None);
+        let line = super::super::protocol::Message::Status(status).to_line();
+        assert!(!line.contains("rate_hz"), "{line}");
+    }
+
+    #[test]
+    fn only_a_streaming_sensor_has_a_rate() {
+        for state in [
+            SensorState::Connecting,
+            SensorState::Disconnected,
+            SensorState::Failed,
+            SensorState::Stopped,
+        ] {
+            assert_eq!(shown_rate(state, Some(40.0)), None, "{state:?}");
+        }
+        assert_eq!(shown_rate(SensorState::Streaming, Some(40.0)), Some(40.0));
+        assert_eq!(shown_rate(SensorState::Streaming, None), None);
+    }
 
     #[test]
     fn a_replayed_stamp_is_the_base_plus_the_unit_clock_across_wraps_and_reconnects() {

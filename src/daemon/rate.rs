@@ -8,7 +8,6 @@ use std::collections::VecDeque;
 pub struct RateMeter {
     window_ns: u64,
     stamps_ns: VecDeque<u64>,
-    seen_any: bool,
 }
 
 impl RateMeter {
@@ -17,26 +16,22 @@ impl RateMeter {
         RateMeter {
             window_ns: (window_s.max(1e-3) * 1e9) as u64,
             stamps_ns: VecDeque::new(),
-            seen_any: false,
         }
     }
 
     /// Records one event at `stamp_ns` (non-decreasing).
     pub fn record(&mut self, stamp_ns: u64) {
-        self.seen_any = true;
         self.stamps_ns.push_back(stamp_ns);
         self.expire(stamp_ns);
     }
 
-    /// Events per second at `now_ns`: `None` before the first event, 0 when none arrived in
-    /// the window, else the rate between the window's first and last event.
+    /// Events per second at `now_ns`: `None` when none arrived in the window (before the
+    /// first event, or once they stopped: a stale or zero rate would read as a live source),
+    /// else the rate between the window's first and last event.
     pub fn rate_hz(&mut self, now_ns: u64) -> Option<f64> {
-        if !self.seen_any {
-            return None;
-        }
         self.expire(now_ns);
         let (Some(&first), Some(&last)) = (self.stamps_ns.front(), self.stamps_ns.back()) else {
-            return Some(0.0);
+            return None;
         };
         if last <= first {
             // One event in the window: it says the source is alive, not how fast.
@@ -69,8 +64,8 @@ mod tests {
         assert!((rate - 40.0).abs() < 1e-9, "{rate}");
         // Memory stays bounded by the window.
         assert!(meter.stamps_ns.len() <= 81);
-        // Silence longer than the window: 0, not the stale rate.
-        assert_eq!(meter.rate_hz(10_000_000_000), Some(0.0));
+        // Silence longer than the window: no rate, neither the stale one nor 0.
+        assert_eq!(meter.rate_hz(10_000_000_000), None);
     }
 
     #[test]

@@ -316,7 +316,9 @@ fn load_saved_poses(config: &Config, pipeline: &Pipeline) {
     match PosesFile::load_matching(config) {
         Ok(Some(file)) => {
             for s in file.sensors.iter().filter(|s| s.registered) {
-                let (Some(x_m), Some(y_m), Some(yaw_deg)) = (s.x_m, s.y_m, s.yaw_deg) else {
+                let (Some(x_m), Some(y_m), Some(yaw_deg), Some(source)) =
+                    (s.x_m, s.y_m, s.yaw_deg, s.source)
+                else {
                     continue;
                 };
                 let updated = humantime::parse_rfc3339(&s.updated)
@@ -332,7 +334,7 @@ fn load_saved_poses(config: &Config, pipeline: &Pipeline) {
                         sigma_x_m: s.sigma_x_m,
                         sigma_y_m: s.sigma_y_m,
                         sigma_yaw_rad: s.sigma_yaw_deg.map(f64::to_radians),
-                        source: s.source,
+                        source,
                         loaded: true,
                         caveat: s.reason.clone(),
                         updated,

@@ -27,6 +27,11 @@ use super::protocol::{
 
 /// How long a reply may take to be taken by a client before the client is dropped.
 pub const DEFAULT_WRITE_TIMEOUT: Duration = Duration::from_secs(5);
+/// A client must send its first request within this long of the banner, or it is told so
+/// and closed: silent connections would otherwise hold the `max_clients` slots, and the
+/// operator's `scanfuse status` would be refused. A client that has asked once (a `watch`
+/// above all) stays as long as it likes.
+pub const FIRST_REQUEST_WITHIN: Duration = Duration::from_secs(5);
 /// Pause after a failed accept (e.g. out of file descriptors) before trying again.
 const ACCEPT_BACKOFF: Duration = Duration::from_millis(100);
 /// Bytes read from a client at a time.
@@ -82,6 +87,9 @@ pub struct ServerOptions {
     pub max_clients: usize,
     /// A client that takes no bytes for this long is dropped.
     pub write_timeout: Duration,
+    /// A client that sends no request for this long after the banner is dropped
+    /// ([`FIRST_REQUEST_WITHIN`]).
+    pub first_request_within: Duration,
 }
 
 impl Default for ServerOptions {
@@ -90,6 +98,7 @@ impl Default for ServerOptions {
             socket_mode: super::config::DEFAULT_SOCKET_MODE,
             max_clients: super::config::DEFAULT_MAX_CLIENTS,
             write_timeout: DEFAULT_WRITE_TIMEOUT,
+            first_request_within: FIRST_REQUEST_WITHIN,
         }
     }
 }
@@ -272,6 +281,7 @@ impl<S: StatusSource> StatusServer<S> {
                 publisher: self.publisher.clone(),
                 shutdown: notify_shutdown.subscribe(),
                 write_timeout,
+                first_request_within: self.options.first_request_within,
             };
             tokio::spawn(async move {
                 if let Err(e) = connection.serve(stream).await {
@@ -316,6 +326,8 @@ enum ConnectionEnd {
     WriteTimeout(Duration),
     #[error("watcher fell {0} messages behind")]
     Lagged(u64),
+    #[error("client sent no request within {} of the banner", crate::human::duration(*.0))]
+    Silent(Duration),
     #[error(transparent)]
     Io(#[from] io::Error),
 }
@@ -353,6 +365,7 @@ struct Connection<S> {
     publisher: Publisher,
     shutdown: broadcast::Receiver<()>,
     write_timeout: Duration,
+    first_request_within: Duration,
 }
 
 impl<S: StatusSource> Connection<S> {
@@ -372,9 +385,24 @@ impl<S: StatusSource> Connection<S> {
         // False once the client has shut its sending side: a watcher may still be listening
         // (`echo '{"cmd":"watch"}' | socat - UNIX:…`), so the stream goes on until a write fails.
         let mut reading = true;
+        // Until the first request, the client holds its slot on probation.
+        let first_request_due = tokio::time::sleep(self.first_request_within);
+        tokio::pin!(first_request_due);
+        let mut asked = false;
         loop {
             let item = tokio::select! {
                 _ = self.shutdown.recv() => return Ok(()),
+                () = &mut first_request_due, if !asked => {
+                    let limit = self.first_request_within;
+                    let goodbye = Message::error(format!(
+                        "no request within {} of connecting, so this connection was closed to keep its place for others; send a request such as {{\"cmd\":\"status\"}} right after the banner (a \"watch\" keeps the connection open)",
+                        crate::human::duration(limit)
+                    ));
+                    // Best effort and never blocking: a client that reads nothing may not have
+                    // room for it, and waiting on it is what this guards against.
+                    let _ = writer.try_write(format!("{}\n", goodbye.to_line()).as_bytes());
+                    return Err(ConnectionEnd::Silent(limit));
+                }
                 read = reader.read(&mut buf), if reading => {
                     let n = read?;
                     if n == 0 {
@@ -387,10 +415,16 @@ impl<S: StatusSource> Connection<S> {
                     for frame in framer.push(buf.get(..n).unwrap_or_default()) {
                         let reply = match frame {
                             LineFrame::Line(line) if line.iter().all(u8::is_ascii_whitespace) => continue,
-                            LineFrame::Line(line) => self.answer(&line, &mut events, &mut frames).await,
-                            LineFrame::TooLong { .. } => Message::error(format!(
-                                "request line longer than {MAX_LINE_BYTES} bytes; it was discarded. Send one request per line, e.g. {{\"cmd\":\"status\"}}"
-                            )),
+                            LineFrame::Line(line) => {
+                                asked = true;
+                                self.answer(&line, &mut events, &mut frames).await
+                            }
+                            LineFrame::TooLong { .. } => {
+                                asked = true;
+                                Message::error(format!(
+                                    "request line longer than {MAX_LINE_BYTES} bytes; it was discarded. Send one request per line, e.g. {{\"cmd\":\"status\"}}"
+                                ))
+                            }
                         };
                         write_line(&mut writer, &reply.to_line(), timeout).await?;
                     }

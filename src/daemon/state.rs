@@ -97,19 +97,22 @@ pub struct PosesFile {
 
 pose_vocabulary! {
     /// One `[[sensor]]` of `poses.toml`: the register/socket pose vocabulary plus `source` and
-    /// `updated`. An unregistered sensor has a `reason` and no pose fields.
+    /// `updated`. An unregistered sensor has a `reason` and no pose fields, and no `source`.
     #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
     #[serde(deny_unknown_fields)]
     pub struct SavedPose {
-        /// How the pose was obtained (never `saved`: a pose read back keeps its origin).
-        pub source: PoseSource,
+        /// How the pose was obtained (never `saved`: a pose read back keeps its origin);
+        /// present exactly when the sensor is registered.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        pub source: Option<PoseSource>,
         /// When the pose was obtained, RFC 3339 UTC.
         pub updated: String,
     }
 }
 
 impl SavedPose {
-    /// The file form of a socket pose, stamped `updated`.
+    /// The file form of a socket pose, stamped `updated`. `source` is kept for a registered
+    /// pose only: a sensor without a pose was obtained by nothing.
     pub fn from_pose(pose: &SensorPose, source: PoseSource, updated: SystemTime) -> SavedPose {
         SavedPose {
             id: pose.id.clone(),
@@ -123,12 +126,13 @@ impl SavedPose {
             sigma_y_m: pose.sigma_y_m,
             sigma_yaw_deg: pose.sigma_yaw_deg,
             reason: pose.reason.clone(),
-            source,
+            source: pose.registered.then_some(source),
             updated: humantime::format_rfc3339_seconds(updated).to_string(),
         }
     }
 
-    /// The socket form: `source` becomes `saved`, `age_s` is counted from `updated` to `now`.
+    /// The socket form: `source` becomes `saved` (for a registered pose), `age_s` is counted
+    /// from `updated` to `now`.
     pub fn to_pose(&self, now: SystemTime) -> SensorPose {
         let age_s = humantime::parse_rfc3339(&self.updated)
             .ok()
@@ -147,7 +151,7 @@ impl SavedPose {
             sigma_yaw_deg: self.sigma_yaw_deg,
             reason: self.reason.clone(),
             age_s,
-            source: Some(PoseSource::Saved),
+            source: self.registered.then_some(PoseSource::Saved),
         }
     }
 }
@@ -174,7 +178,7 @@ impl PosesFile {
             path: path.to_path_buf(),
             message,
         };
-        let file: PosesFile = toml::from_str(text).map_err(|e| {
+        let mut file: PosesFile = toml::from_str(text).map_err(|e| {
             let line = e.span().map_or(0, |s| {
                 text.as_bytes()
                     .get(..s.start)
@@ -183,6 +187,10 @@ impl PosesFile {
             });
             invalid(format!("line {line}: {}", e.message().trim()))
         })?;
+        for s in file.sensors.iter_mut().filter(|s| !s.registered) {
+            // Files written before `source` was left out for these said "registered".
+            s.source = None;
+        }
         let mut seen = BTreeSet::new();
         for s in &file.sensors {
             if !seen.insert(s.id.as_str()) {
@@ -201,7 +209,13 @@ impl PosesFile {
                     s.id
                 )));
             }
-            if s.source == PoseSource::Saved {
+            if s.registered && s.source.is_none() {
+                return Err(invalid(format!(
+                    "sensor {:?} is registered but has no source (registered, re-registered or surveyed)",
+                    s.id
+                )));
+            }
+            if s.source == Some(PoseSource::Saved) {
                 return Err(invalid(format!(
                     "sensor {:?}: source must say how the pose was obtained (registered, re-registered or surveyed), not \"saved\"",
                     s.id
@@ -330,6 +344,38 @@ mod tests {
     }
 
     #[test]
+    fn an_unregistered_sensor_has_no_source_in_the_file() {
+        let text = example().to_toml().unwrap();
+        let c = text.split("[[sensor]]").nth(3).expect("the third sensor");
+        assert!(
+            c.contains("id = \"c\"") && c.contains("registered = false"),
+            "{c}"
+        );
+        assert!(!c.contains("source"), "{c}");
+        let back = PosesFile::parse(&text, Path::new("poses.toml")).unwrap();
+        assert_eq!(back.sensors[2].source, None);
+        assert_eq!(back.sensors[2].to_pose(UNIX_EPOCH).source, None);
+        // A file from before, with `source = "registered"` beside `registered = false`, loads
+        // and the stray source is dropped.
+        let old = text.replace(
+            "registered = false\n",
+            "registered = false\nsource = \"registered\"\n",
+        );
+        assert_ne!(old, text);
+        let back = PosesFile::parse(&old, Path::new("poses.toml")).unwrap();
+        assert_eq!(back.sensors[2].source, None);
+        assert!(
+            !back
+                .to_toml()
+                .unwrap()
+                .split("[[sensor]]")
+                .nth(3)
+                .unwrap()
+                .contains("source")
+        );
+    }
+
+    #[test]
     fn inconsistent_files_are_rejected_with_the_reason() {
         let text = example().to_toml().unwrap();
         let cases = [
@@ -342,6 +388,10 @@ mod tests {
                 "appears twice",
             ),
             (text.replacen("x_m = 3.25\n", "", 1), "lacks a finite"),
+            (
+                text.replace("source = \"re-registered\"\n", ""),
+                "registered but has no source",
+            ),
             (
                 text.replace("source = \"re-registered\"", "source = \"saved\""),
                 "not \"saved\"",

@@ -171,7 +171,7 @@ pub enum DriverError {
     Closed,
     #[error("no answer to {0} within {1:?}")]
     NoReply(String, Duration),
-    #[error("no scan for {0:?} (watchdog)")]
+    #[error("no scan for {} (watchdog)", crate::human::duration(*.0))]
     NoData(Duration),
     #[error(transparent)]
     Status(#[from] StatusError),
