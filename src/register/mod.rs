@@ -1,6 +1,6 @@
 //! Registration: each sensor's pose from the scans alone. `pair` registers two scans (global
 //! search, free-space check, refinement, verdict); `site` solves all sensors jointly; `motion`
-//! checks poses against people both sensors saw walk.
+//! checks poses against people both sensors saw walk; `walkers` proposes poses from them.
 
 pub mod hypotheses;
 pub mod icp;
@@ -11,6 +11,7 @@ pub mod pair;
 pub mod params;
 pub mod score;
 pub mod site;
+pub mod walkers;
 
 pub use model::ScanModel;
 pub use pair::{Abstain, Candidate, PairResult, polish, register_pair};

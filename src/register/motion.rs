@@ -187,6 +187,51 @@ impl MotionTrack {
         }
     }
 
+    /// For each tick at which both tracks saw walkers: the time (s since this track's first
+    /// frame) and the walkers' centres in each sensor's frame. A sensor sees a body's near side:
+    /// for a round body of width w seen along evenly spaced beams the returns' centroid lies
+    /// πw/8 short of its centre, so each centroid is pushed `push_of_width` × w along its beam.
+    pub fn centres_with(
+        &self,
+        other: &MotionTrack,
+        max_skew_s: f64,
+        push_of_width: f64,
+    ) -> Vec<(f64, Vec<Point2<f64>>, Vec<Point2<f64>>)> {
+        let centres = |f: &Frame| -> Vec<Point2<f64>> {
+            f.walkers
+                .iter()
+                .filter_map(|w| {
+                    let n = w.len().max(1) as f64;
+                    let c = w.iter().map(|q| q.coords).sum::<nalgebra::Vector2<f64>>() / n;
+                    let width = match (w.first(), w.last()) {
+                        (Some(a), Some(b)) => (a - b).norm(),
+                        _ => 0.0,
+                    };
+                    let push_m = push_of_width * width;
+                    let d = c.norm();
+                    (d > 1e-6).then(|| Point2::from(c * ((d + push_m) / d)))
+                })
+                .collect()
+        };
+        let t0 = self.frames.first().map_or(0, |f| f.t_ns);
+        self.frames
+            .iter()
+            .filter(|f| !f.walkers.is_empty())
+            .filter_map(|f| {
+                let k = other.frames.binary_search_by_key(&f.tick, |g| g.tick).ok()?;
+                let g = other.frames.get(k)?;
+                if g.walkers.is_empty() || g.t_ns.abs_diff(f.t_ns) as f64 * 1e-9 > max_skew_s {
+                    return None;
+                }
+                Some((
+                    f.t_ns.saturating_sub(t0) as f64 * 1e-9,
+                    centres(f),
+                    centres(g),
+                ))
+            })
+            .collect()
+    }
+
     fn frame_at(&self, tick: i64, t_ns: u64, p: &MotionParams) -> Option<&Frame> {
         let k = self.frames.binary_search_by_key(&tick, |f| f.tick).ok()?;
         let f = self.frames.get(k)?;

@@ -6,6 +6,7 @@ use super::hypotheses::hypotheses;
 use super::icp::{IcpResult, refine_guarded};
 use super::matching::match_score;
 use super::motion::{MotionEvidence, co_motion};
+use super::walkers::{WalkerFit, fit_walkers};
 use super::score::{PoseScore, score, score_coarse};
 use super::{RegisterParams, ScanModel};
 use crate::geometry::{Pose2, pose_error, pose2};
@@ -33,8 +34,11 @@ pub enum Abstain {
     /// Every candidate puts people one sensor saw walking where the other saw straight through
     /// at that moment (the best candidate's counts).
     PeopleDisagree { seen_through: usize, seen: usize },
-    /// The sensors watched together this long (s) and no one walked where both look: the walls
-    /// alone cannot rule out a look-alike place.
+    /// The walls' best pose and the pose people walking agree on differ (`other`: the walkers'
+    /// pose in the frame of the walls' best), and neither rules the other out.
+    WalkersDisagree { other: Pose2 },
+    /// The sensors watched together this long (s), people walked, but none where both look:
+    /// the walls alone cannot rule out a look-alike place.
     Unconfirmed { watched_s: f64 },
 }
 
@@ -71,9 +75,15 @@ impl fmt::Display for Abstain {
                 f,
                 "people disagree: at the best pose {seen_through} walkers one sensor saw stand where the other saw through at that moment ({seen} seen by both); a look-alike place"
             ),
+            Abstain::WalkersDisagree { other } => write!(
+                f,
+                "walls and walkers disagree: the people both sensors saw walking put it {:.2} m / {:.1}° from where the walls do; walk through their shared view again, or survey it",
+                other.translation.vector.norm(),
+                other.rotation.angle().to_degrees()
+            ),
             Abstain::Unconfirmed { watched_s } => write!(
                 f,
-                "not confirmed: in {watched_s:.0} s no one walked where both sensors look, and walls alone can match a look-alike place; walk through their shared view while recording"
+                "not confirmed: in {watched_s:.0} s people walked, but none where both sensors look, and walls alone can match a look-alike place; walk through their shared view while recording"
             ),
             Abstain::Degenerate { weak_axis_deg } => {
                 write!(
@@ -116,6 +126,12 @@ pub struct PairResult {
     pub icp_iterations: usize,
     /// Walkers at the best pose, when both scans carry people seen over time.
     pub motion: Option<MotionEvidence>,
+    /// The pose people both sensors saw walk agree on, when they decide it: the best pose is
+    /// then theirs (refined on the walls where the walls agree).
+    pub walkers: Option<WalkerFit>,
+    /// The two watched together this long (s) and no one walked in either view: the walls
+    /// alone decided, and the pose is not confirmed by people.
+    pub nobody_walked_s: Option<f64>,
 }
 
 impl PairResult {
@@ -177,14 +193,30 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
             distinct.push(r);
         }
     }
-    let (mut distinct, evidence, refuted) = sift_by_people(a, b, distinct, p);
+    let (mut distinct, mut evidence, refuted) = sift_by_people(a, b, distinct, p);
+    let mut disputed: Option<WalkerFit> = None;
+    // People both saw walk propose a pose of their own; where they decide it, it leads.
+    let walkers = decisive_walkers(a, b, p);
+    let walkers = match walkers {
+        Some(fit) if lead_with_walkers(a, b, &fit, &mut distinct, &mut evidence, p) => Some(fit),
+        // The walkers' own check of their pose failed: they lead nothing, but their
+        // disagreement with the walls is still reported below.
+        Some(fit) => {
+            disputed = Some(fit);
+            None
+        }
+        None => None,
+    };
     // The guarded ICP keeps the iterate the score likes best, and the score is flat within a
     // degree or two of the optimum: polish the winner with plain narrow-gate ICP, both ways,
     // which settles the heading, unless that costs score (it slid off along a weak direction).
     if let Some((first, _)) = distinct.first_mut() {
         let polished = polish(a, b, &first.a_from_b, p);
         let polished_score = score(a, b, &polished, p);
-        if polished_score.value >= first.score.value - p.polish_tolerance {
+        let still_theirs = walkers
+            .as_ref()
+            .is_none_or(|f| f.agrees(&polished, &p.walkers));
+        if polished_score.value >= first.score.value - p.polish_tolerance && still_theirs {
             first.a_from_b = polished;
             first.score = polished_score;
         }
@@ -219,6 +251,8 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
             hypotheses: hypotheses_count,
             icp_iterations: 0,
             motion,
+            walkers: None,
+            nobody_walked_s: None,
         };
     };
     let runner_up = distinct.get(1).map(|r| r.0.clone());
@@ -228,7 +262,29 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
     };
     let (covariance, weak) = covariance_at(a, b, &best.a_from_b, p);
     let overlap = best.score.overlap();
-    let verdict = if overlap < p.min_overlap {
+    let by_walkers = walkers.as_ref().filter(|f| f.agrees(&best.a_from_b, &p.walkers));
+    // What walls and walkers know together.
+    let covariance = match by_walkers {
+        Some(fit) => fuse(&covariance, &fit.covariance),
+        None => covariance,
+    };
+    let verdict = if let Some(fit) = by_walkers {
+        // Walkers fix what the walls leave open (little shared view, a look-alike, a slide);
+        // the walls still must not contradict them, and the pose must be pinned.
+        if best.score.violation() > p.max_violation {
+            Err(Abstain::ContradictsFreeSpace {
+                violation: best.score.violation(),
+            })
+        } else if let Some((sigma_m, sigma_rad)) = too_uncertain(&covariance, p) {
+            Err(Abstain::Uncertain {
+                sigma_m,
+                sigma_yaw_deg: sigma_rad.to_degrees(),
+            })
+        } else {
+            let _ = fit;
+            Ok(())
+        }
+    } else if overlap < p.min_overlap {
         Err(Abstain::TooLittleOverlap { overlap })
     } else if best.score.value < p.min_score {
         Err(Abstain::WeakMatch {
@@ -250,6 +306,10 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         Err(Abstain::Ambiguous {
             ratio: ambiguity,
             other,
+        })
+    } else if let Some(fit) = disputed.filter(|f| !f.agrees(&best.a_from_b, &p.walkers)) {
+        Err(Abstain::WalkersDisagree {
+            other: best.a_from_b.inverse() * fit.a_from_b,
         })
     } else if let Some(watched_s) = unconfirmed(a, b, evidence.first().copied(), p) {
         Err(Abstain::Unconfirmed { watched_s })
@@ -290,6 +350,101 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         hypotheses: hypotheses_count,
         icp_iterations: icp.iterations,
         motion: evidence.first().copied(),
+        walkers: by_walkers.cloned(),
+        nobody_walked_s: nobody_walked(a, b, p),
+    }
+}
+
+/// How long the two watched together with no walker in either view, once that is long
+/// enough to have expected one (`MotionParams::confirm_after_s`).
+fn nobody_walked(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> Option<f64> {
+    let (ma, mb) = (a.motion.as_ref()?, b.motion.as_ref()?);
+    let watched_s = ma.watched_with(mb);
+    (watched_s >= p.motion.confirm_after_s && ma.walkers() + mb.walkers() == 0)
+        .then_some(watched_s)
+}
+
+/// The walker fit, when it decides the pose.
+fn decisive_walkers(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> Option<WalkerFit> {
+    let (ma, mb) = (a.motion.as_ref()?, b.motion.as_ref()?);
+    fit_walkers(ma, mb, &p.walkers).filter(|f| f.decisive(&p.walkers))
+}
+
+/// Puts the candidate the walkers agree with first (with its walker evidence); when the walls
+/// offered none there, refines one from the walkers' pose, keeping the walkers' pose where the
+/// walls pull it away. `false` when that pose fails the walkers' own check (it puts too many
+/// of them where the other sensor saw through): then nothing moves.
+fn lead_with_walkers(
+    a: &ScanModel,
+    b: &ScanModel,
+    fit: &WalkerFit,
+    distinct: &mut Vec<(Candidate, IcpResult)>,
+    evidence: &mut Vec<MotionEvidence>,
+    p: &RegisterParams,
+) -> bool {
+    let agreeing = distinct
+        .iter()
+        .position(|(c, _)| fit.agrees(&c.a_from_b, &p.walkers));
+    let (lead, e) = match agreeing {
+        Some(k) => {
+            let Some(lead) = distinct.get(k).cloned() else {
+                return false;
+            };
+            (lead, evidence.get(k).copied().unwrap_or_default())
+        }
+        None => {
+            let guard = |pose: &Pose2| score(a, b, pose, p).value;
+            let icp = refine_guarded(a, b, &fit.a_from_b, p, p.class_aware, Some(&guard));
+            let pose = if fit.agrees(&icp.a_from_b, &p.walkers) {
+                icp.a_from_b
+            } else {
+                fit.a_from_b
+            };
+            let e = match (&a.motion, &b.motion) {
+                (Some(ma), Some(mb)) => co_motion(ma, mb, &pose, &p.motion),
+                _ => MotionEvidence::default(),
+            };
+            let candidate = Candidate {
+                a_from_b: pose,
+                score: score(a, b, &pose, p),
+                covariance: Matrix3::zeros(),
+            };
+            ((candidate, icp), e)
+        }
+    };
+    if e.refutes(&p.motion) || e.seen_through as f64 > p.walkers.max_through_share * e.seen as f64
+    {
+        // The people's own check says no: leave the walls' order as it was.
+        return false;
+    }
+    // The candidates left must be different poses from the lead (evidence kept in step).
+    let keep: Vec<bool> = distinct
+        .iter()
+        .map(|(c, _)| !same_pose(&c.a_from_b, &lead.0.a_from_b, p))
+        .collect();
+    let mut k = 0;
+    distinct.retain(|_| {
+        k += 1;
+        keep.get(k - 1).copied().unwrap_or(true)
+    });
+    if evidence.len() == keep.len() {
+        let mut k = 0;
+        evidence.retain(|_| {
+            k += 1;
+            keep.get(k - 1).copied().unwrap_or(true)
+        });
+    }
+    distinct.insert(0, lead);
+    evidence.insert(0, e);
+    true
+}
+
+/// Two independent estimates of one pose: the information adds.
+fn fuse(x: &Matrix3<f64>, y: &Matrix3<f64>) -> Matrix3<f64> {
+    match (x.try_inverse(), y.try_inverse()) {
+        (Some(ix), Some(iy)) => (ix + iy).try_inverse().unwrap_or(*y),
+        (None, Some(_)) => *y,
+        _ => *x,
     }
 }
 
@@ -339,7 +494,10 @@ fn unconfirmed(
     let (ma, mb) = (a.motion.as_ref()?, b.motion.as_ref()?);
     let watched_s = ma.watched_with(mb);
     let seen = best.is_some_and(|e| e.seen > 0);
-    (watched_s >= p.motion.confirm_after_s && !seen).then_some(watched_s)
+    // Where no one walked at all (an empty hall), the walls decide: the pose is reported as
+    // not confirmed by people (`PairResult::nobody_walked_s`), not refused.
+    let anyone = ma.walkers() + mb.walkers() > 0;
+    (watched_s >= p.motion.confirm_after_s && !seen && anyone).then_some(watched_s)
 }
 
 /// Where the scans settle from `init`: narrow-gate point-to-line ICP, both ways (the last step

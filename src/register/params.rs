@@ -1,6 +1,7 @@
 //! Every registration threshold in one place, with the reasoning behind each default.
 
 use super::motion::MotionParams;
+use super::walkers::WalkerParams;
 use crate::features::FeatureParams;
 use crate::geometry::ProjectParams;
 
@@ -98,6 +99,8 @@ pub struct RegisterParams {
     pub min_constraint_share: f64,
     /// The check against people both sensors saw walk (when the scans carry them).
     pub motion: MotionParams,
+    /// Poses proposed by people both sensors saw walk.
+    pub walkers: WalkerParams,
 }
 
 impl Default for RegisterParams {
@@ -144,6 +147,7 @@ impl Default for RegisterParams {
             slide_ratio: 0.95,
             min_constraint_share: 0.005,
             motion: MotionParams::default(),
+            walkers: WalkerParams::default(),
         }
     }
 }

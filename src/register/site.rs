@@ -1545,6 +1545,8 @@ mod tests {
             hypotheses: poses.len(),
             icp_iterations: 0,
             motion: None,
+            walkers: None,
+            nobody_walked_s: None,
         }
     }
 

@@ -1,0 +1,440 @@
+//! Walker correspondences as pose hypotheses. A person two sensors see at the same moment is a
+//! point correspondence, and a few seconds of people walking fix the pose without any wall
+//! (Glas et al., IROS 2010, registered a network of laser scanners from walking trajectories
+//! alone). What is not known is which of A's walkers at a tick is which of B's: RANSAC over
+//! pairs of simultaneous candidates proposes poses, the one most simultaneous walkers agree
+//! with, over enough time and floor, is refined by least squares. The walkers themselves are
+//! [`super::motion`]'s (one detector for registration and, later, tracking).
+
+use nalgebra::{Matrix3, Point2, Rotation2, Vector2};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use super::motion::MotionTrack;
+use crate::geometry::{Pose2, pose_error};
+
+/// Thresholds of the walker fit.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WalkerParams {
+    /// A scanner sees the near side of a body: its returns' centroid lies about this share of
+    /// the body's visible width short of its centre, along the beam (π/8 for a round body).
+    pub centre_push_of_width: f64,
+    /// Sightings of one tick further apart in time than this are not paired (s): a walker
+    /// moves 2 cm in 15 ms, and the same way every time along a corridor.
+    pub max_skew_s: f64,
+    /// The two correspondences a hypothesis is made of stand at least this far apart (m), and
+    /// their distances in the two frames agree within `pair_tol_m`.
+    pub min_apart_m: f64,
+    pub pair_tol_m: f64,
+    /// A mapped walker agrees when it lands this close to one of the other's (m).
+    pub inlier_m: f64,
+    /// Hypotheses drawn, and ticks scored per hypothesis (the final fit uses all).
+    pub iterations: usize,
+    pub ticks_scored: usize,
+    /// A fit decides only with this many agreeing walker sightings, over at least `min_span_s`
+    /// and across `min_spread_m` of floor, with an RMS residual under `max_rms_m`, and when the
+    /// best other pose has fewer than `max_ambiguity` times its agreements.
+    pub min_inliers: usize,
+    pub min_span_s: f64,
+    pub min_spread_m: f64,
+    pub max_rms_m: f64,
+    pub max_ambiguity: f64,
+    /// Two hypotheses this close are one (m, rad).
+    pub same_m: f64,
+    pub same_rad: f64,
+    /// A pose agrees with the fit within three of its σ, and never looser than this (m, rad):
+    /// walls that slid 20 cm along a corridor do not agree with walkers that fix it.
+    pub agree_m: f64,
+    pub agree_rad: f64,
+    /// The pose the walkers lead with must see almost none of the walkers through: at most
+    /// this share of those both saw (a right pose has next to none).
+    pub max_through_share: f64,
+    /// Consecutive sightings of one walker are not independent: the residual variance is
+    /// inflated by this much in the covariance.
+    pub correlation: f64,
+}
+
+impl Default for WalkerParams {
+    fn default() -> Self {
+        WalkerParams {
+            centre_push_of_width: std::f64::consts::PI / 8.0,
+            max_skew_s: 0.015,
+            min_apart_m: 1.0,
+            pair_tol_m: 0.2,
+            inlier_m: 0.25,
+            iterations: 1500,
+            ticks_scored: 60,
+            min_inliers: 25,
+            min_span_s: 2.0,
+            min_spread_m: 1.5,
+            max_rms_m: 0.12,
+            max_ambiguity: 0.6,
+            same_m: 0.3,
+            same_rad: 3f64.to_radians(),
+            agree_m: 0.08,
+            agree_rad: 0.8f64.to_radians(),
+            max_through_share: 0.1,
+            correlation: 4.0,
+        }
+    }
+}
+
+/// The pose the walkers agree on.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WalkerFit {
+    pub a_from_b: Pose2,
+    /// Walker sightings that agree (simultaneous, within `inlier_m`).
+    pub inliers: usize,
+    /// Time between the first and last agreeing sighting (s).
+    pub span_s: f64,
+    /// Largest distance between agreeing sightings on the floor (m).
+    pub spread_m: f64,
+    pub rms_m: f64,
+    /// Agreements of the best clearly different pose.
+    pub runner_up: usize,
+    /// Of (x, y, yaw).
+    pub covariance: Matrix3<f64>,
+}
+
+impl WalkerFit {
+    /// Enough walkers, over enough time and floor, agree, and no other pose comes close.
+    pub fn decisive(&self, p: &WalkerParams) -> bool {
+        self.inliers >= p.min_inliers
+            && self.span_s >= p.min_span_s
+            && self.spread_m >= p.min_spread_m
+            && self.rms_m <= p.max_rms_m
+            && (self.runner_up as f64) < p.max_ambiguity * self.inliers as f64
+    }
+
+    /// Whether `pose` is the pose the walkers put B at, within their precision.
+    pub fn agrees(&self, pose: &Pose2, p: &WalkerParams) -> bool {
+        let (dt, dyaw) = pose_error(pose, &self.a_from_b);
+        let c = &self.covariance;
+        let sigma_m = c[(0, 0)].max(c[(1, 1)]).max(0.0).sqrt();
+        let sigma_rad = c[(2, 2)].max(0.0).sqrt();
+        dt < (3.0 * sigma_m).max(p.agree_m) && dyaw < (3.0 * sigma_rad).max(p.agree_rad)
+    }
+}
+
+/// Walker centres both sensors had at one tick.
+struct Tick {
+    t_s: f64,
+    a: Vec<Point2<f64>>,
+    b: Vec<Point2<f64>>,
+}
+
+/// What a hypothesis explains.
+#[derive(Default)]
+struct Agreement {
+    count: usize,
+    pairs: Vec<(Point2<f64>, Point2<f64>, f64)>,
+}
+
+/// Pairs each of B's walkers (mapped into A) with the nearest unused one of A's within reach.
+fn agree(ticks: &[&Tick], a_from_b: &Pose2, reach_m: f64, keep: bool) -> Agreement {
+    let mut out = Agreement::default();
+    let mut used: Vec<bool> = Vec::new();
+    for tick in ticks {
+        used.clear();
+        used.resize(tick.a.len(), false);
+        for b in &tick.b {
+            let q = a_from_b * b;
+            let nearest = tick
+                .a
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| !used.get(*i).copied().unwrap_or(true))
+                .map(|(i, a)| (i, (a - q).norm()))
+                .min_by(|x, y| x.1.total_cmp(&y.1));
+            if let Some((i, d)) = nearest.filter(|(_, d)| *d <= reach_m) {
+                if let Some(u) = used.get_mut(i) {
+                    *u = true;
+                }
+                out.count += 1;
+                if keep && let Some(a) = tick.a.get(i) {
+                    out.pairs.push((*a, *b, tick.t_s));
+                }
+                let _ = d;
+            }
+        }
+    }
+    out
+}
+
+/// The rigid pose taking b1→a1 and b2→a2 best (rotation from the two directions).
+fn from_two(a1: Point2<f64>, a2: Point2<f64>, b1: Point2<f64>, b2: Point2<f64>) -> Pose2 {
+    let (da, db) = (a2 - a1, b2 - b1);
+    let yaw = da.y.atan2(da.x) - db.y.atan2(db.x);
+    let rot = Rotation2::new(yaw);
+    let t = nalgebra::center(&a1, &a2) - rot * nalgebra::center(&b1, &b2);
+    Pose2::new(t, yaw)
+}
+
+/// Least-squares rigid pose over the pairs (a, b): a ≈ pose · b.
+fn least_squares(pairs: &[(Point2<f64>, Point2<f64>, f64)]) -> Option<Pose2> {
+    if pairs.len() < 2 {
+        return None;
+    }
+    let n = pairs.len() as f64;
+    let ca = pairs.iter().map(|(a, _, _)| a.coords).sum::<Vector2<f64>>() / n;
+    let cb = pairs.iter().map(|(_, b, _)| b.coords).sum::<Vector2<f64>>() / n;
+    let (mut s_cross, mut s_dot) = (0.0, 0.0);
+    for (a, b, _) in pairs {
+        let (u, v) = (a.coords - ca, b.coords - cb);
+        s_cross += v.x * u.y - v.y * u.x;
+        s_dot += v.x * u.x + v.y * u.y;
+    }
+    let yaw = s_cross.atan2(s_dot);
+    let t = ca - Rotation2::new(yaw) * cb;
+    Some(Pose2::new(t, yaw))
+}
+
+/// σ² (JᵀJ)⁻¹ of the fit, σ² the residual variance inflated for correlated sightings.
+fn covariance(
+    pose: &Pose2,
+    pairs: &[(Point2<f64>, Point2<f64>, f64)],
+    rms_m: f64,
+    p: &WalkerParams,
+) -> Matrix3<f64> {
+    let yaw = pose.rotation.angle();
+    let (s, c) = yaw.sin_cos();
+    let mut jtj = Matrix3::zeros();
+    for (_, b, _) in pairs {
+        let rows = [
+            nalgebra::RowVector3::new(1.0, 0.0, -s * b.x - c * b.y),
+            nalgebra::RowVector3::new(0.0, 1.0, c * b.x - s * b.y),
+        ];
+        for r in rows {
+            jtj += r.transpose() * r;
+        }
+    }
+    let variance = (rms_m * rms_m).max(0.03f64.powi(2)) * p.correlation;
+    jtj.try_inverse()
+        .map_or(Matrix3::identity() * 1e6, |inv| inv * variance)
+}
+
+/// The pose most simultaneous walkers agree on, `None` without two sensors watching walkers
+/// at the same ticks. Deterministic.
+pub fn fit_walkers(a: &MotionTrack, b: &MotionTrack, p: &WalkerParams) -> Option<WalkerFit> {
+    let ticks: Vec<Tick> = a
+        .centres_with(b, p.max_skew_s, p.centre_push_of_width)
+        .into_iter()
+        .map(|(t_s, a, b)| Tick { t_s, a, b })
+        .collect();
+    // Candidate correspondences: every (A walker, B walker) of a tick.
+    let candidates: Vec<(usize, Point2<f64>, Point2<f64>)> = ticks
+        .iter()
+        .enumerate()
+        .flat_map(|(k, t)| {
+            t.a.iter()
+                .flat_map(move |a| t.b.iter().map(move |b| (k, *a, *b)))
+        })
+        .collect();
+    if candidates.len() < 2 {
+        return None;
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(0x57a1_4e25);
+    let scored: Vec<&Tick> = if ticks.len() <= p.ticks_scored {
+        ticks.iter().collect()
+    } else {
+        let step = ticks.len() as f64 / p.ticks_scored as f64;
+        (0..p.ticks_scored)
+            .filter_map(|i| ticks.get((i as f64 * step) as usize))
+            .collect()
+    };
+    // Distinct hypotheses with their agreement on the scored ticks, best first.
+    let mut best: Vec<(usize, Pose2)> = Vec::new();
+    let same = |x: &Pose2, y: &Pose2| {
+        let (dt, dyaw) = pose_error(x, y);
+        dt < p.same_m && dyaw < p.same_rad
+    };
+    for _ in 0..p.iterations {
+        let (Some(&(_, a1, b1)), Some(&(_, a2, b2))) = (
+            candidates.get(rng.random_range(0..candidates.len())),
+            candidates.get(rng.random_range(0..candidates.len())),
+        ) else {
+            continue;
+        };
+        let (da, db) = ((a2 - a1).norm(), (b2 - b1).norm());
+        if da < p.min_apart_m || (da - db).abs() > p.pair_tol_m {
+            continue;
+        }
+        let pose = from_two(a1, a2, b1, b2);
+        let count = agree(&scored, &pose, p.inlier_m, false).count;
+        match best.iter_mut().find(|(_, q)| same(q, &pose)) {
+            Some(entry) if entry.0 >= count => {}
+            Some(entry) => *entry = (count, pose),
+            None => best.push((count, pose)),
+        }
+        best.sort_by(|x, y| y.0.cmp(&x.0));
+        best.truncate(8);
+    }
+    // Refine the leaders on every tick; the best refined one is the fit.
+    let all: Vec<&Tick> = ticks.iter().collect();
+    let mut refined: Vec<(usize, Pose2, Vec<(Point2<f64>, Point2<f64>, f64)>)> = best
+        .iter()
+        .filter_map(|(_, pose)| {
+            let mut pose = *pose;
+            let mut agreement = agree(&all, &pose, p.inlier_m, true);
+            for _ in 0..3 {
+                pose = least_squares(&agreement.pairs)?;
+                agreement = agree(&all, &pose, p.inlier_m, true);
+            }
+            Some((agreement.count, pose, agreement.pairs))
+        })
+        .collect();
+    refined.sort_by(|x, y| y.0.cmp(&x.0));
+    let (inliers, pose, pairs) = refined.first()?.clone();
+    // Leaders that refine to the winner were the same pose seen through noise.
+    let runner_up = refined
+        .iter()
+        .skip(1)
+        .filter(|(_, q, _)| !same(q, &pose))
+        .map(|(n, _, _)| *n)
+        .max()
+        .unwrap_or(0);
+    let rms_m = (pairs
+        .iter()
+        .map(|(a, b, _)| (a - pose * b).norm_squared())
+        .sum::<f64>()
+        / pairs.len().max(1) as f64)
+        .sqrt();
+    let (t0, t1) = pairs.iter().fold((f64::MAX, f64::MIN), |(lo, hi), (_, _, t)| {
+        (lo.min(*t), hi.max(*t))
+    });
+    let spread_m = spread(pairs.iter().map(|(a, _, _)| *a));
+    Some(WalkerFit {
+        a_from_b: pose,
+        inliers,
+        span_s: (t1 - t0).max(0.0),
+        spread_m,
+        rms_m,
+        runner_up,
+        covariance: covariance(&pose, &pairs, rms_m, p),
+    })
+}
+
+/// The largest distance between two of the points (an extreme pair of a bounding box is
+/// enough here).
+fn spread(points: impl Iterator<Item = Point2<f64>>) -> f64 {
+    let (mut lo, mut hi) = (Vector2::repeat(f64::MAX), Vector2::repeat(f64::MIN));
+    let mut any = false;
+    for q in points {
+        lo = lo.inf(&q.coords);
+        hi = hi.sup(&q.coords);
+        any = true;
+    }
+    if any { (hi - lo).norm() } else { 0.0 }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::pose2;
+    use crate::geometry::raycast::{Wall, cast, polygon};
+    use crate::geometry::{Mount, ProjectParams};
+    use crate::register::motion::MotionParams;
+    use crate::scan::Scan;
+
+    /// A 270° scan at 0.25° steps of `walls` plus `people` (0.2 m radius discs, as squares)
+    /// from `site_from_sensor`.
+    fn scan(walls: &[Wall], people: &[[f64; 2]], site_from_sensor: &Pose2, t_ns: u64) -> Scan {
+        let (start, step, n) = (-135f64.to_radians(), 0.25f64.to_radians(), 1081);
+        let origin = Point2::from(site_from_sensor.translation.vector);
+        let mut seen = walls.to_vec();
+        for [x, y] in people {
+            let r = 0.2;
+            seen.extend(polygon(&[
+                (x - r, y - r),
+                (x + r, y - r),
+                (x + r, y + r),
+                (x - r, y + r),
+            ]));
+        }
+        let ranges_m = (0..n)
+            .map(|k| {
+                let a = start + step * k as f64;
+                let dir = site_from_sensor.rotation * Vector2::new(a.cos(), a.sin());
+                cast(&seen, origin, dir).map_or(0.0, |r| r as f32)
+            })
+            .collect();
+        Scan {
+            stamp_ns: t_ns,
+            sensor_stamp_ms: None,
+            start_angle_rad: start,
+            end_angle_rad: start + step * (n - 1) as f64,
+            ranges_m,
+            intensities: vec![],
+        }
+    }
+
+    /// People walking straight lines back and forth across an open floor for `seconds`.
+    fn people_at(t_s: f64) -> Vec<[f64; 2]> {
+        let bounce = |from: f64, to: f64, period_s: f64| {
+            let s = (t_s / period_s).fract();
+            let s = if s < 0.5 { 2.0 * s } else { 2.0 - 2.0 * s };
+            from + s * (to - from)
+        };
+        vec![
+            [bounce(2.0, 12.0, 14.0), 3.0 + bounce(0.0, 4.0, 9.0)],
+            [8.0 + bounce(-3.0, 3.0, 7.0), bounce(1.0, 9.0, 11.0)],
+            [bounce(12.0, 3.0, 10.0), 8.0],
+        ]
+    }
+
+    fn track(walls: &[Wall], pose: &Pose2, seconds: f64) -> MotionTrack {
+        let p = MotionParams::default();
+        let frames = (seconds * 40.0) as u64;
+        let scans: Vec<Scan> = (0..frames)
+            .map(|k| {
+                let t_s = k as f64 / 40.0;
+                scan(walls, &people_at(t_s), pose, k * 25_000_000)
+            })
+            .collect();
+        let still = scan(walls, &[], pose, 0);
+        MotionTrack::new(
+            &scans,
+            &still,
+            None,
+            &Mount::default(),
+            &ProjectParams::default(),
+            &p,
+        )
+        .expect("a track")
+    }
+
+    #[test]
+    fn people_alone_fix_the_pose_of_two_sensors_that_share_no_wall() {
+        // Open floor: the only structure is a short post near each sensor, out of the
+        // other's sight lines; they share nothing static, only the people.
+        let walls_a = polygon(&[(-1.0, -1.0), (-0.8, -1.0), (-0.8, -0.8), (-1.0, -0.8)]);
+        let walls_b = polygon(&[(15.0, 11.0), (15.2, 11.0), (15.2, 11.2), (15.0, 11.2)]);
+        let mut walls = walls_a;
+        walls.extend(walls_b);
+        let (pa, pb) = (pose2(0.0, 0.0, 0.6), pose2(14.0, 10.0, -2.4));
+        let (ta, tb) = (track(&walls, &pa, 20.0), track(&walls, &pb, 20.0));
+        let p = WalkerParams::default();
+        let fit = fit_walkers(&ta, &tb, &p).expect("a fit");
+        let truth = pa.inverse() * pb;
+        let (dt, dyaw) = pose_error(&fit.a_from_b, &truth);
+        assert!(
+            dt < 0.10 && dyaw.to_degrees() < 1.0,
+            "{dt:.3} m {:.2}°: {fit:?}",
+            dyaw.to_degrees()
+        );
+        assert!(fit.decisive(&p), "{fit:?}");
+        let sigma_m = fit.covariance[(0, 0)].max(fit.covariance[(1, 1)]).sqrt();
+        assert!(sigma_m < 0.1, "σ {sigma_m:.3} m");
+    }
+
+    #[test]
+    fn without_people_in_common_there_is_no_fit_or_no_decision() {
+        let walls = polygon(&[(0.0, 0.0), (8.0, 0.0), (8.0, 5.0), (0.0, 5.0)]);
+        // b looks away from everyone, into a corner.
+        let (pa, pb) = (pose2(1.0, 1.0, 0.3), pose2(7.9, 4.9, 0.8));
+        let (ta, tb) = (track(&walls, &pa, 5.0), track(&walls, &pb, 5.0));
+        let p = WalkerParams::default();
+        let fit = fit_walkers(&ta, &tb, &p);
+        assert!(fit.as_ref().is_none_or(|f| !f.decisive(&p)), "{fit:?}");
+    }
+}
