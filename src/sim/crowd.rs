@@ -24,8 +24,8 @@ const OUTSIDE_M: f64 = 1.0;
 const INSIDE_M: f64 = 0.6;
 /// Walking speed for stepping up in a queue, m/s.
 const SHUFFLE_M_S: f64 = 0.6;
-/// How far a group member turns in one tick, rad (90° a second).
-const MAX_TURN_RAD: f64 = std::f64::consts::FRAC_PI_2 * TICK_S;
+/// How far a group member turns in one tick, rad (60° a second).
+const MAX_TURN_RAD: f64 = std::f64::consts::FRAC_PI_3 * TICK_S;
 /// Seconds of frames kept behind the latest asked for.
 const KEEP_S: f64 = 5.0;
 
@@ -742,7 +742,7 @@ impl CrowdRun<'_> {
         let mut s = if share >= 1.0 && wanted >= 1.0 {
             1.0
         } else {
-            wanted.clamp(share - 0.08, share + 0.05).clamp(0.0, 1.0)
+            wanted.clamp(share - 0.05, share + 0.04).clamp(0.0, 1.0)
         };
         while s > 0.0 && !fits(s) {
             s = (s - 0.05).max(0.0);

@@ -1308,6 +1308,59 @@ yaw_deg = 180
     }
 
     #[test]
+    fn crowd_and_queue_keys_parse_with_defaults_and_bad_values_are_refused() {
+        let doors = format!("{GOOD}\n[[door]]\nat = [5, 0]\n");
+        let plan = Plan::from_toml(&format!("{doors}\n[[crowd]]\npeople = 12\n"), "p").unwrap();
+        let c = &plan.crowds[0];
+        assert_eq!((c.people, c.cap(), c.rate_per_min), (12, 12, 30.0));
+        assert_eq!(
+            (c.visits, c.speed_m_s, c.group_size),
+            ([1, 4], [0.5, 1.8], [2, 3])
+        );
+        assert!(plan.writes_people_truth());
+        assert!(!Plan::from_toml(GOOD, "p").unwrap().writes_people_truth());
+        for (extra, key) in [
+            ("[[crowd]]\npeople = 101\n", "crowd.people"),
+            (
+                "[[crowd]]\npeople = 5\nmax_people = 4\n",
+                "crowd.max_people",
+            ),
+            ("[[crowd]]\nspeed_m_s = [0.4, 1.2]\n", "crowd.speed_m_s"),
+            ("[[crowd]]\nstop_share = 1.5\n", "crowd.stop_share"),
+            ("[[crowd]]\ngroup_size = [1, 3]\n", "crowd.group_size"),
+            ("[[crowd]]\nareas = [[3, 3, 1, 1]]\n", "crowd.areas"),
+            ("[[crowd]]\nrate_per_min = -1\n", "crowd.rate_per_min"),
+            ("[[queue]]\nhead = [1, 1]\ntail = [1, 1]\n", "queue.head"),
+            (
+                "[[queue]]\nhead = [1, 1]\ntail = [3, 1]\nserve_s = -2\n",
+                "queue.serve_s",
+            ),
+        ] {
+            let text = format!("{doors}\n{extra}");
+            let err = error_of(&text);
+            assert_eq!(err.key.as_deref(), Some(key), "{extra}: {err}");
+            // The line that sets the key (the table's, for keys left at their defaults).
+            let name = key.rsplit('.').next().unwrap();
+            let table = text.lines().count() - extra.lines().count() + 1;
+            let expected = text
+                .lines()
+                .enumerate()
+                .skip(table)
+                .find(|(_, l)| l.starts_with(&format!("{name} =")))
+                .map_or(table, |(i, _)| i + 1);
+            assert_eq!(err.line, Some(expected), "{err}");
+        }
+        // No doors and no entrances: nowhere to come in.
+        let err = error_of(&format!("{GOOD}\n[[crowd]]\n"));
+        assert_eq!(err.key.as_deref(), Some("crowd.entrances"));
+        assert!(err.problem.contains("[[door]]"), "{err}");
+        let given = format!("{GOOD}\n[[crowd]]\nentrances = [[5, 3]]\n");
+        assert!(Plan::from_toml(&given, "p").is_ok());
+        let err = error_of(&format!("{doors}\n[[crowd]]\npepole = 3\n"));
+        assert_eq!(err.key.as_deref(), Some("pepole"));
+    }
+
+    #[test]
     fn missing_file_names_the_file() {
         let err = Plan::load(Path::new("/nonexistent/plan.toml")).unwrap_err();
         assert!(
