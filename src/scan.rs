@@ -219,6 +219,25 @@ pub struct MoveTruth {
     pub pose: TruthPose,
 }
 
+/// Where every simulated person is at one moment: a message of a simulated recording's
+/// `/truth/people` channel (site frame). Only evaluation and tests read it.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PeopleTruth {
+    /// Recording time, ns (same clock as [`Scan::stamp_ns`]).
+    pub t_ns: u64,
+    pub people: Vec<PersonTruth>,
+}
+
+/// One person's body centre in [`PeopleTruth`].
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PersonTruth {
+    /// `p<n>` for crowd and queue people (in order of appearance, never reused), `w<n>` for a
+    /// plan's `[[person]]` walkers.
+    pub id: String,
+    pub x_m: f64,
+    pub y_m: f64,
+}
+
 /// One scan: ranges (and maybe intensities) over an arc, stamped.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Scan {

@@ -142,3 +142,87 @@ fn every_committed_fixture_reads_whole_and_carries_truth() {
         assert_eq!(rec.moves.is_empty(), name != "moved", "{name}");
     }
 }
+
+/// A crowd plan's recording carries `/truth/people` every 0.1 s; the scan reader leaves it
+/// out of the sensors and scans, `read_truth_people` reads it back, and `info` lists it.
+#[test]
+fn crowd_truth_is_written_read_back_apart_from_scans_and_listed_by_info() {
+    let dir = tempfile::tempdir().unwrap();
+    let plan = dir.path().join("crowd.toml");
+    std::fs::write(
+        &plan,
+        r#"
+name = "crowd"
+[[wall]]
+points = [[0, 0], [12, 0], [12, 8], [0, 8]]
+closed = true
+[[door]]
+at = [6, 0]
+width_m = 1.5
+[[sensor]]
+id = "a"
+model = "UTM-30LX-EW"
+x = 1.0
+y = 1.0
+yaw_deg = 45
+[[crowd]]
+people = 6
+"#,
+    )
+    .unwrap();
+    let path = dir.path().join("crowd.mcap");
+    let out = scanfuse(&[
+        "simulate",
+        "--plan",
+        plan.to_str().unwrap(),
+        "--seconds",
+        "1",
+        "--out",
+        path.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", text(&out));
+    assert!(
+        text(&out).contains("10 people's truth messages"),
+        "{}",
+        text(&out)
+    );
+
+    let rec = scanfuse::record::read(&path).unwrap();
+    assert_eq!(rec.sensors.len(), 1, "the truth is not a sensor");
+    assert_eq!(rec.scans.keys().collect::<Vec<_>>(), ["a"]);
+    assert!(rec.skipped.is_empty(), "{:?}", rec.skipped);
+    assert_eq!(rec.truth.len(), 1);
+    assert_eq!(rec.truth[0].topic, "/truth/people");
+    assert_eq!(rec.truth[0].messages, 10);
+
+    let truth = scanfuse::record::read_truth_people(&path).unwrap();
+    assert_eq!(truth.len(), 10);
+    let start = rec.scans_of("a")[0].stamp_ns / 1_000_000_000 * 1_000_000_000;
+    for (k, t) in truth.iter().enumerate() {
+        assert_eq!(t.t_ns, start + k as u64 * 100_000_000);
+        assert_eq!(t.people.len(), 6, "{t:?}");
+        for p in &t.people {
+            assert!(p.id.starts_with('p'), "{p:?}");
+            assert!(
+                (0.0..12.0).contains(&p.x_m) && (0.0..8.0).contains(&p.y_m),
+                "{p:?}"
+            );
+        }
+    }
+    // A recording without truth gives none.
+    let lab = common::repo().join("fixtures/lab.mcap");
+    assert!(
+        scanfuse::record::read_truth_people(&lab)
+            .unwrap()
+            .is_empty()
+    );
+
+    let out = scanfuse(&["info", path.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", text(&out));
+    let report = text(&out);
+    assert!(
+        report.contains("truth: /truth/people (scanfuse.PeopleTruth, json): 10 messages"),
+        "{report}"
+    );
+    assert!(!report.contains("skipped:"), "{report}");
+}

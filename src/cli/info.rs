@@ -132,6 +132,20 @@ pub fn describe(rec: &Recording, file_bytes: u64) -> String {
     for (id, n) in &rec.scip_messages {
         let _ = writeln!(out, "raw SCIP: {id}: {n} messages on /{id}/scip");
     }
+    for c in &rec.truth {
+        let _ = writeln!(
+            out,
+            "truth: {} ({}, {}): {} messages, ground truth for eval and tests (never read as scans)",
+            c.topic,
+            if c.schema.is_empty() {
+                "no schema"
+            } else {
+                &c.schema
+            },
+            c.encoding,
+            c.messages
+        );
+    }
     for c in &rec.skipped {
         let _ = writeln!(
             out,

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::Context as _;
 use scanfuse::record::{self, RecordingWriter};
-use scanfuse::sim::{Plan, Simulation};
+use scanfuse::sim::{Plan, SimEvent, Simulation};
 
 use super::BadInput;
 
@@ -52,7 +52,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut scans = 0usize;
     let mut next_report_s = 10.0;
     let mut first_ns = None;
-    sim.run(args.seconds, |index, scan| {
+    let mut truths = 0usize;
+    sim.run_with_truth(args.seconds, |event| {
+        let (index, scan) = match event {
+            SimEvent::Scan(index, scan) => (index, scan),
+            SimEvent::People(people) => {
+                out.write_people_truth(&people)?;
+                truths += 1;
+                return anyhow::Ok(());
+            }
+        };
         let sensor = sensors.get(index).with_context(|| {
             format!("the simulator produced a scan for unknown sensor #{index}")
         })?;
@@ -68,8 +77,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     })?;
     out.finish()?;
     let bytes = std::fs::metadata(&args.out).map(|m| m.len()).unwrap_or(0);
+    let truth = if truths > 0 {
+        format!(
+            ", {truths} people's truth messages on {}",
+            record::PEOPLE_TRUTH_TOPIC
+        )
+    } else {
+        String::new()
+    };
     println!(
-        "{}: {} sensors, {} scans, {} s simulated from {} (seed {}), {} bytes",
+        "{}: {} sensors, {} scans{truth}, {} s simulated from {} (seed {}), {} bytes",
         args.out.display(),
         sensors.len(),
         scans,

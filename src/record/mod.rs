@@ -13,8 +13,17 @@ mod writer;
 
 use std::path::PathBuf;
 
-pub use reader::{Recording, SkippedChannel, read, read_lenient};
-pub use writer::{DEFAULT_ZSTD_LEVEL, RecordingWriter, SCIP_ENCODING, partial_path};
+pub use reader::{Recording, SkippedChannel, read, read_lenient, read_truth_people};
+pub use writer::{
+    DEFAULT_ZSTD_LEVEL, PEOPLE_TRUTH_SCHEMA, RecordingWriter, SCIP_ENCODING, partial_path,
+};
+
+/// Topic of the people's ground truth in simulated recordings. Channels under `/truth/` are
+/// never scans: readers of scans leave them out, and only evaluation and tests read them
+/// (through [`read_truth_people`]).
+pub const PEOPLE_TRUTH_TOPIC: &str = "/truth/people";
+/// Prefix of every ground-truth channel.
+pub const TRUTH_PREFIX: &str = "/truth/";
 
 /// What went wrong reading or writing a recording; always names the file.
 #[derive(Debug, thiserror::Error)]

@@ -1,7 +1,8 @@
 //! Reads recordings written by scanfuse or by any other MCAP writer.
 //!
-//! A laser channel is any channel whose schema is `foxglove.LaserScan`, in protobuf or JSON.
-//! Other channels are listed as skipped, never fatal. Reading is linear, so a truncated or
+//! A laser channel is any channel whose schema is `foxglove.LaserScan`, in protobuf or JSON,
+//! outside `/truth/`. Ground-truth channels (`/truth/*`) are listed apart and read only by
+//! [`read_truth_people`]; other channels are listed as skipped, never fatal. Reading is linear, so a truncated or
 //! corrupt file still yields every scan before the damage, with the damage described.
 
 use std::borrow::Cow;
@@ -12,11 +13,11 @@ use mcap::records::Record;
 use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
 use prost::Message as _;
 
-use super::RecordError;
 use super::laserscan::{self, LaserScan, Timestamp};
 use super::metadata::{MOVE_RECORD, SENSOR_RECORD, move_from_map, sensor_from_map};
 use super::writer::SCIP_ENCODING;
-use crate::scan::{MoveTruth, Scan, SensorInfo};
+use super::{PEOPLE_TRUTH_TOPIC, RecordError, TRUTH_PREFIX};
+use crate::scan::{MoveTruth, PeopleTruth, Scan, SensorInfo};
 
 /// Everything read from one recording.
 #[derive(Debug)]
@@ -32,6 +33,9 @@ pub struct Recording {
     pub moves: Vec<MoveTruth>,
     /// Channels that carry something other than laser scans.
     pub skipped: Vec<SkippedChannel>,
+    /// Ground-truth channels (`/truth/*`, simulated recordings), counted, not kept: only
+    /// evaluation and tests read them, with [`read_truth_people`].
+    pub truth: Vec<SkippedChannel>,
     /// What was wrong with the file, when [`read_lenient`] read it only in part.
     pub damage: Option<RecordError>,
 }
@@ -72,7 +76,22 @@ pub fn read_lenient(path: &Path) -> Result<Recording, RecordError> {
         path: path.to_path_buf(),
         source,
     })?;
-    parse(path, &bytes)
+    parse(path, &bytes, false).map(|(recording, _)| recording)
+}
+
+/// The people's ground truth of a simulated recording (`/truth/people`), in file order; empty
+/// when it has none. For evaluation and tests only: nothing in the pipeline may see it. Any
+/// damage to the file, or a message that is not the documented JSON, is an error.
+pub fn read_truth_people(path: &Path) -> Result<Vec<PeopleTruth>, RecordError> {
+    let bytes = std::fs::read(path).map_err(|source| RecordError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let (recording, people) = parse(path, &bytes, true)?;
+    match recording.damage {
+        Some(damage) => Err(damage),
+        None => Ok(people),
+    }
 }
 
 /// Largest record or decompressed chunk accepted, bytes.
@@ -82,6 +101,7 @@ enum Kind {
     Laser { sensor_id: String, json: bool },
     Scip { sensor_id: String },
     Skipped(usize),
+    Truth(usize),
 }
 
 struct Channel {
@@ -99,9 +119,17 @@ struct Parse {
     scip_messages: BTreeMap<String, usize>,
     moves: Vec<MoveTruth>,
     skipped: Vec<SkippedChannel>,
+    truth: Vec<SkippedChannel>,
+    /// Whether `/truth/people` messages are decoded and kept.
+    keep_people: bool,
+    people: Vec<PeopleTruth>,
 }
 
-fn parse(path: &Path, bytes: &[u8]) -> Result<Recording, RecordError> {
+fn parse(
+    path: &Path,
+    bytes: &[u8],
+    keep_people: bool,
+) -> Result<(Recording, Vec<PeopleTruth>), RecordError> {
     let invalid = |what: String| RecordError::Invalid {
         path: path.to_path_buf(),
         what,
@@ -120,7 +148,10 @@ fn parse(path: &Path, bytes: &[u8]) -> Result<Recording, RecordError> {
             .with_record_length_limit(MAX_RECORD_BYTES),
     );
     let mut rest = bytes;
-    let mut state = Parse::default();
+    let mut state = Parse {
+        keep_people,
+        ..Parse::default()
+    };
     let mut damage = None;
     let mut saw_data_end = false;
     while let Some(event) = reader.next_event() {
@@ -160,7 +191,8 @@ fn parse(path: &Path, bytes: &[u8]) -> Result<Recording, RecordError> {
                 .into(),
         ));
     }
-    Ok(state.finish(path, damage))
+    let people = std::mem::take(&mut state.people);
+    Ok((state.finish(path, damage), people))
 }
 
 impl Parse {
@@ -180,13 +212,16 @@ impl Parse {
                     .map(|(name, _)| name.clone())
                     .unwrap_or_default();
                 let kind = self.classify(&channel.topic, &schema, &channel.message_encoding);
-                if let Kind::Skipped(_) = kind {
-                    self.skipped.push(SkippedChannel {
-                        topic: channel.topic.clone(),
-                        schema,
-                        encoding: channel.message_encoding.clone(),
-                        messages: 0,
-                    });
+                let listed = SkippedChannel {
+                    topic: channel.topic.clone(),
+                    schema,
+                    encoding: channel.message_encoding.clone(),
+                    messages: 0,
+                };
+                match kind {
+                    Kind::Skipped(_) => self.skipped.push(listed),
+                    Kind::Truth(_) => self.truth.push(listed),
+                    _ => {}
                 }
                 self.channels.insert(
                     channel.id,
@@ -216,6 +251,9 @@ impl Parse {
     }
 
     fn classify(&mut self, topic: &str, schema: &str, encoding: &str) -> Kind {
+        if topic.starts_with(TRUTH_PREFIX) {
+            return Kind::Truth(self.truth.len());
+        }
         if schema == laserscan::SCHEMA_NAME && (encoding == "protobuf" || encoding == "json") {
             let sensor_id = sensor_id_of(topic, "scan");
             self.channel_order.push(sensor_id.clone());
@@ -257,6 +295,20 @@ impl Parse {
                     skipped.messages += 1;
                 }
             }
+            Kind::Truth(index) => {
+                if let Some(truth) = self.truth.get_mut(*index) {
+                    truth.messages += 1;
+                }
+                if self.keep_people && channel.topic == PEOPLE_TRUTH_TOPIC {
+                    let people: PeopleTruth = serde_json::from_slice(&data).map_err(|e| {
+                        format!(
+                            "{}: message {}: not the people's truth JSON: {e}",
+                            channel.topic, header.sequence
+                        )
+                    })?;
+                    self.people.push(people);
+                }
+            }
         }
         Ok(())
     }
@@ -275,6 +327,7 @@ impl Parse {
             scip_messages: self.scip_messages,
             moves: self.moves,
             skipped: self.skipped,
+            truth: self.truth,
             damage,
         }
     }

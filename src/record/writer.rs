@@ -12,8 +12,14 @@ use prost::Message as _;
 
 use super::laserscan::{self, LaserScan, Pose, Timestamp};
 use super::metadata::{MOVE_RECORD, SENSOR_RECORD, move_to_map, sensor_to_map};
-use super::{RecordError, scan_topic, scip_topic};
-use crate::scan::{MoveTruth, Scan, SensorInfo, check_sensor_id};
+use super::{PEOPLE_TRUTH_TOPIC, RecordError, scan_topic, scip_topic};
+use crate::scan::{MoveTruth, PeopleTruth, Scan, SensorInfo, check_sensor_id};
+
+/// Schema name of `/truth/people` messages (JSON).
+pub const PEOPLE_TRUTH_SCHEMA: &str = "scanfuse.PeopleTruth";
+
+/// JSON Schema of `/truth/people`, so that Foxglove and other readers know its fields.
+const PEOPLE_TRUTH_JSON_SCHEMA: &str = r#"{"type":"object","title":"scanfuse.PeopleTruth","description":"Every simulated person's body centre, site frame; ground truth for evaluation only","properties":{"t_ns":{"type":"integer","description":"recording time, ns since the Unix epoch"},"people":{"type":"array","items":{"type":"object","properties":{"id":{"type":"string"},"x_m":{"type":"number"},"y_m":{"type":"number"}},"required":["id","x_m","y_m"]}}},"required":["t_ns","people"]}"#;
 
 /// Message encoding of raw SCIP byte channels.
 pub const SCIP_ENCODING: &str = "scip2";
@@ -31,6 +37,7 @@ pub struct RecordingWriter {
     schema_id: u16,
     scan_channels: HashMap<String, Channel>,
     scip_channels: HashMap<String, Channel>,
+    people_truth: Option<Channel>,
 }
 
 struct Channel {
@@ -75,6 +82,7 @@ impl RecordingWriter {
             schema_id,
             scan_channels: HashMap::new(),
             scip_channels: HashMap::new(),
+            people_truth: None,
         })
     }
 
@@ -161,6 +169,32 @@ impl RecordingWriter {
             return Err(self.invalid(format!("sensor {sensor_id} has no SCIP channel")));
         };
         write(&mut self.mcap, &self.partial, channel, stamp_ns, bytes)
+    }
+
+    /// Appends where every simulated person is, on `/truth/people` (JSON; declared with its
+    /// schema at the first message).
+    pub fn write_people_truth(&mut self, truth: &PeopleTruth) -> Result<(), RecordError> {
+        if self.people_truth.is_none() {
+            let schema_id = self
+                .mcap
+                .add_schema(
+                    PEOPLE_TRUTH_SCHEMA,
+                    "jsonschema",
+                    PEOPLE_TRUTH_JSON_SCHEMA.as_bytes(),
+                )
+                .map_err(|e| mcap_error(&self.partial, e))?;
+            let id = self
+                .mcap
+                .add_channel(schema_id, PEOPLE_TRUTH_TOPIC, "json", &Default::default())
+                .map_err(|e| mcap_error(&self.partial, e))?;
+            self.people_truth = Some(Channel { id, sequence: 0 });
+        }
+        let data = serde_json::to_vec(truth)
+            .map_err(|e| self.invalid(format!("cannot encode the people's truth: {e}")))?;
+        let Some(channel) = self.people_truth.as_mut() else {
+            return Err(self.invalid("no /truth/people channel".into()));
+        };
+        write(&mut self.mcap, &self.partial, channel, truth.t_ns, &data)
     }
 
     /// Records the true pose of a sensor after it was moved (simulations).

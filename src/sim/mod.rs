@@ -7,24 +7,28 @@
 //! - [`plan`]: the TOML format and its checks (every key documented there).
 //! - `scene`: 3D ray casting against extruded 2D shapes, floor and ceiling.
 //! - `sensor_model`: noise, dropouts, mixed pixels, intensity, spurious returns.
-//! - `simulation`: timing, clocks, moves, people, streaming in stamp order.
+//! - `simulation`: timing, clocks, moves, people, streaming in stamp order, the people's truth.
+//! - `crowd`, `walkable`: `[[crowd]]` and `[[queue]]` people, walking A* paths on an occupancy
+//!   grid of the plan; `people`: how their bodies (legs, torso ellipse, head) are ray-cast.
 //! - `overlap`: [`view_overlap`], how much two sensors see of the same walls.
 //!
 //! Same plan and seed give bit-identical scans. Speed: `cargo bench --bench sim_speed` prints
 //! how long a minute of `fixtures/plans/hall.toml` takes.
 
+mod crowd;
 mod overlap;
 mod people;
 pub mod plan;
 mod scene;
 mod sensor_model;
 mod simulation;
+mod walkable;
 
 use std::fmt;
 
 pub use overlap::view_overlap;
-pub use plan::{BoxShape, Circle, Door, Model, Move, Person, Plan, SensorPlan, Wall};
-pub use simulation::Simulation;
+pub use plan::{BoxShape, Circle, Crowd, Door, Model, Move, Person, Plan, Queue, SensorPlan, Wall};
+pub use simulation::{PEOPLE_TRUTH_PERIOD_NS, SimEvent, Simulation};
 
 /// A floor plan that cannot be used: the file, the line when known, the key and what is valid.
 #[derive(Debug, Clone, PartialEq, Eq)]

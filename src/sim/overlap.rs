@@ -130,7 +130,11 @@ mod tests {
     /// Pairwise overlaps of a fixture plan at 0.10 m, printed (`cargo test fixture -- --nocapture`).
     fn overlaps(file: &str) -> Vec<(String, String, f64)> {
         let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("fixtures/plans")
+            .join(if file.contains('/') {
+                "fixtures"
+            } else {
+                "fixtures/plans"
+            })
             .join(file);
         let plan = Plan::load(&path).unwrap();
         let mut out = Vec::new();
@@ -159,6 +163,34 @@ mod tests {
             } else if a != "tilt" && b != "tilt" {
                 assert!((0.25..=0.70).contains(&o), "{a}–{b}: {o}");
             }
+        }
+    }
+
+    /// The crowd plans (fixtures/plans-crowd): neighbours in the halls and the shop share a
+    /// good part of their views; the open hall's, the glass shop's and the corridor crossing's
+    /// pairs include some that share floor but little static view.
+    #[test]
+    fn crowd_plans_share_views_as_their_headers_say() {
+        for plan in ["hall20", "shop20"] {
+            let all = overlaps(&format!("plans-crowd/{plan}.toml"));
+            let ids: std::collections::BTreeSet<&str> = all
+                .iter()
+                .flat_map(|(a, b, _)| [a.as_str(), b.as_str()])
+                .collect();
+            for id in ids {
+                let good = all
+                    .iter()
+                    .filter(|(a, b, o)| (a == id || b == id) && *o >= 0.30)
+                    .count();
+                assert!(good >= 2, "{plan}: {id} shares ≥ 30 % with {good} others");
+            }
+        }
+        for plan in ["open-hall", "glass-shop", "corridor-cross"] {
+            let all = overlaps(&format!("plans-crowd/{plan}.toml"));
+            assert!(
+                all.iter().any(|(_, _, o)| *o < 0.10),
+                "{plan}: no pair with little shared view"
+            );
         }
     }
 

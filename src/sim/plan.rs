@@ -41,6 +41,48 @@
 //!
 //! Moves, `[[move]]`: at `at_s` seconds after the start the sensor `sensor` is shifted by `dx`,
 //! `dy` (site frame, m) and turned by `dyaw_deg`. Several moves of one sensor add up.
+//!
+//! Crowds, `[[crowd]]`: people who come in, walk to random destinations, some stop and stand,
+//! some walk in pairs or groups side by side, and leave through a door. They walk round walls,
+//! boxes and pillars (a path on a 0.2 m occupancy grid of the plan, 0.25 m clear of anything
+//! lower than 1.8 m), and through each other. Each body is seen as a scanner at that height
+//! would see it: legs (two 0.12 m discs that swing with the gait) up to 0.46 × the person's
+//! height, a torso ellipse 0.45 × 0.28 m turned to the walking direction up to 0.82 × it, a
+//! head above. Keys:
+//! - `people` (0–100, default 10): how many are inside at the start, each at a destination
+//!   partway through a visit.
+//! - `max_people` (`people`..=100, default `people`): the cap; nobody of this crowd enters while
+//!   this many of it are inside.
+//! - `rate_per_min` (≥ 0, default 30): arrivals per minute (a Poisson stream), each a person or a
+//!   group; an arrival that would pass the cap stays away.
+//! - `entrances` (`[[x, y], …]`, default every `[[door]]`): where people come in: a door's
+//!   centre (they appear 1 m outside it and walk in) or a point in free space (they appear there).
+//! - `exits` (`[[x, y], …]`, default the entrances): where they leave, the same way out.
+//! - `destinations` (`[[x, y], …]`) and `areas` (`[[x0, y0, x1, y1], …]`, rectangles): where they
+//!   walk to, a point or a random spot in an area; with neither, random free points of the plan
+//!   (inside its walls).
+//! - `visits` (`[min, max]`, default `[1, 4]`): destinations per visit.
+//! - `speed_m_s` (`[min, max]` within 0.5–1.8, default `[0.5, 1.8]`): walking speeds, drawn
+//!   per person (a group walks at one speed).
+//! - `stop_share` (0–1, default 0.3): share of destinations where a person stops and stands;
+//!   `stop_s` (`[min, max]`, default `[5, 30]`): for how long.
+//! - `group_share` (0–1, default 0.3): share of arrivals (and of the people inside at the start)
+//!   that are groups; `group_size` (`[min, max]` within 2–6, default `[2, 3]`); `spacing_m`
+//!   (default 0.7): between neighbours walking side by side (where the way is too narrow they
+//!   fall in behind).
+//! - `height_m` (`[min, max]`, default `[1.55, 1.95]`): body heights.
+//!
+//! Queues, `[[queue]]`: people standing still in a line, served one at a time. `head = [x, y]`
+//! (the front), `tail = [x, y]` (the line runs from the head towards it), `people` (1–100,
+//! default 6), `spacing_m` (default 0.7), `serve_s` (default 30; 0 = nobody is ever served, the
+//! line stands still all run): every `serve_s` the front person walks to an exit, the rest step
+//! up one place, and a newcomer walks in from an entrance to the back. `entrances`, `exits` and
+//! `speed_m_s` as for a crowd. Every place of the line must be free.
+//!
+//! People's truth: `truth_people` (top level, default true when the plan has a crowd or a
+//! queue): the recording gets a `/truth/people` channel, every 0.1 s every simulated body's
+//! centre (crowd and queue people `p1`, `p2`, … in order of appearance, never reused;
+//! `[[person]]` walkers `w1`, `w2`, … in plan order).
 
 use std::collections::BTreeSet;
 use std::ops::Range;
@@ -146,6 +188,10 @@ pub struct Plan {
     pub sensors: Vec<SensorPlan>,
     pub people: Vec<Person>,
     pub moves: Vec<Move>,
+    pub crowds: Vec<Crowd>,
+    pub queues: Vec<Queue>,
+    /// Whether recordings carry `/truth/people`; `None` means "when there is a crowd or queue".
+    pub truth_people: Option<bool>,
 }
 
 /// A wall polyline, extruded from `z_min_m` to `height_m`.
@@ -264,6 +310,87 @@ pub struct Person {
     pub phase: f64,
 }
 
+/// People who come and go: see the module docs for every key.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Crowd {
+    #[serde(skip)]
+    pub line: Option<usize>,
+    #[serde(default = "default_crowd_people")]
+    pub people: u32,
+    pub max_people: Option<u32>,
+    #[serde(default = "default_rate")]
+    pub rate_per_min: f64,
+    #[serde(default)]
+    pub entrances: Vec<[f64; 2]>,
+    #[serde(default)]
+    pub exits: Vec<[f64; 2]>,
+    #[serde(default)]
+    pub destinations: Vec<[f64; 2]>,
+    #[serde(default)]
+    pub areas: Vec<[f64; 4]>,
+    #[serde(default = "default_visits")]
+    pub visits: [u32; 2],
+    #[serde(default = "default_speeds")]
+    pub speed_m_s: [f64; 2],
+    #[serde(default = "default_stop_share")]
+    pub stop_share: f64,
+    #[serde(default = "default_stop_s")]
+    pub stop_s: [f64; 2],
+    #[serde(default = "default_group_share")]
+    pub group_share: f64,
+    #[serde(default = "default_group_size")]
+    pub group_size: [u32; 2],
+    #[serde(default = "default_spacing")]
+    pub spacing_m: f64,
+    #[serde(default = "default_heights")]
+    pub height_m: [f64; 2],
+}
+
+impl Crowd {
+    /// The cap on how many of this crowd are inside at once.
+    pub fn cap(&self) -> u32 {
+        self.max_people.unwrap_or(self.people)
+    }
+}
+
+/// People standing in a line, served one at a time.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Queue {
+    #[serde(skip)]
+    pub line: Option<usize>,
+    pub head: [f64; 2],
+    pub tail: [f64; 2],
+    #[serde(default = "default_queue_people")]
+    pub people: u32,
+    #[serde(default = "default_spacing")]
+    pub spacing_m: f64,
+    #[serde(default = "default_serve_s")]
+    pub serve_s: f64,
+    #[serde(default)]
+    pub entrances: Vec<[f64; 2]>,
+    #[serde(default)]
+    pub exits: Vec<[f64; 2]>,
+    #[serde(default = "default_speeds")]
+    pub speed_m_s: [f64; 2],
+}
+
+impl Queue {
+    /// Where the `k`-th person of the line stands (0 = the front).
+    pub fn place(&self, k: u32) -> [f64; 2] {
+        let (dx, dy) = (self.tail[0] - self.head[0], self.tail[1] - self.head[1]);
+        let len = dx.hypot(dy).max(1e-9);
+        let d = f64::from(k) * self.spacing_m;
+        [self.head[0] + dx / len * d, self.head[1] + dy / len * d]
+    }
+}
+
+/// Most people a crowd or queue may hold at once.
+pub const MAX_CROWD: u32 = 100;
+/// Slowest and fastest walking speeds a crowd may be given, m/s.
+pub const CROWD_SPEEDS_M_S: [f64; 2] = [0.5, 1.8];
+
 /// A sensor being moved during the recording.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -280,6 +407,42 @@ pub struct Move {
     pub dyaw_deg: f64,
 }
 
+fn default_crowd_people() -> u32 {
+    10
+}
+fn default_queue_people() -> u32 {
+    6
+}
+fn default_rate() -> f64 {
+    30.0
+}
+fn default_visits() -> [u32; 2] {
+    [1, 4]
+}
+fn default_speeds() -> [f64; 2] {
+    CROWD_SPEEDS_M_S
+}
+fn default_stop_share() -> f64 {
+    0.3
+}
+fn default_stop_s() -> [f64; 2] {
+    [5.0, 30.0]
+}
+fn default_group_share() -> f64 {
+    0.3
+}
+fn default_group_size() -> [u32; 2] {
+    [2, 3]
+}
+fn default_spacing() -> f64 {
+    0.7
+}
+fn default_heights() -> [f64; 2] {
+    [1.55, 1.95]
+}
+fn default_serve_s() -> f64 {
+    30.0
+}
 fn default_start() -> u64 {
     DEFAULT_START_UNIX_S
 }
@@ -346,6 +509,11 @@ struct PlanFile {
     person: Vec<Spanned<Person>>,
     #[serde(default, rename = "move")]
     moves: Vec<Spanned<Move>>,
+    #[serde(default)]
+    crowd: Vec<Spanned<Crowd>>,
+    #[serde(default)]
+    queue: Vec<Spanned<Queue>>,
+    truth_people: Option<bool>,
 }
 
 /// 1-based line of a byte offset.
@@ -428,9 +596,18 @@ impl Plan {
             sensors: located(text, file.sensor, |s, l| s.line = Some(l)),
             people: located(text, file.person, |p, l| p.line = Some(l)),
             moves: located(text, file.moves, |m, l| m.line = Some(l)),
+            crowds: located(text, file.crowd, |c, l| c.line = Some(l)),
+            queues: located(text, file.queue, |q, l| q.line = Some(l)),
+            truth_people: file.truth_people,
         };
         plan.validate().map_err(|e| refine_line(text, e))?;
         Ok(plan)
+    }
+
+    /// Whether recordings of this plan carry `/truth/people`.
+    pub fn writes_people_truth(&self) -> bool {
+        self.truth_people
+            .unwrap_or(!self.crowds.is_empty() || !self.queues.is_empty())
     }
 
     /// The sensor with this id.
@@ -634,6 +811,12 @@ impl Plan {
                 );
             }
         }
+        for c in &self.crowds {
+            check_crowd(self, c)?;
+        }
+        for q in &self.queues {
+            check_queue(self, q)?;
+        }
         for m in &self.moves {
             if self.sensor(&m.sensor).is_none() {
                 let known: Vec<&str> = self.sensors.iter().map(|s| s.id.as_str()).collect();
@@ -664,6 +847,171 @@ impl Plan {
         }
         Ok(())
     }
+}
+
+/// `[min, max]` with min ≤ max, both within `range`.
+fn check_span(
+    plan: &Plan,
+    line: Option<usize>,
+    key: &str,
+    span: [f64; 2],
+    range: (f64, f64),
+) -> Result<(), PlanError> {
+    let ok = span
+        .iter()
+        .all(|v| v.is_finite() && *v >= range.0 && *v <= range.1)
+        && span[0] <= span[1];
+    if ok {
+        return Ok(());
+    }
+    Err(PlanError::new(
+        &plan.origin,
+        line,
+        Some(key),
+        format!(
+            "is {span:?}; give [min, max] with {} <= min <= max <= {}",
+            range.0, range.1
+        ),
+    ))
+}
+
+fn check_share(plan: &Plan, line: Option<usize>, key: &str, v: f64) -> Result<(), PlanError> {
+    if v.is_finite() && (0.0..=1.0).contains(&v) {
+        return Ok(());
+    }
+    Err(PlanError::new(
+        &plan.origin,
+        line,
+        Some(key),
+        format!("is {v}; use a share between 0 and 1"),
+    ))
+}
+
+/// Entrances and exits: given points, or the plan's doors.
+fn check_ways(
+    plan: &Plan,
+    line: Option<usize>,
+    table: &str,
+    entrances: &[[f64; 2]],
+    exits: &[[f64; 2]],
+) -> Result<(), PlanError> {
+    check_points(plan, line, &format!("{table}.entrances"), entrances, 0)?;
+    check_points(plan, line, &format!("{table}.exits"), exits, 0)?;
+    if entrances.is_empty() && plan.doors.is_empty() {
+        return Err(PlanError::new(
+            &plan.origin,
+            line,
+            Some(&format!("{table}.entrances")),
+            "the plan has no [[door]]; add one, or give entrances = [[x, y], …]".into(),
+        ));
+    }
+    Ok(())
+}
+
+fn check_crowd(plan: &Plan, c: &Crowd) -> Result<(), PlanError> {
+    let err =
+        |key: &str, problem: String| Err(PlanError::new(&plan.origin, c.line, Some(key), problem));
+    if c.people > MAX_CROWD {
+        return err(
+            "crowd.people",
+            format!("is {}; use 0 to {MAX_CROWD}", c.people),
+        );
+    }
+    if c.cap() > MAX_CROWD || c.cap() < c.people {
+        return err(
+            "crowd.max_people",
+            format!("is {}; use {} (people) to {MAX_CROWD}", c.cap(), c.people),
+        );
+    }
+    if !(c.rate_per_min.is_finite() && c.rate_per_min >= 0.0) {
+        return err(
+            "crowd.rate_per_min",
+            format!("is {}; use arrivals per minute >= 0", c.rate_per_min),
+        );
+    }
+    check_ways(plan, c.line, "crowd", &c.entrances, &c.exits)?;
+    check_points(plan, c.line, "crowd.destinations", &c.destinations, 0)?;
+    if let Some(a) = c
+        .areas
+        .iter()
+        .find(|a| !(a.iter().all(|v| v.is_finite()) && a[0] < a[2] && a[1] < a[3]))
+    {
+        return err(
+            "crowd.areas",
+            format!("{a:?} is not a rectangle [x0, y0, x1, y1] with x0 < x1 and y0 < y1"),
+        );
+    }
+    if !(c.visits[0] >= 1 && c.visits[0] <= c.visits[1] && c.visits[1] <= 100) {
+        return err(
+            "crowd.visits",
+            format!(
+                "is {:?}; give [min, max] with 1 <= min <= max <= 100",
+                c.visits
+            ),
+        );
+    }
+    check_span(
+        plan,
+        c.line,
+        "crowd.speed_m_s",
+        c.speed_m_s,
+        (CROWD_SPEEDS_M_S[0], CROWD_SPEEDS_M_S[1]),
+    )?;
+    check_share(plan, c.line, "crowd.stop_share", c.stop_share)?;
+    check_span(plan, c.line, "crowd.stop_s", c.stop_s, (0.0, 3600.0))?;
+    check_share(plan, c.line, "crowd.group_share", c.group_share)?;
+    if !(c.group_size[0] >= 2 && c.group_size[0] <= c.group_size[1] && c.group_size[1] <= 6) {
+        return err(
+            "crowd.group_size",
+            format!(
+                "is {:?}; give [min, max] with 2 <= min <= max <= 6",
+                c.group_size
+            ),
+        );
+    }
+    check_span(
+        plan,
+        c.line,
+        "crowd.spacing_m",
+        [c.spacing_m; 2],
+        (0.3, 3.0),
+    )?;
+    check_span(plan, c.line, "crowd.height_m", c.height_m, (0.5, 2.5))?;
+    Ok(())
+}
+
+fn check_queue(plan: &Plan, q: &Queue) -> Result<(), PlanError> {
+    let err =
+        |key: &str, problem: String| Err(PlanError::new(&plan.origin, q.line, Some(key), problem));
+    check_points(plan, q.line, "queue.head", &[q.head, q.tail], 2)?;
+    if !(1..=MAX_CROWD).contains(&q.people) {
+        return err(
+            "queue.people",
+            format!("is {}; use 1 to {MAX_CROWD}", q.people),
+        );
+    }
+    check_span(
+        plan,
+        q.line,
+        "queue.spacing_m",
+        [q.spacing_m; 2],
+        (0.3, 3.0),
+    )?;
+    if !(q.serve_s.is_finite() && q.serve_s >= 0.0) {
+        return err(
+            "queue.serve_s",
+            format!("is {}; use seconds >= 0 (0: never served)", q.serve_s),
+        );
+    }
+    check_ways(plan, q.line, "queue", &q.entrances, &q.exits)?;
+    check_span(
+        plan,
+        q.line,
+        "queue.speed_m_s",
+        q.speed_m_s,
+        (CROWD_SPEEDS_M_S[0], CROWD_SPEEDS_M_S[1]),
+    )?;
+    Ok(())
 }
 
 fn check_finite(plan: &Plan, line: Option<usize>, key: &str, value: f64) -> Result<(), PlanError> {
@@ -957,6 +1305,59 @@ yaw_deg = 180
         // Above a low box is fine: a unit standing on a cabinet.
         let on_top = format!("{GOOD}\n[[box]]\ncenter = [2, 3]\nsize = [1, 1]\nheight_m = 0.8\n");
         assert!(Plan::from_toml(&on_top, "plan.toml").is_ok());
+    }
+
+    #[test]
+    fn crowd_and_queue_keys_parse_with_defaults_and_bad_values_are_refused() {
+        let doors = format!("{GOOD}\n[[door]]\nat = [5, 0]\n");
+        let plan = Plan::from_toml(&format!("{doors}\n[[crowd]]\npeople = 12\n"), "p").unwrap();
+        let c = &plan.crowds[0];
+        assert_eq!((c.people, c.cap(), c.rate_per_min), (12, 12, 30.0));
+        assert_eq!(
+            (c.visits, c.speed_m_s, c.group_size),
+            ([1, 4], [0.5, 1.8], [2, 3])
+        );
+        assert!(plan.writes_people_truth());
+        assert!(!Plan::from_toml(GOOD, "p").unwrap().writes_people_truth());
+        for (extra, key) in [
+            ("[[crowd]]\npeople = 101\n", "crowd.people"),
+            (
+                "[[crowd]]\npeople = 5\nmax_people = 4\n",
+                "crowd.max_people",
+            ),
+            ("[[crowd]]\nspeed_m_s = [0.4, 1.2]\n", "crowd.speed_m_s"),
+            ("[[crowd]]\nstop_share = 1.5\n", "crowd.stop_share"),
+            ("[[crowd]]\ngroup_size = [1, 3]\n", "crowd.group_size"),
+            ("[[crowd]]\nareas = [[3, 3, 1, 1]]\n", "crowd.areas"),
+            ("[[crowd]]\nrate_per_min = -1\n", "crowd.rate_per_min"),
+            ("[[queue]]\nhead = [1, 1]\ntail = [1, 1]\n", "queue.head"),
+            (
+                "[[queue]]\nhead = [1, 1]\ntail = [3, 1]\nserve_s = -2\n",
+                "queue.serve_s",
+            ),
+        ] {
+            let text = format!("{doors}\n{extra}");
+            let err = error_of(&text);
+            assert_eq!(err.key.as_deref(), Some(key), "{extra}: {err}");
+            // The line that sets the key (the table's, for keys left at their defaults).
+            let name = key.rsplit('.').next().unwrap();
+            let table = text.lines().count() - extra.lines().count() + 1;
+            let expected = text
+                .lines()
+                .enumerate()
+                .skip(table)
+                .find(|(_, l)| l.starts_with(&format!("{name} =")))
+                .map_or(table, |(i, _)| i + 1);
+            assert_eq!(err.line, Some(expected), "{err}");
+        }
+        // No doors and no entrances: nowhere to come in.
+        let err = error_of(&format!("{GOOD}\n[[crowd]]\n"));
+        assert_eq!(err.key.as_deref(), Some("crowd.entrances"));
+        assert!(err.problem.contains("[[door]]"), "{err}");
+        let given = format!("{GOOD}\n[[crowd]]\nentrances = [[5, 3]]\n");
+        assert!(Plan::from_toml(&given, "p").is_ok());
+        let err = error_of(&format!("{doors}\n[[crowd]]\npepole = 3\n"));
+        assert_eq!(err.key.as_deref(), Some("pepole"));
     }
 
     #[test]

@@ -305,6 +305,75 @@ impl Scene {
     }
 }
 
+/// Anything a person cannot pass: it reaches below this height.
+pub(crate) const WALK_CLEAR_BELOW_M: f64 = 1.8;
+
+impl Scene {
+    /// Whether a person standing at `p` would be within `clearance_m` of a wall, box or pillar
+    /// that reaches below [`WALK_CLEAR_BELOW_M`] (doors are gaps, so they are free).
+    pub fn blocks_walking(&self, p: [f64; 2], clearance_m: f64) -> bool {
+        let low = |e: &Extent| e.z_min_m < WALK_CLEAR_BELOW_M && e.z_max_m > 0.05;
+        self.segments
+            .iter()
+            .any(|s| low(&s.extent) && distance_to_segment(p, s.a, s.b) < clearance_m)
+            || self.blocks.iter().any(|b| {
+                let rel = sub(p, b.center);
+                let u = dot(rel, b.axis).abs() - b.half[0];
+                let v = dot(rel, [-b.axis[1], b.axis[0]]).abs() - b.half[1];
+                let outside = u.max(0.0).hypot(v.max(0.0));
+                low(&b.extent) && (outside < clearance_m)
+            })
+            || self.cylinders.iter().any(|c| {
+                low(&c.extent)
+                    && dot(sub(p, c.center), sub(p, c.center)).sqrt() < c.radius_m + clearance_m
+            })
+    }
+
+    /// Whether the straight step from `a` to `b` crosses a wall (outside its doors) or enters a
+    /// box or pillar that a person could not pass: for checking walkers.
+    #[cfg(test)]
+    pub fn step_crosses_solid(&self, a: [f64; 2], b: [f64; 2]) -> bool {
+        let low = |e: &Extent| e.z_min_m < WALK_CLEAR_BELOW_M && e.z_max_m > 0.05;
+        let d = sub(b, a);
+        let crosses = |p: [f64; 2], q: [f64; 2]| {
+            let e = sub(q, p);
+            let denom = cross(d, e);
+            if denom.abs() < 1e-15 {
+                return false;
+            }
+            let w = sub(p, a);
+            let t = cross(w, e) / denom;
+            let s = cross(w, d) / denom;
+            (0.0..=1.0).contains(&t) && (0.0..=1.0).contains(&s)
+        };
+        self.segments
+            .iter()
+            .any(|s| low(&s.extent) && crosses(s.a, s.b))
+            || [a, b].iter().any(|&p| {
+                self.blocks.iter().any(|blk| {
+                    let rel = sub(p, blk.center);
+                    low(&blk.extent)
+                        && dot(rel, blk.axis).abs() < blk.half[0]
+                        && dot(rel, [-blk.axis[1], blk.axis[0]]).abs() < blk.half[1]
+                }) || self.cylinders.iter().any(|c| {
+                    low(&c.extent) && dot(sub(p, c.center), sub(p, c.center)).sqrt() < c.radius_m
+                })
+            })
+    }
+}
+
+fn distance_to_segment(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
+    let e = sub(b, a);
+    let len2 = dot(e, e);
+    let t = if len2 > 0.0 {
+        (dot(sub(p, a), e) / len2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let d = sub(p, lerp(a, b, t));
+    dot(d, d).sqrt()
+}
+
 fn hit_segment(ray: &Ray, seg: &Segment, surface: Surface) -> Option<Hit> {
     let u = [ray.dir[0], ray.dir[1]];
     let e = sub(seg.b, seg.a);
@@ -424,6 +493,61 @@ pub(crate) fn hit_cylinder(ray: &Ray, cyl: &Cylinder, surface: Surface) -> Optio
         side_cos,
         &cyl.extent,
         cyl.reflectivity,
+        surface,
+    )
+}
+
+/// A vertical elliptic cylinder: a torso. `axis` is the unit direction of the `half_along_m`
+/// semi-axis (the walking direction); `half_across_m` lies across it.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Ellipse {
+    pub center: [f64; 2],
+    pub axis: [f64; 2],
+    pub half_along_m: f64,
+    pub half_across_m: f64,
+    pub extent: Extent,
+    pub reflectivity: f64,
+}
+
+/// A ray against a vertical elliptic cylinder.
+pub(crate) fn hit_ellipse(ray: &Ray, e: &Ellipse, surface: Surface) -> Option<Hit> {
+    let rel = sub([ray.origin[0], ray.origin[1]], e.center);
+    let across = [-e.axis[1], e.axis[0]];
+    // In the ellipse's frame scaled to a unit circle; the ray parameter stays the range.
+    let f = [
+        dot(rel, e.axis) / e.half_along_m,
+        dot(rel, across) / e.half_across_m,
+    ];
+    let u_local = [
+        ray.dir[0] * e.axis[0] + ray.dir[1] * e.axis[1],
+        ray.dir[0] * across[0] + ray.dir[1] * across[1],
+    ];
+    let u = [u_local[0] / e.half_along_m, u_local[1] / e.half_across_m];
+    let a = dot(u, u);
+    if a < 1e-12 {
+        return None;
+    }
+    let b = dot(f, u);
+    let c = dot(f, f) - 1.0;
+    let disc = b * b - a * c;
+    if disc <= 0.0 {
+        return None;
+    }
+    let root = disc.sqrt();
+    let t_in = (-b - root) / a;
+    let t_out = (-b + root) / a;
+    // Normal at the entry point: (x / a², y / b²) in the ellipse's frame.
+    let p = [f[0] + t_in * u[0], f[1] + t_in * u[1]];
+    let normal = [p[0] / e.half_along_m, p[1] / e.half_across_m];
+    let n_len = dot(normal, normal).sqrt().max(1e-12);
+    let h_len = dot(u_local, u_local).sqrt().max(1e-12);
+    let side_cos = (dot(normal, u_local) / (n_len * h_len)).abs();
+    enter_prism(
+        ray,
+        (t_in, t_out),
+        side_cos,
+        &e.extent,
+        e.reflectivity,
         surface,
     )
 }

@@ -13,11 +13,26 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::PlanError;
-use super::people::Walker;
+use super::crowd::{BodyNow, CrowdPlan, CrowdRun};
+use super::people::{BODY_REACH_M, Body, Walker};
 use super::plan::{Model, Plan, SensorPlan};
 use super::scene::{Cylinder, Extent, Hit, Ray, Scene, Surface, hit_cylinder};
 use super::sensor_model::{BeamModel, read_beam};
-use crate::scan::{MoveTruth, Scan, ScanGeometry, SensorInfo, TruthPose};
+use crate::scan::{MoveTruth, PeopleTruth, PersonTruth, Scan, ScanGeometry, SensorInfo, TruthPose};
+
+/// The random stream of the crowds, well apart from the setup (0) and the sensors (1 + i).
+const CROWD_STREAM: u64 = 1 << 40;
+/// Time between two `/truth/people` messages, ns.
+pub const PEOPLE_TRUTH_PERIOD_NS: u64 = 100_000_000;
+
+/// What [`Simulation::run_with_truth`] hands out, in time order.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SimEvent {
+    /// A scan of the sensor with this index.
+    Scan(usize, Scan),
+    /// Where everyone is (only when the plan asks for the people's truth).
+    People(PeopleTruth),
+}
 
 /// Where the outer sub-rays of a beam sit, in steps either side of its centre.
 const FOOTPRINT_HALF_STEPS: f64 = 0.4;
@@ -66,6 +81,8 @@ pub struct Simulation {
     walkers: Vec<Walker>,
     person_reflectivity: Vec<f64>,
     moves: Vec<MoveTruth>,
+    crowd: Option<CrowdPlan>,
+    people_truth: bool,
 }
 
 /// The PP and VV fields a unit of this model reports.
@@ -220,7 +237,6 @@ impl Simulation {
             .map(|_| 0.15 + 0.6 * setup.random::<f64>())
             .collect();
         Ok(Simulation {
-            scene,
             seed,
             start_ns,
             infos,
@@ -228,7 +244,15 @@ impl Simulation {
             walkers: plan.people.iter().map(Walker::new).collect(),
             person_reflectivity,
             moves,
+            crowd: CrowdPlan::build(plan, &scene)?,
+            people_truth: plan.writes_people_truth(),
+            scene,
         })
+    }
+
+    /// Whether [`run_with_truth`](Self::run_with_truth) hands out the people's truth.
+    pub fn has_people_truth(&self) -> bool {
+        self.people_truth
     }
 
     /// The sensors, in plan order (the index `run` passes to its sink).
@@ -254,6 +278,63 @@ impl Simulation {
         seconds: f64,
         mut sink: impl FnMut(usize, Scan) -> Result<(), E>,
     ) -> Result<(), E> {
+        self.run_events(seconds, false, |event| match event {
+            SimEvent::Scan(i, scan) => sink(i, scan),
+            SimEvent::People(_) => Ok(()),
+        })
+    }
+
+    /// As [`run`](Self::run), with the people's truth interleaved in time order when the plan
+    /// asks for it: every 0.1 s from the start, every body's centre (`/truth/people`). The scans
+    /// are the same as `run` gives.
+    pub fn run_with_truth<E>(
+        &mut self,
+        seconds: f64,
+        sink: impl FnMut(SimEvent) -> Result<(), E>,
+    ) -> Result<(), E> {
+        let truth = self.people_truth;
+        self.run_events(seconds, truth, sink)
+    }
+
+    /// Everyone's truth at `t_ns`.
+    fn people_at(&self, crowd: Option<&mut CrowdRun<'_>>, t_ns: u64) -> PeopleTruth {
+        let t_s = t_ns.saturating_sub(self.start_ns) as f64 * 1e-9;
+        let round = |v: f64| (v * 1e4).round() / 1e4;
+        let mut people: Vec<PersonTruth> = self
+            .walkers
+            .iter()
+            .enumerate()
+            .map(|(i, w)| {
+                let (p, _) = w.state_at(t_s);
+                PersonTruth {
+                    id: format!("w{}", i + 1),
+                    x_m: round(p[0]),
+                    y_m: round(p[1]),
+                }
+            })
+            .collect();
+        if let Some(crowd) = crowd {
+            people.extend(crowd.bodies_at(t_s).iter().map(|b| PersonTruth {
+                id: format!("p{}", b.state.id),
+                x_m: round(b.state.pos[0]),
+                y_m: round(b.state.pos[1]),
+            }));
+        }
+        PeopleTruth { t_ns, people }
+    }
+
+    fn run_events<E>(
+        &mut self,
+        seconds: f64,
+        with_truth: bool,
+        mut sink: impl FnMut(SimEvent) -> Result<(), E>,
+    ) -> Result<(), E> {
+        let this = &*self;
+        let mut crowd = this
+            .crowd
+            .as_ref()
+            .map(|c| c.start(stream(this.seed, CROWD_STREAM)));
+        let mut next_truth_ns = this.start_ns;
         if seconds.is_nan() || seconds <= 0.0 {
             return Ok(());
         }
@@ -262,9 +343,9 @@ impl Simulation {
         } else {
             u64::MAX
         };
-        let mut runs: Vec<UnitRun> = (0..self.units.len())
+        let mut runs: Vec<UnitRun> = (0..this.units.len())
             .map(|i| UnitRun {
-                rng: stream(self.seed, 1 + i as u64),
+                rng: stream(this.seed, 1 + i as u64),
                 next_scan: 0,
                 pose_index: None,
                 rays: Vec::new(),
@@ -273,8 +354,8 @@ impl Simulation {
             })
             .collect();
         let mut pending: Vec<Option<Scan>> = Vec::with_capacity(runs.len());
-        for (unit, run) in self.units.iter().zip(runs.iter_mut()) {
-            pending.push(self.next_scan(unit, run, limit_ns));
+        for (unit, run) in this.units.iter().zip(runs.iter_mut()) {
+            pending.push(this.next_scan(unit, run, limit_ns, crowd.as_mut()));
         }
         loop {
             let earliest = pending
@@ -282,23 +363,37 @@ impl Simulation {
                 .enumerate()
                 .filter_map(|(i, s)| s.as_ref().map(|s| (s.stamp_ns, i)))
                 .min();
+            // The truth up to the next scan (or to the end) goes first.
+            let until_ns = earliest.map_or(limit_ns, |(stamp_ns, _)| stamp_ns.saturating_add(1));
+            while with_truth && next_truth_ns < until_ns && next_truth_ns < limit_ns {
+                sink(SimEvent::People(
+                    this.people_at(crowd.as_mut(), next_truth_ns),
+                ))?;
+                next_truth_ns = next_truth_ns.saturating_add(PEOPLE_TRUTH_PERIOD_NS);
+            }
             let Some((_, i)) = earliest else {
                 return Ok(());
             };
             let (Some(slot), Some(unit), Some(run)) =
-                (pending.get_mut(i), self.units.get(i), runs.get_mut(i))
+                (pending.get_mut(i), this.units.get(i), runs.get_mut(i))
             else {
                 return Ok(());
             };
-            let next = self.next_scan(unit, run, limit_ns);
+            let next = this.next_scan(unit, run, limit_ns, crowd.as_mut());
             if let Some(scan) = std::mem::replace(slot, next) {
-                sink(i, scan)?;
+                sink(SimEvent::Scan(i, scan))?;
             }
         }
     }
 
     /// The unit's next scan, or `None` once its stamp reaches `limit_ns`.
-    fn next_scan(&self, unit: &Unit, run: &mut UnitRun, limit_ns: u64) -> Option<Scan> {
+    fn next_scan(
+        &self,
+        unit: &Unit,
+        run: &mut UnitRun,
+        limit_ns: u64,
+        crowd: Option<&mut CrowdRun<'_>>,
+    ) -> Option<Scan> {
         let k = run.next_scan;
         run.next_scan += 1;
         let t_start = unit.phase_s + k as f64 * unit.period_s;
@@ -356,6 +451,22 @@ impl Simulation {
                 ([dx / dist, dy / dist], half.cos())
             })
             .collect();
+        // The crowd's bodies, culled the same way.
+        let bodies: Vec<BodyNow> = crowd.map(|c| c.bodies_at(t_start)).unwrap_or_default();
+        let body_cones: Vec<([f64; 2], f64)> = bodies
+            .iter()
+            .map(|b| {
+                let (dx, dy) = (b.state.pos[0] - origin[0], b.state.pos[1] - origin[1]);
+                let dist = dx.hypot(dy);
+                let reach = BODY_REACH_M + b.vel[0].hypot(b.vel[1]) * unit.period_s + 0.05;
+                if dist <= reach * 1.5 {
+                    return ([1.0, 0.0], -2.0);
+                }
+                let half = (reach / dist).asin() + 3.0 * unit.geometry.step_rad();
+                ([dx / dist, dy / dist], half.cos())
+            })
+            .collect();
+        let first_body_surface = self.walkers.len() as u32;
         let step_s = unit.period_s / unit.geometry.ares as f64;
         let with_intensities = unit.plan.has_intensities();
         let n = run.rays.len();
@@ -381,6 +492,20 @@ impl Simulation {
                 };
                 for (sub, ray) in subs.iter_mut().zip(rays) {
                     if let Some(h) = hit_cylinder(ray, &body, Surface::Person(p as u32))
+                        && sub.is_none_or(|s| h.range_m < s.range_m)
+                    {
+                        *sub = Some(h);
+                    }
+                }
+            }
+            for (b, (towards, cos_limit)) in bodies.iter().zip(&body_cones) {
+                if heading[0] * towards[0] + heading[1] * towards[1] < *cos_limit {
+                    continue;
+                }
+                let body = Body::at(b, dt);
+                let surface = Surface::Person(first_body_surface.saturating_add(b.state.id));
+                for (sub, ray) in subs.iter_mut().zip(rays) {
+                    if let Some(h) = body.hit(ray, surface)
                         && sub.is_none_or(|s| h.range_m < s.range_m)
                     {
                         *sub = Some(h);
@@ -701,6 +826,76 @@ y = 0.0
             (0.005..0.15).contains(&drop_rate),
             "dropout rate {drop_rate}"
         );
+    }
+
+    #[test]
+    fn crowd_truth_comes_every_tenth_of_a_second_between_unchanged_scans() {
+        let text = format!(
+            "{ROOM}\n[[door]]\nat = [0, -5]\nwidth_m = 1.2\n[[crowd]]\npeople = 5\n\
+             [[person]]\nwaypoints = [[-3, -3], [-3, 3]]\n"
+        );
+        let mut s = sim(&text, 3);
+        assert!(s.has_people_truth());
+        let mut scans = Vec::new();
+        let mut truths = Vec::new();
+        let mut order = Vec::new();
+        s.run_with_truth(2.0, |event| {
+            match event {
+                SimEvent::Scan(i, scan) => {
+                    order.push(scan.stamp_ns);
+                    scans.push((i, scan));
+                }
+                SimEvent::People(p) => {
+                    order.push(p.t_ns);
+                    truths.push(p);
+                }
+            }
+            Ok::<(), ()>(())
+        })
+        .unwrap();
+        assert!(order.windows(2).all(|w| w[0] <= w[1]), "not in time order");
+        assert_eq!(truths.len(), 20);
+        for (k, t) in truths.iter().enumerate() {
+            assert_eq!(t.t_ns, s.start_ns() + k as u64 * PEOPLE_TRUTH_PERIOD_NS);
+            assert_eq!(t.people[0].id, "w1");
+            assert!(t.people.len() >= 6, "{t:?}");
+            assert!(t.people[1..].iter().all(|p| p.id.starts_with('p')));
+            assert!(
+                t.people
+                    .iter()
+                    .all(|p| p.x_m.abs() < 6.5 && p.y_m.abs() < 6.5)
+            );
+        }
+        // The walker's truth is its loop position.
+        let w = Walker::new(&Plan::from_toml(&text, "t").unwrap().people[0]);
+        let (p, _) = w.state_at(1.0);
+        assert!((truths[10].people[0].y_m - p[1]).abs() < 1e-3);
+        // The scans are those `run` gives, and the crowd shows in them.
+        let mut plain = Vec::new();
+        s.run(2.0, |i, scan| {
+            plain.push((i, scan));
+            Ok::<(), ()>(())
+        })
+        .unwrap();
+        assert_eq!(plain, scans);
+        let mut empty = Vec::new();
+        sim(
+            &text.replace("people = 5", "people = 0\nrate_per_min = 0"),
+            3,
+        )
+        .run(2.0, |i, scan| {
+            empty.push((i, scan));
+            Ok::<(), ()>(())
+        })
+        .unwrap();
+        assert_ne!(empty, scans, "the crowd is seen");
+    }
+
+    #[test]
+    fn plans_without_crowds_carry_no_truth_unless_asked() {
+        assert!(!sim(ROOM, 1).has_people_truth());
+        let asked = format!("truth_people = true\n{ROOM}");
+        assert!(sim(&asked, 1).has_people_truth());
     }
 
     #[test]
