@@ -8,7 +8,7 @@ use std::time::Instant;
 use anyhow::Result;
 use rayon::prelude::*;
 use scanfuse::daemon::protocol::SensorPose;
-use scanfuse::features::static_view;
+use scanfuse::features::crowd_proof_view;
 use scanfuse::geometry::Mount;
 use scanfuse::record;
 use scanfuse::register::site::{SensorInput, SiteParams, SiteResult, register_site};
@@ -21,6 +21,9 @@ use super::BadInput;
 /// Scans of this first stretch of each recording make the static view (people removed); the
 /// people walking in the first `MotionParams::max_frames` ticks (30 s) check the poses.
 const STATIC_WINDOW_S: f64 = 1.0;
+/// The static view is what keeps coming back over this long (a crowd hides the walls at any
+/// one moment; `features::persistent_view`).
+const VIEW_WINDOW_S: f64 = 30.0;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -113,7 +116,7 @@ pub fn run(args: Args) -> Result<()> {
     let prepared: Vec<(SensorInfo, Option<SensorInput>)> = found
         .into_par_iter()
         .map(|(info, scans, _)| {
-            let input = static_view(&scans, STATIC_WINDOW_S).map(|view| {
+            let input = crowd_proof_view(&scans, VIEW_WINDOW_S, STATIC_WINDOW_S).map(|view| {
                 let mount = Mount {
                     height_m: info.height_m,
                     pitch_rad: info.pitch_deg.unwrap_or(0.0).to_radians(),

@@ -10,7 +10,7 @@ pub mod static_view;
 pub use edge::{EdgeKind, EdgePoint};
 pub use params::FeatureParams;
 pub use segment::Segment;
-pub use static_view::static_view;
+pub use static_view::{crowd_proof_view, persistent_view, static_view};
 
 use crate::geometry::ScanPoint;
 use nalgebra::Point2;

@@ -1,5 +1,8 @@
-//! A sensor's static view: the per-beam median over its first scans removes people walking
-//! through (they occupy a beam for a fraction of the window) and halves the noise.
+//! A sensor's static view: what stays put. Over a second, the per-beam median removes people
+//! walking through (they occupy a beam for a fraction of the window) and halves the noise.
+//! Through a crowd the median sees people, not walls: over a longer window
+//! [`persistent_view`] takes per beam the farthest range that keeps coming back, so a wall
+//! seen between passers-by, or behind a queue that moves up now and then, is the view.
 
 use crate::scan::Scan;
 
@@ -37,6 +40,75 @@ pub fn static_view(scans: &[Scan], window_s: f64) -> Option<Scan> {
     })
 }
 
+/// A crowd-proof static view over `window_s` when there are enough scans for "keeps coming
+/// back" to mean something ([`PERSIST_MIN_SCANS`], at least [`PERSIST_SHARE`] of them), the
+/// median over `median_s` otherwise.
+pub fn crowd_proof_view(scans: &[Scan], window_s: f64, median_s: f64) -> Option<Scan> {
+    let first = scans.first()?;
+    let within = scans
+        .iter()
+        .filter(|s| s.stamp_ns.saturating_sub(first.stamp_ns) as f64 <= window_s * 1e9)
+        .count();
+    if within >= PERSIST_MIN_SCANS {
+        persistent_view(scans, window_s, PERSIST_SHARE, PERSIST_TOL_M)
+    } else {
+        static_view(scans, median_s)
+    }
+}
+
+/// Scans a persistent view needs; the share of them a range must come back in; its tolerance.
+pub const PERSIST_MIN_SCANS: usize = 40;
+pub const PERSIST_SHARE: f64 = 0.15;
+pub const PERSIST_TOL_M: f32 = 0.05;
+
+/// Per beam, the farthest range that comes back in at least `min_share` of the scans within
+/// `window_s` of the first (returns within `tol_m` + 1 % of each other count as one range), its
+/// median taken; no return where nothing persists. People hide a wall for a while; the wall
+/// is still the farthest thing that keeps coming back. `None` without scans.
+pub fn persistent_view(scans: &[Scan], window_s: f64, min_share: f64, tol_m: f32) -> Option<Scan> {
+    let first = scans.first()?;
+    let n = first.ranges_m.len();
+    let window_ns = (window_s * 1e9) as u64;
+    let used: Vec<&Scan> = scans
+        .iter()
+        .filter(|s| s.ranges_m.len() == n && s.stamp_ns.saturating_sub(first.stamp_ns) <= window_ns)
+        .collect();
+    let need = ((min_share * used.len() as f64).ceil() as usize).max(2);
+    let mut column: Vec<f32> = Vec::with_capacity(used.len());
+    let ranges_m = (0..n)
+        .map(|i| {
+            column.clear();
+            column.extend(
+                used.iter()
+                    .filter_map(|s| s.ranges_m.get(i).copied())
+                    .filter(|r| r.is_finite() && *r > 0.0),
+            );
+            column.sort_by(f32::total_cmp);
+            // From the far end: the first run of `need` returns within tolerance of each other.
+            let mut hi = column.len();
+            while hi >= need {
+                let top = column[hi - 1];
+                let lo = hi - need;
+                if top - column[lo] <= tol_m + 0.01 * top {
+                    // The whole cluster around it, and its median.
+                    let start = column[..hi]
+                        .iter()
+                        .rposition(|r| top - *r > tol_m + 0.01 * top)
+                        .map_or(0, |k| k + 1);
+                    return column[(start + hi) / 2];
+                }
+                hi -= 1;
+            }
+            0.0
+        })
+        .collect();
+    Some(Scan {
+        ranges_m,
+        intensities: Vec::new(),
+        ..first.clone()
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -64,5 +136,36 @@ mod tests {
         let view = static_view(&scans, 1.0).unwrap_or_else(|| scan(0, vec![]));
         assert_eq!(view.ranges_m, vec![5.0, 3.0, 0.0]);
         assert!(static_view(&[], 1.0).is_none());
+    }
+
+    #[test]
+    fn the_farthest_range_that_keeps_coming_back_is_the_wall_behind_a_crowd() {
+        // Beam 0: a wall at 8 m, hidden by people 70 % of the time at ever other ranges.
+        // Beam 1: a queue standing at 2 m for 85 % of the window, the wall at 6 m otherwise.
+        // Beam 2: nothing but a stray return now and then.
+        let scans: Vec<Scan> = (0..100)
+            .map(|i| {
+                let person = 1.0 + (i % 7) as f32 * 0.9;
+                let b0 = if i % 10 < 7 {
+                    person
+                } else {
+                    8.0 + (i % 3) as f32 * 0.01
+                };
+                let b1 = if i < 85 { 2.0 } else { 6.0 };
+                let b2 = if i % 50 == 0 { 3.0 } else { 0.0 };
+                scan(i * 100, vec![b0, b1, b2])
+            })
+            .collect();
+        let view = persistent_view(&scans, 30.0, 0.1, 0.05).unwrap_or_else(|| scan(0, vec![]));
+        assert!(
+            (view.ranges_m[0] - 8.01).abs() < 0.011,
+            "{:?}",
+            view.ranges_m
+        );
+        assert_eq!(view.ranges_m[1], 6.0);
+        assert_eq!(view.ranges_m[2], 0.0);
+        // The median over the same scans sees the crowd.
+        let median = static_view(&scans, 30.0).unwrap_or_else(|| scan(0, vec![]));
+        assert!(median.ranges_m[0] < 8.0 && median.ranges_m[1] == 2.0);
     }
 }

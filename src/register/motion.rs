@@ -10,6 +10,13 @@ use crate::geometry::{Mount, Pose2, ProjectParams, ScanPoint, beam_angles_rad, p
 use crate::scan::{Scan, ScanGeometry};
 use nalgebra::Point2;
 
+/// One tick both tracks saw walkers at: seconds since the first frame, and each sensor's
+/// walker centres in its own frame.
+pub type SharedTick = (f64, Vec<Point2<f64>>, Vec<Point2<f64>>);
+
+/// How far a walker goes between two kept frames (0.1 s apart) at most (m).
+const STRIDE_M: f64 = 0.3;
+
 /// Thresholds of the motion check.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MotionParams {
@@ -191,12 +198,14 @@ impl MotionTrack {
     /// frame) and the walkers' centres in each sensor's frame. A sensor sees a body's near side:
     /// for a round body of width w seen along evenly spaced beams the returns' centroid lies
     /// πw/8 short of its centre, so each centroid is pushed `push_of_width` × w along its beam.
+    /// Without a previous frame to carry the other's walkers to this one's time, frames further
+    /// apart than `max_skew_s` are not paired.
     pub fn centres_with(
         &self,
         other: &MotionTrack,
         max_skew_s: f64,
         push_of_width: f64,
-    ) -> Vec<(f64, Vec<Point2<f64>>, Vec<Point2<f64>>)> {
+    ) -> Vec<SharedTick> {
         let centres = |f: &Frame| -> Vec<Point2<f64>> {
             f.walkers
                 .iter()
@@ -213,20 +222,55 @@ impl MotionTrack {
                 })
                 .collect()
         };
+        // The other's walkers moved between its scan and this one's: carried forward along the
+        // velocity from its previous frame (the nearest walker there within a stride), so that
+        // sensors with scans far apart in time can still be paired.
+        let carried = |k: usize, to_ns: u64| -> Option<Vec<Point2<f64>>> {
+            let g = other.frames.get(k)?;
+            let now = centres(g);
+            let dt_s = (to_ns as f64 - g.t_ns as f64) * 1e-9;
+            let before = k
+                .checked_sub(1)
+                .and_then(|j| other.frames.get(j))
+                .filter(|h| h.tick + 1 == g.tick);
+            let Some(h) = before else {
+                return (dt_s.abs() <= max_skew_s).then_some(now);
+            };
+            let span_s = (g.t_ns as f64 - h.t_ns as f64) * 1e-9;
+            let then = centres(h);
+            Some(
+                now.iter()
+                    .map(|c| {
+                        let previous = then
+                            .iter()
+                            .map(|q| (q, (c - q).norm()))
+                            .filter(|(_, d)| *d <= STRIDE_M)
+                            .min_by(|x, y| x.1.total_cmp(&y.1));
+                        match previous {
+                            Some((q, _)) if span_s > 1e-3 => c + (c - q) * (dt_s / span_s),
+                            _ => *c,
+                        }
+                    })
+                    .collect(),
+            )
+        };
         let t0 = self.frames.first().map_or(0, |f| f.t_ns);
         self.frames
             .iter()
             .filter(|f| !f.walkers.is_empty())
             .filter_map(|f| {
-                let k = other.frames.binary_search_by_key(&f.tick, |g| g.tick).ok()?;
+                let k = other
+                    .frames
+                    .binary_search_by_key(&f.tick, |g| g.tick)
+                    .ok()?;
                 let g = other.frames.get(k)?;
-                if g.walkers.is_empty() || g.t_ns.abs_diff(f.t_ns) as f64 * 1e-9 > max_skew_s {
+                if g.walkers.is_empty() {
                     return None;
                 }
                 Some((
                     f.t_ns.saturating_sub(t0) as f64 * 1e-9,
                     centres(f),
-                    centres(g),
+                    carried(k, f.t_ns)?,
                 ))
             })
             .collect()

@@ -6,8 +6,8 @@ use super::hypotheses::hypotheses;
 use super::icp::{IcpResult, refine_guarded};
 use super::matching::match_score;
 use super::motion::{MotionEvidence, co_motion};
-use super::walkers::{WalkerFit, fit_walkers};
 use super::score::{PoseScore, score, score_coarse};
+use super::walkers::{WalkerFit, fit_walkers};
 use super::{RegisterParams, ScanModel};
 use crate::geometry::{Pose2, pose_error, pose2};
 use nalgebra::Matrix3;
@@ -198,7 +198,7 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
     // People both saw walk propose a pose of their own; where they decide it, it leads.
     let walkers = decisive_walkers(a, b, p);
     let walkers = match walkers {
-        Some(fit) if lead_with_walkers(a, b, &fit, &mut distinct, &mut evidence, p) => Some(fit),
+        Some(fit) if lead_with_walkers(&fit, &mut distinct, &mut evidence, p) => Some(fit),
         // The walkers' own check of their pose failed: they lead nothing, but their
         // disagreement with the walls is still reported below.
         Some(fit) => {
@@ -215,7 +215,7 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         let polished_score = score(a, b, &polished, p);
         let still_theirs = walkers
             .as_ref()
-            .is_none_or(|f| f.agrees(&polished, &p.walkers));
+            .is_none_or(|f| f.near(&polished, &p.walkers));
         if polished_score.value >= first.score.value - p.polish_tolerance && still_theirs {
             first.a_from_b = polished;
             first.score = polished_score;
@@ -262,29 +262,12 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
     };
     let (covariance, weak) = covariance_at(a, b, &best.a_from_b, p);
     let overlap = best.score.overlap();
-    let by_walkers = walkers.as_ref().filter(|f| f.agrees(&best.a_from_b, &p.walkers));
-    // What walls and walkers know together.
-    let covariance = match by_walkers {
-        Some(fit) => fuse(&covariance, &fit.covariance),
-        None => covariance,
-    };
-    let verdict = if let Some(fit) = by_walkers {
-        // Walkers fix what the walls leave open (little shared view, a look-alike, a slide);
-        // the walls still must not contradict them, and the pose must be pinned.
-        if best.score.violation() > p.max_violation {
-            Err(Abstain::ContradictsFreeSpace {
-                violation: best.score.violation(),
-            })
-        } else if let Some((sigma_m, sigma_rad)) = too_uncertain(&covariance, p) {
-            Err(Abstain::Uncertain {
-                sigma_m,
-                sigma_yaw_deg: sigma_rad.to_degrees(),
-            })
-        } else {
-            let _ = fit;
-            Ok(())
-        }
-    } else if overlap < p.min_overlap {
+    // The walkers chose this pose among the walls' candidates: what the walls cannot tell
+    // apart (a look-alike, the runner-up) they settled; the rest the walls must still show.
+    let by_walkers = walkers
+        .as_ref()
+        .filter(|f| f.near(&best.a_from_b, &p.walkers));
+    let verdict = if overlap < p.min_overlap {
         Err(Abstain::TooLittleOverlap { overlap })
     } else if best.score.value < p.min_score {
         Err(Abstain::WeakMatch {
@@ -301,13 +284,15 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
             sigma_m,
             sigma_yaw_deg: sigma_rad.to_degrees(),
         })
+    } else if by_walkers.is_some() {
+        Ok(())
     } else if ambiguity > p.max_ambiguity {
         let other = runner_up.map_or(Pose2::identity(), |r| best.a_from_b.inverse() * r.a_from_b);
         Err(Abstain::Ambiguous {
             ratio: ambiguity,
             other,
         })
-    } else if let Some(fit) = disputed.filter(|f| !f.agrees(&best.a_from_b, &p.walkers)) {
+    } else if let Some(fit) = disputed.filter(|f| !f.near(&best.a_from_b, &p.walkers)) {
         Err(Abstain::WalkersDisagree {
             other: best.a_from_b.inverse() * fit.a_from_b,
         })
@@ -360,8 +345,7 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
 fn nobody_walked(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> Option<f64> {
     let (ma, mb) = (a.motion.as_ref()?, b.motion.as_ref()?);
     let watched_s = ma.watched_with(mb);
-    (watched_s >= p.motion.confirm_after_s && ma.walkers() + mb.walkers() == 0)
-        .then_some(watched_s)
+    (watched_s >= p.motion.confirm_after_s && ma.walkers() + mb.walkers() == 0).then_some(watched_s)
 }
 
 /// The walker fit, when it decides the pose.
@@ -370,82 +354,35 @@ fn decisive_walkers(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> Option<
     fit_walkers(ma, mb, &p.walkers).filter(|f| f.decisive(&p.walkers))
 }
 
-/// Puts the candidate the walkers agree with first (with its walker evidence); when the walls
-/// offered none there, refines one from the walkers' pose, keeping the walkers' pose where the
-/// walls pull it away. `false` when that pose fails the walkers' own check (it puts too many
-/// of them where the other sensor saw through): then nothing moves.
+/// Puts the wall candidate in the walkers' basin first (with its walker evidence): the
+/// walkers pick among the poses the walls allow, the walls give the pose. `false` when no wall
+/// candidate lies there, or when it fails the walkers' own check (it puts too many of them
+/// where the other sensor saw through): then nothing moves. Walkers alone are not precise
+/// enough to place a sensor (a body's shape and the time between two scans bias them by
+/// 10–20 cm), only to choose.
 fn lead_with_walkers(
-    a: &ScanModel,
-    b: &ScanModel,
     fit: &WalkerFit,
     distinct: &mut Vec<(Candidate, IcpResult)>,
     evidence: &mut Vec<MotionEvidence>,
     p: &RegisterParams,
 ) -> bool {
-    let agreeing = distinct
+    let Some(k) = distinct
         .iter()
-        .position(|(c, _)| fit.agrees(&c.a_from_b, &p.walkers));
-    let (lead, e) = match agreeing {
-        Some(k) => {
-            let Some(lead) = distinct.get(k).cloned() else {
-                return false;
-            };
-            (lead, evidence.get(k).copied().unwrap_or_default())
-        }
-        None => {
-            let guard = |pose: &Pose2| score(a, b, pose, p).value;
-            let icp = refine_guarded(a, b, &fit.a_from_b, p, p.class_aware, Some(&guard));
-            let pose = if fit.agrees(&icp.a_from_b, &p.walkers) {
-                icp.a_from_b
-            } else {
-                fit.a_from_b
-            };
-            let e = match (&a.motion, &b.motion) {
-                (Some(ma), Some(mb)) => co_motion(ma, mb, &pose, &p.motion),
-                _ => MotionEvidence::default(),
-            };
-            let candidate = Candidate {
-                a_from_b: pose,
-                score: score(a, b, &pose, p),
-                covariance: Matrix3::zeros(),
-            };
-            ((candidate, icp), e)
-        }
+        .position(|(c, _)| fit.near(&c.a_from_b, &p.walkers))
+    else {
+        return false;
     };
-    if e.refutes(&p.motion) || e.seen_through as f64 > p.walkers.max_through_share * e.seen as f64
-    {
-        // The people's own check says no: leave the walls' order as it was.
+    let e = evidence.get(k).copied().unwrap_or_default();
+    if e.refutes(&p.motion) || e.seen_through as f64 > p.walkers.max_through_share * e.seen as f64 {
         return false;
     }
-    // The candidates left must be different poses from the lead (evidence kept in step).
-    let keep: Vec<bool> = distinct
-        .iter()
-        .map(|(c, _)| !same_pose(&c.a_from_b, &lead.0.a_from_b, p))
-        .collect();
-    let mut k = 0;
-    distinct.retain(|_| {
-        k += 1;
-        keep.get(k - 1).copied().unwrap_or(true)
-    });
-    if evidence.len() == keep.len() {
-        let mut k = 0;
-        evidence.retain(|_| {
-            k += 1;
-            keep.get(k - 1).copied().unwrap_or(true)
-        });
+    let lead = distinct.remove(k);
+    if k < evidence.len() {
+        evidence.remove(k);
     }
     distinct.insert(0, lead);
     evidence.insert(0, e);
     true
-}
-
-/// Two independent estimates of one pose: the information adds.
-fn fuse(x: &Matrix3<f64>, y: &Matrix3<f64>) -> Matrix3<f64> {
-    match (x.try_inverse(), y.try_inverse()) {
-        (Some(ix), Some(iy)) => (ix + iy).try_inverse().unwrap_or(*y),
-        (None, Some(_)) => *y,
-        _ => *x,
-    }
 }
 
 /// Refined candidates with what the walkers say of each.

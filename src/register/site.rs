@@ -380,7 +380,23 @@ pub fn register_site(
         partners.sort_unstable();
         partners.dedup();
         let surveyed = sensors.get(i).is_some_and(|s| s.prior.is_some());
-        (i != anchor && !surveyed && partners.len() < sp.confirming_pairs).then(|| {
+        // Where no one walked in any view it rests on, the walls alone decided.
+        let nobody_walked = origin
+            .iter()
+            .filter(|&&(k, _)| pairs.get(k).is_some_and(|&(a, b)| a == i || b == i))
+            .map(|&(k, _)| results.get(k).and_then(|r| r.nobody_walked_s))
+            .collect::<Option<Vec<f64>>>()
+            .and_then(|w| w.into_iter().reduce(f64::min));
+        let unconfirmed = (i != anchor && !surveyed)
+            .then_some(nobody_walked)
+            .flatten()
+            .map(|watched_s| {
+                format!(
+                    "is not confirmed by people: no one walked in {watched_s:.0} s, so the walls \
+                     alone placed it; walk through its shared views while recording to confirm it"
+                )
+            });
+        let thin = (i != anchor && !surveyed && partners.len() < sp.confirming_pairs).then(|| {
             let with: Vec<&str> = partners.iter().map(|&k| id(k)).collect();
             format!(
                 "rests on {} only ({}): where rooms or bays repeat that can be a look-alike \
@@ -394,7 +410,11 @@ pub fn register_site(
                     _ => format!("with {}", with.join(", ")),
                 }
             )
-        })
+        });
+        match (thin, unconfirmed) {
+            (Some(t), Some(u)) => Some(format!("{t}; it {u}")),
+            (t, u) => t.or(u),
+        }
     };
     let placements = sensors
         .iter()

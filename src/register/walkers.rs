@@ -19,8 +19,8 @@ pub struct WalkerParams {
     /// A scanner sees the near side of a body: its returns' centroid lies about this share of
     /// the body's visible width short of its centre, along the beam (π/8 for a round body).
     pub centre_push_of_width: f64,
-    /// Sightings of one tick further apart in time than this are not paired (s): a walker
-    /// moves 2 cm in 15 ms, and the same way every time along a corridor.
+    /// Sightings of one tick that cannot be carried to a common time are paired only this close
+    /// in time (s): a walker moves 2 cm in 15 ms, and the same way every time along a corridor.
     pub max_skew_s: f64,
     /// The two correspondences a hypothesis is made of stand at least this far apart (m), and
     /// their distances in the two frames agree within `pair_tol_m`.
@@ -42,10 +42,6 @@ pub struct WalkerParams {
     /// Two hypotheses this close are one (m, rad).
     pub same_m: f64,
     pub same_rad: f64,
-    /// A pose agrees with the fit within three of its σ, and never looser than this (m, rad):
-    /// walls that slid 20 cm along a corridor do not agree with walkers that fix it.
-    pub agree_m: f64,
-    pub agree_rad: f64,
     /// The pose the walkers lead with must see almost none of the walkers through: at most
     /// this share of those both saw (a right pose has next to none).
     pub max_through_share: f64,
@@ -71,8 +67,6 @@ impl Default for WalkerParams {
             max_ambiguity: 0.6,
             same_m: 0.3,
             same_rad: 3f64.to_radians(),
-            agree_m: 0.08,
-            agree_rad: 0.8f64.to_radians(),
             max_through_share: 0.1,
             correlation: 4.0,
         }
@@ -106,15 +100,16 @@ impl WalkerFit {
             && (self.runner_up as f64) < p.max_ambiguity * self.inliers as f64
     }
 
-    /// Whether `pose` is the pose the walkers put B at, within their precision.
-    pub fn agrees(&self, pose: &Pose2, p: &WalkerParams) -> bool {
+    /// Whether `pose` lies in the walkers' basin: the walls refine within it what the walkers,
+    /// biased by a body's shape and by time, only locate.
+    pub fn near(&self, pose: &Pose2, p: &WalkerParams) -> bool {
         let (dt, dyaw) = pose_error(pose, &self.a_from_b);
-        let c = &self.covariance;
-        let sigma_m = c[(0, 0)].max(c[(1, 1)]).max(0.0).sqrt();
-        let sigma_rad = c[(2, 2)].max(0.0).sqrt();
-        dt < (3.0 * sigma_m).max(p.agree_m) && dyaw < (3.0 * sigma_rad).max(p.agree_rad)
+        dt < p.same_m && dyaw < p.same_rad
     }
 }
+
+/// Agreeing sightings: A's centre, B's, and when (s).
+type Matched = Vec<(Point2<f64>, Point2<f64>, f64)>;
 
 /// Walker centres both sensors had at one tick.
 struct Tick {
@@ -266,12 +261,12 @@ pub fn fit_walkers(a: &MotionTrack, b: &MotionTrack, p: &WalkerParams) -> Option
             Some(entry) => *entry = (count, pose),
             None => best.push((count, pose)),
         }
-        best.sort_by(|x, y| y.0.cmp(&x.0));
+        best.sort_by_key(|x| std::cmp::Reverse(x.0));
         best.truncate(8);
     }
     // Refine the leaders on every tick; the best refined one is the fit.
     let all: Vec<&Tick> = ticks.iter().collect();
-    let mut refined: Vec<(usize, Pose2, Vec<(Point2<f64>, Point2<f64>, f64)>)> = best
+    let mut refined: Vec<(usize, Pose2, Matched)> = best
         .iter()
         .filter_map(|(_, pose)| {
             let mut pose = *pose;
@@ -283,7 +278,7 @@ pub fn fit_walkers(a: &MotionTrack, b: &MotionTrack, p: &WalkerParams) -> Option
             Some((agreement.count, pose, agreement.pairs))
         })
         .collect();
-    refined.sort_by(|x, y| y.0.cmp(&x.0));
+    refined.sort_by_key(|x| std::cmp::Reverse(x.0));
     let (inliers, pose, pairs) = refined.first()?.clone();
     // Leaders that refine to the winner were the same pose seen through noise.
     let runner_up = refined
@@ -299,9 +294,11 @@ pub fn fit_walkers(a: &MotionTrack, b: &MotionTrack, p: &WalkerParams) -> Option
         .sum::<f64>()
         / pairs.len().max(1) as f64)
         .sqrt();
-    let (t0, t1) = pairs.iter().fold((f64::MAX, f64::MIN), |(lo, hi), (_, _, t)| {
-        (lo.min(*t), hi.max(*t))
-    });
+    let (t0, t1) = pairs
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(lo, hi), (_, _, t)| {
+            (lo.min(*t), hi.max(*t))
+        });
     let spread_m = spread(pairs.iter().map(|(a, _, _)| *a));
     Some(WalkerFit {
         a_from_b: pose,
