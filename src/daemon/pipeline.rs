@@ -1017,6 +1017,52 @@ mod tests {
     }
 
     #[test]
+    fn a_survey_by_hand_from_an_earlier_run_stands_before_the_saved_pose() {
+        let config = Config::parse(
+            "[site]\nname = \"s\"\nanchor = \"a\"\n[[sensor]]\nid = \"a\"\nconnect = \"tcp://127.0.0.1:1\"\n[[sensor]]\nid = \"b\"\nconnect = \"tcp://127.0.0.1:2\"\n",
+            std::path::Path::new("/c/site.toml"),
+        )
+        .unwrap();
+        let (queue, _worker) = drop_oldest(16);
+        let (commands, worker) = crossbeam_channel::unbounded();
+        let p = Pipeline::new(&config, queue, commands, Publisher::new(4), None);
+        // poses.toml had b elsewhere; surveys.toml has it placed by hand.
+        let mount = Mount {
+            height_m: None,
+            pitch_rad: 0.0,
+        };
+        let survey = |x_m| Survey {
+            x_m,
+            y_m: 1.0,
+            yaw_rad: 0.5,
+            sigma_xy_m: 0.05,
+            sigma_yaw_rad: 0.03,
+        };
+        let mut saved = surveyed(&survey(9.0), &mount, SystemTime::now());
+        saved.loaded = true;
+        p.set_pose("b", Ok(saved));
+        p.restore_surveys(BTreeMap::from([("b".to_string(), survey(2.0))]));
+        for s in &config.sensors {
+            p.add_sensor(
+                SensorSpec::from_config(s),
+                Arc::default(),
+                watch::channel(false).0,
+            );
+        }
+        let b = p.poses().sensors.into_iter().find(|s| s.id == "b").unwrap();
+        assert_eq!(
+            (b.x_m, b.source),
+            (Some(2.0), Some(PoseSource::Surveyed)),
+            "{b:?}"
+        );
+        let sent: Vec<Command> = worker.try_iter().collect();
+        assert!(
+            sent.iter().any(|c| matches!(c, Command::Survey { id, pinned: Some(p), .. } if id == "b" && p.x_m == 2.0)),
+            "the worker pins it: {sent:?}"
+        );
+    }
+
+    #[test]
     fn a_replayed_stamp_is_the_base_plus_the_unit_clock_across_wraps_and_reconnects() {
         let base = 1_767_225_600_000_000_000;
         assert_eq!(restamp(base, None, 1_500), base + 1_500_000_000);
