@@ -73,6 +73,7 @@ fn site() -> FixedSite {
             uptime_s: 1.0,
             queue_drops: 0,
             sensors,
+            web: None,
         },
         poses: Poses {
             anchor: ids[0].clone(),

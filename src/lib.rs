@@ -15,3 +15,4 @@ pub mod scan;
 pub mod scip;
 pub mod sensor;
 pub mod sim;
+pub mod web;

@@ -101,6 +101,42 @@ fn check_exits_2_naming_file_line_and_key() {
             "want {want:?} in: {stderr}"
         );
     }
+    // The page: anywhere but loopback needs a token file only its owner (and group) can read.
+    let token = dir.path().join("web.token");
+    std::fs::write(&token, "0123456789abcdef0123456789abcdef\n").unwrap();
+    std::fs::set_permissions(&token, std::os::unix::fs::PermissionsExt::from_mode(0o644)).unwrap();
+    let web = |lines: &str| format!("{GOOD}\n[web]\nlisten = \"0.0.0.0:8080\"\n{lines}");
+    for (text, want, code) in [
+        (
+            web(""),
+            "16: web.listen: 0.0.0.0:8080 is reachable from other machines",
+            2,
+        ),
+        (
+            web("token_file = \"web.token\"\n"),
+            "17: web.token_file: the token file",
+            2,
+        ),
+    ] {
+        std::fs::write(&path, &text).unwrap();
+        let out = scanfuse(&["check", "--config", path.to_str().unwrap()]);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(code), "{want}: {stderr}");
+        assert!(
+            stderr.contains(&format!("{shown}:{want}")),
+            "want {want:?} in: {stderr}"
+        );
+    }
+    std::fs::set_permissions(&token, std::os::unix::fs::PermissionsExt::from_mode(0o600)).unwrap();
+    std::fs::write(&path, web("token_file = \"web.token\"\n")).unwrap();
+    let out = scanfuse(&["check", "--config", path.to_str().unwrap()]);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+
     let out = scanfuse(&[
         "check",
         "--config",

@@ -59,6 +59,10 @@ fn the_example_sets_every_key() {
         "watch_backlog",
         "occupied_thresh",
         "free_thresh", // [publish]
+        "listen",
+        "max_clients",
+        "frames_per_s",
+        "send_queue", // [web] (token_file is shown commented out: check needs the file)
     ];
     for key in keys {
         let set = text.lines().any(|l| {

@@ -8,6 +8,7 @@ use std::sync::mpsc;
 
 use scanfuse::daemon::config::{
     self, Config, Connect, PublishConfig, RegistrationConfig, ScanMode, SensorConfig, SiteConfig,
+    WebConfig,
 };
 use scanfuse::daemon::run::{RunOptions, run_daemon};
 use scanfuse::record;
@@ -32,6 +33,10 @@ pub struct Args {
     /// Serve the status socket here while the replay runs.
     #[arg(long, value_name = "PATH")]
     socket: Option<PathBuf>,
+    /// Serve the live page here while the replay runs (e.g. 127.0.0.1:8080; loopback only:
+    /// a page reachable from elsewhere needs `scanfuse run` with [web] token_file).
+    #[arg(long, value_name = "ADDR")]
+    web: Option<std::net::SocketAddr>,
     /// The sensor whose frame is the site frame (default: the first one found).
     #[arg(long)]
     anchor: Option<String>,
@@ -108,7 +113,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             save_interval_s: 0.0,
             ..PublishConfig::default()
         },
+        web: WebConfig {
+            listen: args.web,
+            ..WebConfig::off()
+        },
     };
+    if let Some(addr) = args.web
+        && !addr.ip().is_loopback()
+    {
+        return Err(BadInput(format!(
+            "--web {addr} is reachable from other machines, and the page can move sensors; use a loopback address such as 127.0.0.1:8080 here, or `scanfuse run` with [web] token_file"
+        ))
+        .into());
+    }
     let pace = if args.max {
         "as fast as the pipeline takes them".to_string()
     } else {

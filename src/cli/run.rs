@@ -451,6 +451,7 @@ mod tests {
             uptime_s: 12.0,
             queue_drops: 0,
             sensors: vec![a, b, c],
+            web: None,
         });
         assert_eq!(
             line,
@@ -486,6 +487,7 @@ mod tests {
             uptime_s,
             queue_drops: 0,
             sensors,
+            web: None,
         }
     }
 

@@ -179,6 +179,9 @@ pub fn render_table(status: &Status, poses: &Poses) -> String {
             status.queue_drops
         );
     }
+    if let Some(web) = &status.web {
+        let _ = write!(out, " · {web}");
+    }
     out.push('\n');
     let _ = writeln!(
         out,
@@ -297,6 +300,7 @@ mod tests {
             uptime_s: 3725.0,
             queue_drops: 3,
             sensors: vec![a, b],
+            web: None,
         };
         let mut pa = SensorPose::unregistered("entrance", "");
         pa.registered = true;

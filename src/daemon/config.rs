@@ -37,7 +37,76 @@ pub struct Config {
     pub sensors: Vec<SensorConfig>,
     pub registration: RegistrationConfig,
     pub publish: PublishConfig,
+    pub web: WebConfig,
 }
+
+/// Where the page listens unless `[web] listen` says otherwise.
+pub const DEFAULT_WEB_LISTEN: &str = "127.0.0.1:8080";
+
+/// `[web]`: the live page (see `crate::web`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct WebConfig {
+    /// Where the page is served; `None` (`listen = ""`) serves none.
+    pub listen: Option<std::net::SocketAddr>,
+    /// The secret every client must give on a listener that is not loopback.
+    pub token_file: Option<PathBuf>,
+    /// Page clients served at once; more get 503.
+    pub max_clients: usize,
+    /// Scans of one sensor sent to each page per second at most.
+    pub frames_per_s: f64,
+    /// Messages a page may fall behind before it is dropped (it then reconnects).
+    pub send_queue: usize,
+}
+
+impl Default for WebConfig {
+    fn default() -> Self {
+        WebConfig {
+            listen: DEFAULT_WEB_LISTEN.parse().ok(),
+            token_file: None,
+            max_clients: 8,
+            frames_per_s: 10.0,
+            send_queue: 64,
+        }
+    }
+}
+
+impl WebConfig {
+    /// No page (`scanfuse replay` without `--web`, in-process tests).
+    pub fn off() -> WebConfig {
+        WebConfig {
+            listen: None,
+            ..WebConfig::default()
+        }
+    }
+}
+
+/// The token file's checks (`scanfuse check`, start): it exists, holds at least 128 bits as
+/// text and is not readable by everyone.
+pub fn check_token_file(path: &Path) -> Result<(), String> {
+    use std::os::unix::fs::PermissionsExt;
+    let make = "make one with: head -c 24 /dev/urandom | base64 > FILE && chmod 600 FILE";
+    let meta = std::fs::metadata(path)
+        .map_err(|e| format!("cannot read the token file {}: {e}; {make}", path.display()))?;
+    if meta.permissions().mode() & 0o004 != 0 {
+        return Err(format!(
+            "the token file {} is readable by everyone; chmod 600 (or 640) it",
+            path.display()
+        ));
+    }
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| format!("cannot read the token file {}: {e}", path.display()))?;
+    let token = text.trim();
+    if token.len() < MIN_TOKEN_CHARS || !token.bytes().all(|b| b.is_ascii_graphic()) {
+        return Err(format!(
+            "the token file {} must hold one secret of at least {MIN_TOKEN_CHARS} printable characters without spaces (128 bits or more); {make}",
+            path.display()
+        ));
+    }
+    Ok(())
+}
+
+/// Shortest token accepted: 32 characters of base64 or hex carry at least 128 bits.
+pub const MIN_TOKEN_CHARS: usize = 32;
 
 /// `[site]`.
 #[derive(Debug, Clone, PartialEq)]
@@ -322,6 +391,18 @@ struct RawConfig {
     registration: Option<Spanned<RegistrationConfig>>,
     #[serde(default)]
     publish: Option<Spanned<PublishConfig>>,
+    #[serde(default)]
+    web: Option<Spanned<RawWeb>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawWeb {
+    listen: Option<Spanned<String>>,
+    token_file: Option<Spanned<String>>,
+    max_clients: Option<Spanned<i64>>,
+    frames_per_s: Option<Spanned<f64>>,
+    send_queue: Option<Spanned<i64>>,
 }
 
 #[derive(Deserialize)]
@@ -524,13 +605,18 @@ impl Config {
             path: path.to_path_buf(),
             source,
         })?;
-        Config::parse_with(&text, path, &|file: &Path| file.is_file())
+        Config::parse_with(
+            &text,
+            path,
+            &|file: &Path| file.is_file(),
+            &check_token_file,
+        )
     }
 
     /// Validates `text` as the contents of `path` (used for messages and to resolve relative
     /// paths). No I/O: replay recordings are not looked for.
     pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
-        Config::parse_with(text, path, &|_: &Path| true)
+        Config::parse_with(text, path, &|_: &Path| true, &|_: &Path| Ok(()))
     }
 
     /// [`Config::parse`], asking `exists` whether each replay recording is there.
@@ -538,6 +624,7 @@ impl Config {
         text: &str,
         path: &Path,
         exists: &dyn Fn(&Path) -> bool,
+        token_ok: &dyn Fn(&Path) -> Result<(), String>,
     ) -> Result<Config, ConfigError> {
         let loc = Locator { path, text };
         let raw: RawConfig = toml::from_str(text).map_err(|e| loc.toml_error(&e))?;
@@ -706,6 +793,10 @@ impl Config {
             }
             None => PublishConfig::default(),
         };
+        let web = match raw.web {
+            Some(w) => parse_web(&loc, w, &resolve, token_ok)?,
+            None => WebConfig::default(),
+        };
 
         Ok(Config {
             path: path.to_path_buf(),
@@ -720,6 +811,7 @@ impl Config {
             sensors,
             registration,
             publish,
+            web,
         })
     }
 
@@ -749,8 +841,80 @@ impl Config {
             }
             out.push('\n');
         }
+        match (&self.web.listen, &self.web.token_file) {
+            (None, _) => out.push_str("  no page ([web] listen = \"\")\n"),
+            (Some(a), None) => {
+                out.push_str(&format!("  page at http://{a}/ (this machine only)\n"))
+            }
+            (Some(a), Some(t)) => out.push_str(&format!(
+                "  page at http://{a}/ (token in {}; open http://HOST:{}/?token=…)\n",
+                t.display(),
+                a.port()
+            )),
+        }
         out
     }
+}
+
+/// `[web]`, checked: a listener that is not loopback needs a token file that passes
+/// `token_ok`.
+fn parse_web(
+    loc: &Locator<'_>,
+    raw: Spanned<RawWeb>,
+    resolve: &dyn Fn(&str) -> PathBuf,
+    token_ok: &dyn Fn(&Path) -> Result<(), String>,
+) -> Result<WebConfig, ConfigError> {
+    let span = raw.span();
+    let w = raw.into_inner();
+    let mut web = WebConfig::default();
+    if let Some(listen) = &w.listen {
+        let text = listen.get_ref().trim();
+        web.listen = if text.is_empty() {
+            None
+        } else {
+            Some(text.parse().map_err(|_| {
+                loc.at(listen.span(), "web.listen", format!(
+                    "{text:?} is not an address and port; write IP:PORT, e.g. \"127.0.0.1:8080\" (this machine only) or \"0.0.0.0:8080\" (with token_file), or \"\" to serve no page"
+                ))
+            })?)
+        };
+    }
+    if let Some(t) = &w.token_file {
+        if t.get_ref().trim().is_empty() {
+            return Err(loc.at(t.span(), "web.token_file", "must not be empty; name a file holding the secret, e.g. \"/etc/scanfuse/web.token\""));
+        }
+        let path = resolve(t.get_ref());
+        token_ok(&path).map_err(|m| loc.at(t.span(), "web.token_file", m))?;
+        web.token_file = Some(path);
+    }
+    if let Some(addr) = web.listen
+        && !addr.ip().is_loopback()
+        && web.token_file.is_none()
+    {
+        let at = w.listen.as_ref().map_or(span.clone(), |l| l.span());
+        return Err(loc.at(at, "web.listen", format!(
+            "{addr} is reachable from other machines, and the page can move sensors: set token_file to a file holding a secret (at least {MIN_TOKEN_CHARS} characters), or listen on 127.0.0.1"
+        )));
+    }
+    if let Some(n) = &w.max_clients {
+        web.max_clients = match usize::try_from(*n.get_ref()) {
+            Ok(n @ 1..=256) => n,
+            _ => return Err(loc.at(n.span(), "web.max_clients", "must be 1–256")),
+        };
+    }
+    if let Some(f) = &w.frames_per_s {
+        let f = *f.get_ref();
+        positive("frames_per_s", f, 60.0)
+            .map_err(|(k, m)| rename(loc.in_table(span.clone(), k, m), "web"))?;
+        web.frames_per_s = f;
+    }
+    if let Some(n) = &w.send_queue {
+        web.send_queue = match usize::try_from(*n.get_ref()) {
+            Ok(n @ 4..=4096) => n,
+            _ => return Err(loc.at(n.span(), "web.send_queue", "must be 4–4096 messages")),
+        };
+    }
+    Ok(web)
 }
 
 /// Prefixes an error's key with its table's name.
@@ -1276,6 +1440,52 @@ map_cell_m = 0.1
         let re_anchored =
             parse(&GOOD.replace("anchor = \"entrance\"", "anchor = \"dock\"")).unwrap();
         assert!(old.changes_to(&re_anchored).anchor_changed);
+    }
+
+    #[test]
+    fn the_page_is_on_loopback_by_default_and_elsewhere_only_with_a_token() {
+        let c = parse(GOOD).unwrap();
+        assert_eq!(c.web.listen, Some("127.0.0.1:8080".parse().unwrap()));
+        let off = parse(&format!("{GOOD}\n[web]\nlisten = \"\"\n")).unwrap();
+        assert_eq!(off.web.listen, None);
+        let (line, key, msg) = invalid(&format!("{GOOD}\n[web]\nlisten = \"0.0.0.0:8080\"\n"));
+        assert_eq!(key, "web.listen");
+        assert_eq!(line, GOOD.lines().count() + 3, "{msg}");
+        assert!(msg.contains("token_file"), "{msg}");
+        let (_, key, msg) = invalid(&format!("{GOOD}\n[web]\nlisten = \"localhost\"\n"));
+        assert_eq!(key, "web.listen", "{msg}");
+        let (line, key, _) = invalid(&format!("{GOOD}\n[web]\nport = 1\n"));
+        assert_eq!((line, key.as_str()), (GOOD.lines().count() + 3, "web.port"));
+        let (_, key, _) = invalid(&format!("{GOOD}\n[web]\nframes_per_s = 0\n"));
+        assert_eq!(key, "web.frames_per_s");
+        let ok = parse(&format!(
+            "{GOOD}\n[web]\nlisten = \"0.0.0.0:8080\"\ntoken_file = \"web.token\"\nmax_clients = 3\nsend_queue = 8\n"
+        ))
+        .unwrap();
+        assert_eq!(
+            ok.web.token_file,
+            Some(PathBuf::from("/etc/scanfuse/web.token"))
+        );
+        assert_eq!((ok.web.max_clients, ok.web.send_queue), (3, 8));
+    }
+
+    #[test]
+    fn a_token_file_must_exist_hold_128_bits_and_not_be_world_readable() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("web.token");
+        assert!(check_token_file(&path).unwrap_err().contains("cannot read"));
+        std::fs::write(&path, "short\n").unwrap();
+        std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o600)).unwrap();
+        assert!(check_token_file(&path).unwrap_err().contains("at least 32"));
+        std::fs::write(&path, "0123456789abcdef0123456789abcdef\n").unwrap();
+        assert_eq!(check_token_file(&path), Ok(()));
+        std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o644)).unwrap();
+        assert!(
+            check_token_file(&path)
+                .unwrap_err()
+                .contains("readable by everyone")
+        );
     }
 
     #[test]

@@ -27,3 +27,4 @@ pub mod run;
 pub mod signals;
 pub mod socket;
 pub mod state;
+pub mod surveys;

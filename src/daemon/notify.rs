@@ -123,6 +123,7 @@ mod tests {
                 SensorStatus::new("a", SensorState::Streaming),
                 SensorStatus::new("b", SensorState::Disconnected),
             ],
+            web: None,
         };
         let mut a = SensorPose::unregistered("a", "");
         a.registered = true;

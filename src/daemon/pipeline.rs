@@ -20,12 +20,13 @@ use super::pipeline_fuse::{Fuser, save_files, scan_frame};
 use super::pipeline_register::{Command, WorkItem, surveyed};
 use super::protocol::{
     Event, EventKind, Frame, PoseSource, Poses, Saved, SensorPose, SensorState, SensorStatus,
-    Status,
+    Status, Survey as SurveyReply,
 };
 use super::queue::DropOldestSender;
 use super::rate::RateMeter;
 use super::returns::{Returns, Verdict};
-use super::socket::{Publisher, Refused, StatusSource};
+use super::socket::{Publisher, Refused, StatusSource, SurveyRequest};
+use super::surveys;
 use crate::geometry::{Mount, Pose3, ProjectParams};
 use crate::scan::{Scan, ScanGeometry};
 use crate::sensor::{Counters, DriverEvent, ScanMode};
@@ -171,6 +172,12 @@ pub enum Report {
 struct Inner {
     sensors: BTreeMap<String, Slot>,
     poses: BTreeMap<String, PoseEntry>,
+    /// Surveys set by hand (`survey` requests), kept in `state_dir`; they stand before the
+    /// config's.
+    surveys: BTreeMap<String, Survey>,
+    /// Sensors re-solved around one placed by hand: until the solve places them again they
+    /// keep the pose they had (a person's drop must not unplace the others).
+    resolving: std::collections::BTreeSet<String>,
 }
 
 /// The shared state of a running daemon.
@@ -193,6 +200,8 @@ pub struct Pipeline {
     fuser_beat_ns: AtomicU64,
     /// Stream time: the newest scan stamp seen (the recordings' clock in a replay).
     stream_ns: AtomicU64,
+    /// Where the page is served, or why it is not (`status`' `web`).
+    web: Mutex<Option<String>>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -243,7 +252,13 @@ impl Pipeline {
             save_lock: Mutex::new(()),
             fuser_beat_ns: AtomicU64::new(now_ns()),
             stream_ns: AtomicU64::new(0),
+            web: Mutex::new(None),
         }
+    }
+
+    /// What `status` says of the page.
+    pub(super) fn set_web(&self, line: String) {
+        *lock(&self.web) = Some(line);
     }
 
     pub fn anchor(&self) -> &str {
@@ -304,6 +319,12 @@ impl Pipeline {
         if let Some(old) = inner.sensors.remove(&id) {
             let _ = old.stop.send(true);
         }
+        let by_hand = inner.surveys.get(&id).copied();
+        if let Some(survey) = &by_hand {
+            // Placed by hand: it stands there, whatever was saved.
+            let entry = surveyed(survey, &spec.mount, SystemTime::now());
+            inner.poses.insert(id.clone(), entry);
+        }
         let pose = inner.poses.get(&id).map(|p| p.site_from_sensor);
         if pose.is_none()
             && let Some(survey) = &spec.survey
@@ -315,9 +336,16 @@ impl Pipeline {
         let _ = self.commands.send(Command::Add {
             id: id.clone(),
             mount: spec.mount,
-            survey: spec.survey,
+            survey: by_hand.or(spec.survey),
             pose,
         });
+        if by_hand.is_some() {
+            let _ = self.commands.send(Command::Survey {
+                id: id.clone(),
+                survey: by_hand,
+                pinned: pose,
+            });
+        }
         inner.sensors.insert(
             id,
             Slot {
@@ -335,6 +363,11 @@ impl Pipeline {
                 stop,
             },
         );
+    }
+
+    /// Takes the surveys set by hand in an earlier run (before the sensors are added).
+    pub(super) fn restore_surveys(&self, surveys: BTreeMap<String, Survey>) {
+        lock(&self.inner).surveys = surveys;
     }
 
     /// Stops a sensor's driver and forgets it (and its pose).
@@ -497,7 +530,15 @@ impl Pipeline {
         let mut inner = lock(&self.inner);
         match pose {
             Ok(entry) => {
+                inner.resolving.remove(id);
                 inner.poses.insert(id.to_string(), entry);
+            }
+            Err(reason) if inner.resolving.contains(id) && inner.poses.contains_key(id) => {
+                if let Some(entry) = inner.poses.get_mut(id) {
+                    entry.caveat = Some(format!(
+                        "keeps its pose: the re-solve around the sensor placed by hand did not place it ({reason})"
+                    ));
+                }
             }
             Err(reason) => {
                 inner.poses.remove(id);
@@ -515,6 +556,24 @@ impl Pipeline {
             .sensors
             .get(id)
             .and_then(|s| s.returns.blind_reason())
+    }
+
+    /// The occupancy grid as the fuser holds it now (the page draws it).
+    pub fn occupancy(&self) -> crate::fuse::OccupancyGrid {
+        lock(&self.fuser).grid()
+    }
+
+    /// Each sensor's field of view from its latest scan: id, first and last beam angle (rad,
+    /// in the sensor's frame). Sensors without a scan yet are left out.
+    pub fn fields_of_view(&self) -> Vec<(String, f64, f64)> {
+        lock(&self.inner)
+            .sensors
+            .iter()
+            .filter_map(|(id, slot)| {
+                let scan = slot.last_scan.as_ref()?;
+                Some((id.clone(), scan.start_angle_rad, scan.end_angle_rad))
+            })
+            .collect()
     }
 
     pub fn pose_of(&self, id: &str) -> Option<PoseEntry> {
@@ -624,6 +683,7 @@ impl StatusSource for Pipeline {
             uptime_s: self.started.elapsed().as_secs_f64(),
             queue_drops: self.queue.drops(),
             sensors,
+            web: lock(&self.web).clone(),
         }
     }
 
@@ -670,6 +730,105 @@ impl StatusSource for Pipeline {
         Ok(format!(
             "re-registering {sensor} from its next scans; a re-registered event follows"
         ))
+    }
+
+    fn survey(&self, sensor: &str, request: Option<SurveyRequest>) -> Result<SurveyReply, Refused> {
+        let mut inner = lock(&self.inner);
+        let Some(slot) = inner.sensors.get(sensor) else {
+            let known: Vec<&str> = inner.sensors.keys().map(String::as_str).collect();
+            return Err(Refused(format!(
+                "no sensor {sensor:?}; the configured sensors are {}",
+                known.join(", ")
+            )));
+        };
+        if sensor == self.anchor {
+            return Err(Refused(format!(
+                "{sensor:?} is the anchor: its frame is the site frame, so it stands at 0, 0, 0° by definition; place the others"
+            )));
+        }
+        let (mount, config_survey) = (slot.spec.mount, slot.spec.survey);
+        let others: Vec<String> = inner
+            .sensors
+            .keys()
+            .filter(|o| {
+                o.as_str() != sensor && **o != self.anchor && !inner.surveys.contains_key(*o)
+            })
+            .cloned()
+            .collect();
+        let mut surveys = inner.surveys.clone();
+        let unwritable = |e: super::state::StateError| {
+            Refused(format!("{e}; check that the state directory is writable"))
+        };
+        let worker_gone =
+            |_| Refused("the registration worker has stopped; restart scanfuse".into());
+        match request {
+            Some(r) => {
+                let survey = surveys::check(r.x_m, r.y_m, r.yaw_deg, r.sigma_xy_m, r.sigma_yaw_deg)
+                    .map_err(Refused)?;
+                surveys.insert(sensor.to_string(), survey);
+                surveys::save(&self.state_dir, &surveys).map_err(unwritable)?;
+                inner.surveys = surveys;
+                inner.resolving.remove(sensor);
+                inner.resolving.extend(others);
+                let entry = surveyed(&survey, &mount, SystemTime::now());
+                let pinned = entry.site_from_sensor;
+                inner.poses.insert(sensor.to_string(), entry);
+                drop(inner);
+                self.commands
+                    .send(Command::Survey {
+                        id: sensor.to_string(),
+                        survey: Some(survey),
+                        pinned: Some(pinned),
+                    })
+                    .map_err(worker_gone)?;
+                let message = format!(
+                    "{sensor} placed by hand at x {:.3} m, y {:.3} m, yaw {:.2}° (σ {} m, {}°); the others are re-solved around it",
+                    r.x_m, r.y_m, r.yaw_deg, r.sigma_xy_m, r.sigma_yaw_deg
+                );
+                self.announce(EventKind::Surveyed, Some(sensor), message.clone());
+                Ok(SurveyReply {
+                    sensor: sensor.to_string(),
+                    x_m: Some(r.x_m),
+                    y_m: Some(r.y_m),
+                    yaw_deg: Some(r.yaw_deg),
+                    sigma_xy_m: Some(r.sigma_xy_m),
+                    sigma_yaw_deg: Some(r.sigma_yaw_deg),
+                    message,
+                })
+            }
+            None => {
+                if surveys.remove(sensor).is_none() {
+                    return Err(Refused(format!(
+                        "{sensor} has no survey set by hand, so there is nothing to clear (a survey in the config stays until the config changes)"
+                    )));
+                }
+                surveys::save(&self.state_dir, &surveys).map_err(unwritable)?;
+                inner.surveys = surveys;
+                inner.resolving.remove(sensor);
+                inner.resolving.extend(others);
+                drop(inner);
+                self.commands
+                    .send(Command::Survey {
+                        id: sensor.to_string(),
+                        survey: config_survey,
+                        pinned: None,
+                    })
+                    .map_err(worker_gone)?;
+                let message = format!(
+                    "{sensor}'s survey by hand cleared; registering it and the others from their scans again"
+                );
+                self.announce(EventKind::Surveyed, Some(sensor), message.clone());
+                Ok(SurveyReply {
+                    sensor: sensor.to_string(),
+                    x_m: None,
+                    y_m: None,
+                    yaw_deg: None,
+                    sigma_xy_m: None,
+                    sigma_yaw_deg: None,
+                    message,
+                })
+            }
+        }
     }
 
     fn save(&self) -> Result<Saved, Refused> {
@@ -762,6 +921,145 @@ mod tests {
         }
         assert_eq!(shown_rate(SensorState::Streaming, Some(40.0)), Some(40.0));
         assert_eq!(shown_rate(SensorState::Streaming, None), None);
+    }
+
+    #[test]
+    fn a_survey_by_hand_places_the_sensor_on_disk_and_the_others_keep_their_poses() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut text = format!(
+            "[site]\nname = \"s\"\nanchor = \"a\"\nstate_dir = \"{}\"\n",
+            dir.path().display()
+        );
+        for (i, id) in ["a", "b", "c"].iter().enumerate() {
+            text.push_str(&format!(
+                "[[sensor]]\nid = \"{id}\"\nconnect = \"tcp://127.0.0.1:{}\"\n",
+                i + 1
+            ));
+        }
+        let config = Config::parse(&text, std::path::Path::new("/c/site.toml")).unwrap();
+        let (queue, _worker) = drop_oldest(16);
+        let (commands, worker) = crossbeam_channel::unbounded();
+        let p = Pipeline::new(&config, queue, commands, Publisher::new(4), None);
+        for s in &config.sensors {
+            p.add_sensor(
+                SensorSpec::from_config(s),
+                Arc::default(),
+                watch::channel(false).0,
+            );
+        }
+        let mount = Mount {
+            height_m: None,
+            pitch_rad: 0.0,
+        };
+        let at = |x_m| Survey {
+            x_m,
+            y_m: 0.0,
+            yaw_rad: 0.0,
+            sigma_xy_m: 0.1,
+            sigma_yaw_rad: 0.1,
+        };
+        let mut c = surveyed(&at(5.0), &mount, SystemTime::now());
+        c.source = PoseSource::Registered;
+        p.set_pose("c", Ok(c));
+        let request = SurveyRequest {
+            x_m: 1.0,
+            y_m: 2.0,
+            yaw_deg: 30.0,
+            sigma_xy_m: 0.05,
+            sigma_yaw_deg: 2.0,
+        };
+        let reply = p.survey("b", Some(request)).unwrap();
+        assert_eq!((reply.x_m, reply.yaw_deg), (Some(1.0), Some(30.0)));
+        let poses = p.poses();
+        let b = poses.sensors.iter().find(|s| s.id == "b").unwrap();
+        assert!(
+            b.registered && b.source == Some(PoseSource::Surveyed),
+            "{b:?}"
+        );
+        assert!((b.x_m.unwrap() - 1.0).abs() < 1e-12 && (b.yaw_deg.unwrap() - 30.0).abs() < 1e-9);
+        assert_eq!(b.sigma_x_m, Some(0.05));
+        assert!(
+            surveys::load(dir.path()).unwrap().contains_key("b"),
+            "kept on disk"
+        );
+        let sent: Vec<Command> = worker.try_iter().collect();
+        assert!(
+            sent.iter()
+                .any(|c| matches!(c, Command::Survey { id, pinned: Some(_), .. } if id == "b")),
+            "{sent:?}"
+        );
+        // The re-solve around b does not place c: c keeps its pose, and says why.
+        p.set_pose("c", Err("no overlap".into()));
+        let c = p.poses().sensors.into_iter().find(|s| s.id == "c").unwrap();
+        assert!(c.registered, "{c:?}");
+        assert!(
+            c.reason
+                .as_deref()
+                .is_some_and(|r| r.contains("keeps its pose")),
+            "{c:?}"
+        );
+        assert!(
+            p.survey("a", Some(request))
+                .unwrap_err()
+                .0
+                .contains("anchor")
+        );
+        assert!(p.survey("zz", None).unwrap_err().0.contains("no sensor"));
+        let cleared = p.survey("b", None).unwrap();
+        assert_eq!(cleared.x_m, None);
+        assert!(surveys::load(dir.path()).unwrap().is_empty());
+        assert!(
+            p.survey("b", None)
+                .unwrap_err()
+                .0
+                .contains("nothing to clear")
+        );
+    }
+
+    #[test]
+    fn a_survey_by_hand_from_an_earlier_run_stands_before_the_saved_pose() {
+        let config = Config::parse(
+            "[site]\nname = \"s\"\nanchor = \"a\"\n[[sensor]]\nid = \"a\"\nconnect = \"tcp://127.0.0.1:1\"\n[[sensor]]\nid = \"b\"\nconnect = \"tcp://127.0.0.1:2\"\n",
+            std::path::Path::new("/c/site.toml"),
+        )
+        .unwrap();
+        let (queue, _worker) = drop_oldest(16);
+        let (commands, worker) = crossbeam_channel::unbounded();
+        let p = Pipeline::new(&config, queue, commands, Publisher::new(4), None);
+        // poses.toml had b elsewhere; surveys.toml has it placed by hand.
+        let mount = Mount {
+            height_m: None,
+            pitch_rad: 0.0,
+        };
+        let survey = |x_m| Survey {
+            x_m,
+            y_m: 1.0,
+            yaw_rad: 0.5,
+            sigma_xy_m: 0.05,
+            sigma_yaw_rad: 0.03,
+        };
+        let mut saved = surveyed(&survey(9.0), &mount, SystemTime::now());
+        saved.loaded = true;
+        p.set_pose("b", Ok(saved));
+        p.restore_surveys(BTreeMap::from([("b".to_string(), survey(2.0))]));
+        for s in &config.sensors {
+            p.add_sensor(
+                SensorSpec::from_config(s),
+                Arc::default(),
+                watch::channel(false).0,
+            );
+        }
+        let b = p.poses().sensors.into_iter().find(|s| s.id == "b").unwrap();
+        assert_eq!(
+            (b.x_m, b.source),
+            (Some(2.0), Some(PoseSource::Surveyed)),
+            "{b:?}"
+        );
+        let sent: Vec<Command> = worker.try_iter().collect();
+        assert!(
+            sent.iter().any(|c| matches!(c, Command::Survey { id, pinned: Some(p), .. } if id == "b" && p.x_m == 2.0)),
+            "the worker pins it: {sent:?}"
+        );
     }
 
     #[test]

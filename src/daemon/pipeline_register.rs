@@ -65,6 +65,15 @@ pub enum Command {
         id: String,
         after_ns: u64,
     },
+    /// A survey set by hand (`pinned`: the sensor stands there, its pose not solved for) or
+    /// cleared (`pinned` none: registered from its scans again); `survey` is its survey now
+    /// (the hand-set one, or the config's once cleared), a prior for the solve. Every other
+    /// sensor not pinned is then re-solved around it from the scans it holds.
+    Survey {
+        id: String,
+        survey: Option<Survey>,
+        pinned: Option<Pose3>,
+    },
     /// The scans have ended (a replay played out): take what is queued, register every
     /// pending sensor that has a static view, tell the others why not, then answer on `done`.
     Finish {
@@ -115,6 +124,9 @@ struct Track {
     /// Stamp of the first changed scan of the current streak.
     changed_since_ns: Option<u64>,
     unchanged_run: u32,
+    /// Placed by hand: stands where it was put, and only a move detected or a request
+    /// re-registers it.
+    pinned: bool,
 }
 
 /// Share of the background's returns that `scan` now sees beyond (by more than
@@ -245,6 +257,7 @@ impl Registrar {
                         local_refused: None,
                         changed_since_ns: None,
                         unchanged_run: 0,
+                        pinned: false,
                     },
                 );
             }
@@ -252,6 +265,30 @@ impl Registrar {
                 self.tracks.remove(&id);
             }
             Command::Shutdown | Command::Finish { .. } => {}
+            Command::Survey { id, survey, pinned } => {
+                let Some(t) = self.tracks.get_mut(&id) else {
+                    return;
+                };
+                let again = Need::Pose {
+                    since_ns: 0,
+                    source: PoseSource::ReRegistered,
+                    refine_from: None,
+                };
+                t.survey = survey;
+                t.pinned = pinned.is_some();
+                match pinned {
+                    Some(pose) => {
+                        t.pose = Some(pose);
+                        t.need = Need::Nothing;
+                    }
+                    None => t.need = again,
+                }
+                for (other, t) in &mut self.tracks {
+                    if *other != id && *other != self.anchor && !t.pinned {
+                        t.need = again;
+                    }
+                }
+            }
             Command::Reregister { id, after_ns } => {
                 if let Some(t) = self.tracks.get_mut(&id) {
                     t.scans.clear();
@@ -964,6 +1001,60 @@ mod tests {
         feed(&mut r, "b", 3.5, 4.0);
         feed(&mut r, "a", 3.0, 4.0);
         assert!(r.due(4_000_000_000));
+    }
+
+    #[test]
+    fn a_survey_by_hand_pins_its_sensor_and_re_solves_the_others_until_cleared() {
+        let mut r = Registrar::new("a", &RegistrationConfig::default());
+        add(&mut r, "a", true);
+        add(&mut r, "b", true);
+        add(&mut r, "c", true);
+        let survey = Survey {
+            x_m: 3.0,
+            y_m: 1.0,
+            yaw_rad: 0.5,
+            sigma_xy_m: 0.05,
+            sigma_yaw_rad: 0.03,
+        };
+        let dropped = Pose3::from_planar(&pose2(3.0, 1.0, 0.5), 0.0, 0.0);
+        r.command(
+            Command::Survey {
+                id: "b".into(),
+                survey: Some(survey),
+                pinned: Some(dropped),
+            },
+            0,
+        );
+        assert_eq!(
+            r.pending(),
+            ["c"],
+            "b stands where dropped; c is re-solved, a is the anchor"
+        );
+        assert_eq!(r.tracks["b"].pose, Some(dropped));
+        // Another hand survey leaves the pinned one alone.
+        r.command(
+            Command::Survey {
+                id: "c".into(),
+                survey: Some(survey),
+                pinned: Some(dropped),
+            },
+            0,
+        );
+        assert!(r.pending().is_empty(), "{:?}", r.pending());
+        r.command(
+            Command::Survey {
+                id: "b".into(),
+                survey: None,
+                pinned: None,
+            },
+            0,
+        );
+        assert_eq!(
+            r.pending(),
+            ["b"],
+            "cleared: registered from its scans again"
+        );
+        assert_eq!(r.tracks["b"].survey, None);
     }
 
     #[test]

@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 /// Major protocol version: bumped when a client written for the old one would misread.
 pub const PROTO_MAJOR: u32 = 1;
 /// Minor protocol version: bumped when fields or classes are added.
-pub const PROTO_MINOR: u32 = 0;
+pub const PROTO_MINOR: u32 = 1;
 
 /// Request lines longer than this are rejected (and discarded up to their newline).
 pub const MAX_LINE_BYTES: usize = 64 * 1024;
@@ -21,7 +21,7 @@ pub fn unknown(value: &Option<f64>) -> bool {
 }
 
 /// What a client may ask.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "cmd", rename_all = "lowercase", deny_unknown_fields)]
 pub enum Request {
     /// `{"cmd":"status"}` → [`Status`]. (Empty braces, so unknown fields are rejected.)
@@ -42,7 +42,29 @@ pub enum Request {
     Reregister { sensor: String },
     /// `{"cmd":"save"}` → [`Saved`].
     Save {},
+    /// `{"cmd":"survey","sensor":"dock","x_m":…,"y_m":…,"yaw_deg":…,"sigma_xy_m":…,
+    /// "sigma_yaw_deg":…}` → [`Survey`]: places the sensor there by hand (as `survey = {…}` in
+    /// the config, kept in `state_dir` across restarts) and re-solves the others around it.
+    /// The sigmas default to [`DEFAULT_SURVEY_SIGMA_XY_M`] and [`DEFAULT_SURVEY_SIGMA_YAW_DEG`].
+    Survey {
+        sensor: String,
+        x_m: f64,
+        y_m: f64,
+        yaw_deg: f64,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        sigma_xy_m: Option<f64>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        sigma_yaw_deg: Option<f64>,
+    },
+    /// `{"cmd":"unsurvey","sensor":"dock"}` → [`Survey`]: forgets the survey set by hand, and
+    /// registers the sensor from its scans again (a survey in the config still counts).
+    Unsurvey { sensor: String },
 }
+
+/// A survey set by hand is this sure of the position unless the request says otherwise, m.
+pub const DEFAULT_SURVEY_SIGMA_XY_M: f64 = 0.05;
+/// …and of the heading, degrees.
+pub const DEFAULT_SURVEY_SIGMA_YAW_DEG: f64 = 2.0;
 
 /// Every reply or stream item the daemon sends, tagged by `class`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -54,6 +76,7 @@ pub enum Message {
     Watch(Watch),
     Reregister(Reregister),
     Saved(Saved),
+    Survey(Survey),
     Event(Event),
     Frame(Frame),
     Error(ErrorReply),
@@ -135,6 +158,9 @@ pub struct Status {
     #[serde(default)]
     pub queue_drops: u64,
     pub sensors: Vec<SensorStatus>,
+    /// Where the page is served (`page at http://…`), or why it is not; absent without one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub web: Option<String>,
 }
 
 /// One sensor's driver in a [`Status`] reply.
@@ -325,6 +351,25 @@ pub struct Saved {
     pub files: Vec<String>,
 }
 
+/// Reply to `survey` and `unsurvey`: the sensor's hand-set survey now (absent once cleared);
+/// the re-solve of the others follows as events.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Survey {
+    pub sensor: String,
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+    pub x_m: Option<f64>,
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+    pub y_m: Option<f64>,
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+    pub yaw_deg: Option<f64>,
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+    pub sigma_xy_m: Option<f64>,
+    #[serde(default, skip_serializing_if = "crate::daemon::protocol::unknown")]
+    pub sigma_yaw_deg: Option<f64>,
+    /// A sentence for a person: what happens now.
+    pub message: String,
+}
+
 /// What an [`Event`] reports.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -338,6 +383,8 @@ pub enum EventKind {
     ReRegistered,
     Saved,
     ConfigReloaded,
+    /// A survey was set or cleared by hand (`survey` / `unsurvey`).
+    Surveyed,
     Error,
 }
 
@@ -380,7 +427,7 @@ pub struct ErrorReply {
 }
 
 /// The commands a client may send, for error messages.
-pub const COMMANDS: &str = r#"{"cmd":"status"}, {"cmd":"poses"}, {"cmd":"watch","status":true,"map":false}, {"cmd":"reregister","sensor":"ID"}, {"cmd":"save"}"#;
+pub const COMMANDS: &str = r#"{"cmd":"status"}, {"cmd":"poses"}, {"cmd":"watch","status":true,"map":false}, {"cmd":"reregister","sensor":"ID"}, {"cmd":"save"}, {"cmd":"survey","sensor":"ID","x_m":0.0,"y_m":0.0,"yaw_deg":0.0,"sigma_xy_m":0.05,"sigma_yaw_deg":2.0}, {"cmd":"unsurvey","sensor":"ID"}"#;
 
 /// Parses one request line, or explains what is wrong and what would be valid.
 pub fn parse_request(line: &[u8]) -> Result<Request, String> {
@@ -478,6 +525,28 @@ mod tests {
             })
         );
         assert_eq!(parse_request(br#"{"cmd":"save"}"#), Ok(Request::Save {}));
+        assert_eq!(
+            parse_request(br#"{"cmd":"survey","sensor":"dock","x_m":1.5,"y_m":-2,"yaw_deg":90}"#),
+            Ok(Request::Survey {
+                sensor: "dock".into(),
+                x_m: 1.5,
+                y_m: -2.0,
+                yaw_deg: 90.0,
+                sigma_xy_m: None,
+                sigma_yaw_deg: None,
+            })
+        );
+        assert_eq!(
+            parse_request(br#"{"cmd":"unsurvey","sensor":"dock"}"#),
+            Ok(Request::Unsurvey {
+                sensor: "dock".into()
+            })
+        );
+        assert!(
+            parse_request(br#"{"cmd":"survey","sensor":"dock","x_m":1}"#)
+                .unwrap_err()
+                .contains("missing field `y_m`")
+        );
     }
 
     #[test]
@@ -519,6 +588,7 @@ mod tests {
             uptime_s: 1.5,
             queue_drops: 0,
             sensors: vec![SensorStatus::new("a", SensorState::Connecting)],
+            web: None,
         })
         .to_line();
         assert!(!status.contains("null"), "{status}");
@@ -557,6 +627,7 @@ mod tests {
                 uptime_s: 2.0,
                 queue_drops: 3,
                 sensors: vec![SensorStatus::new("a", SensorState::Streaming)],
+                web: Some("page at http://127.0.0.1:8080/".into()),
             }),
             Message::Poses(Poses {
                 anchor: "a".into(),
@@ -573,6 +644,15 @@ mod tests {
             Message::Saved(Saved {
                 dir: "/d".into(),
                 files: vec!["poses.toml".into()],
+            }),
+            Message::Survey(Survey {
+                sensor: "a".into(),
+                x_m: Some(1.0),
+                y_m: Some(2.0),
+                yaw_deg: Some(3.0),
+                sigma_xy_m: Some(0.05),
+                sigma_yaw_deg: None,
+                message: "m".into(),
             }),
             Message::Event(Event {
                 time: "2026-01-01T00:00:00Z".into(),

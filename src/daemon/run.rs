@@ -48,6 +48,8 @@ pub struct RunOptions {
     pub duration: Option<Duration>,
     /// Serve the status socket at `config.site.socket`.
     pub serve_socket: bool,
+    /// Serve the page at `config.web.listen` (when it names one).
+    pub serve_web: bool,
     /// Playback of `replay:` sensors: times the recorded rate; `f64::INFINITY` as fast as the
     /// pipeline takes the scans. Either way nothing is dropped on the way to registration.
     pub replay_speed: f64,
@@ -68,6 +70,7 @@ impl Default for RunOptions {
         RunOptions {
             duration: None,
             serve_socket: true,
+            serve_web: true,
             replay_speed: 1.0,
             replay_loop: true,
             replay_recorded_time: false,
@@ -359,6 +362,37 @@ fn load_saved_poses(config: &Config, pipeline: &Pipeline) {
     }
 }
 
+/// Serves the page when `[web] listen` asks for it. A page that cannot be served (the port
+/// taken) is an error on the log, the socket (`status`' `web`, an event) and the terminal,
+/// and the daemon goes on serving its sensors without it.
+async fn start_page(
+    config: &Config,
+    pipeline: &Arc<Pipeline>,
+    publisher: &Publisher,
+    stop: &watch::Receiver<bool>,
+) -> Option<JoinHandle<()>> {
+    match crate::web::WebServer::bind(&config.web).await {
+        Ok(None) => None,
+        Ok(Some(server)) => {
+            let url = server.url();
+            pipeline.set_web(format!("page at {url}"));
+            pipeline.announce(EventKind::Connected, None, format!("page at {url}"));
+            let source: Arc<dyn crate::web::PageSource> = Arc::clone(pipeline) as _;
+            Some(tokio::spawn(server.run(
+                source,
+                publisher.clone(),
+                stop.clone(),
+            )))
+        }
+        Err(e) => {
+            let why = format!("no page: {e}; the sensors are served as before");
+            pipeline.set_web(why.clone());
+            pipeline.announce(EventKind::Error, None, why);
+            None
+        }
+    }
+}
+
 /// Runs the daemon on `config` until a stop (see the module doc), then saves.
 pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSummary, RunError> {
     let notifier = Notifier::from_env();
@@ -373,6 +407,14 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
         options.tap.clone(),
     ));
     load_saved_poses(&config, &pipeline);
+    match super::surveys::load(&config.site.state_dir) {
+        Ok(surveys) => pipeline.restore_surveys(surveys),
+        Err(e) => pipeline.announce(
+            EventKind::Error,
+            None,
+            format!("{e}; the surveys set by hand are ignored"),
+        ),
+    }
 
     let mut emulators = Emulators::default();
     emulators.clock = emulators.replay_clock(&config, &options);
@@ -438,6 +480,11 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
                 })
                 .await
         }))
+    } else {
+        None
+    };
+    let web = if options.serve_web {
+        start_page(&config, &pipeline, &publisher, &server_stop_rx).await
     } else {
         None
     };
@@ -558,6 +605,9 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
     let _ = server_stop_tx.send(true);
     if let Some(server) = server {
         let _ = server.await;
+    }
+    if let Some(web) = web {
+        let _ = web.await;
     }
     let _ = tokio::task::spawn_blocking(move || fuser_thread.join()).await;
     pipeline.tick();

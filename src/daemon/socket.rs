@@ -21,8 +21,8 @@ use tokio::sync::{Semaphore, broadcast, mpsc};
 
 use super::lines::{Frame as LineFrame, LineFramer};
 use super::protocol::{
-    self, Event, EventKind, Frame, MAX_LINE_BYTES, Message, Poses, Request, Saved, Status, Version,
-    Watch,
+    self, Event, EventKind, Frame, MAX_LINE_BYTES, Message, Poses, Request, Saved, Status, Survey,
+    Version, Watch,
 };
 
 /// How long a reply may take to be taken by a client before the client is dropped.
@@ -47,6 +47,94 @@ pub trait StatusSource: Send + Sync + 'static {
     fn reregister(&self, sensor: &str) -> Result<String, Refused>;
     /// Writes poses and map files now.
     fn save(&self) -> Result<Saved, Refused>;
+    /// Sets (`Some`) or clears (`None`) the survey of `sensor` set by hand, and re-solves the
+    /// site around it. A source that cannot does not have to.
+    fn survey(&self, sensor: &str, survey: Option<SurveyRequest>) -> Result<Survey, Refused> {
+        let _ = survey;
+        Err(Refused(format!(
+            "this daemon cannot place {sensor} by hand; set survey = {{…}} in the config instead"
+        )))
+    }
+}
+
+/// A `survey` request's pose, as sent (degrees, sigmas filled in with the defaults).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SurveyRequest {
+    pub x_m: f64,
+    pub y_m: f64,
+    pub yaw_deg: f64,
+    pub sigma_xy_m: f64,
+    pub sigma_yaw_deg: f64,
+}
+
+/// The reply to every request but `watch` (whose stream belongs to the transport): the one
+/// protocol both the status socket and the page's WebSocket speak. Requests that may block
+/// run on a blocking thread.
+pub async fn answer_request<S: StatusSource + ?Sized>(
+    source: &Arc<S>,
+    request: Request,
+) -> Message {
+    let blocking = |f: Box<dyn FnOnce() -> Message + Send>, what: &'static str| async move {
+        match tokio::task::spawn_blocking(f).await {
+            Ok(m) => m,
+            Err(e) => Message::error(format!(
+                "{what} failed inside the daemon ({e}); see its log"
+            )),
+        }
+    };
+    match request {
+        Request::Status {} => Message::Status(source.status()),
+        Request::Poses {} => Message::Poses(source.poses()),
+        Request::Watch { .. } => Message::error(
+            "watch is answered by the connection itself; send it on the status socket or the page's WebSocket",
+        ),
+        Request::Reregister { sensor } => {
+            let source = Arc::clone(source);
+            let f = move || match source.reregister(&sensor) {
+                Ok(message) => Message::Reregister(protocol::Reregister { sensor, message }),
+                Err(refused) => Message::error(refused.0),
+            };
+            blocking(Box::new(f), "re-registration").await
+        }
+        Request::Save {} => {
+            let source = Arc::clone(source);
+            let f = move || match source.save() {
+                Ok(saved) => Message::Saved(saved),
+                Err(refused) => Message::error(refused.0),
+            };
+            blocking(Box::new(f), "saving").await
+        }
+        Request::Survey {
+            sensor,
+            x_m,
+            y_m,
+            yaw_deg,
+            sigma_xy_m,
+            sigma_yaw_deg,
+        } => {
+            let source = Arc::clone(source);
+            let request = SurveyRequest {
+                x_m,
+                y_m,
+                yaw_deg,
+                sigma_xy_m: sigma_xy_m.unwrap_or(protocol::DEFAULT_SURVEY_SIGMA_XY_M),
+                sigma_yaw_deg: sigma_yaw_deg.unwrap_or(protocol::DEFAULT_SURVEY_SIGMA_YAW_DEG),
+            };
+            let f = move || match source.survey(&sensor, Some(request)) {
+                Ok(reply) => Message::Survey(reply),
+                Err(refused) => Message::error(refused.0),
+            };
+            blocking(Box::new(f), "placing the sensor").await
+        }
+        Request::Unsurvey { sensor } => {
+            let source = Arc::clone(source);
+            let f = move || match source.survey(&sensor, None) {
+                Ok(reply) => Message::Survey(reply),
+                Err(refused) => Message::error(refused.0),
+            };
+            blocking(Box::new(f), "clearing the survey").await
+        }
+    }
 }
 
 /// The pipeline declined a request; the sentence goes to the client as an ERROR.
@@ -144,6 +232,18 @@ impl Publisher {
         }
         let line = format!("{}\n", Message::Frame(frame).to_line());
         let _ = self.frames.send(line.into());
+    }
+
+    /// A stream of every event line (as a `watch` client with `status` gets them), for
+    /// another transport such as the page.
+    pub fn subscribe_events(&self) -> broadcast::Receiver<Arc<str>> {
+        self.events.subscribe()
+    }
+
+    /// A stream of every fused-frame line (as a `watch` client with `map` gets them); while
+    /// subscribed, frames are encoded.
+    pub fn subscribe_frames(&self) -> broadcast::Receiver<Arc<str>> {
+        self.frames.subscribe()
     }
 
     /// Clients currently watching events.
@@ -461,8 +561,6 @@ impl<S: StatusSource> Connection<S> {
             Err(message) => return Message::error(message),
         };
         match request {
-            Request::Status {} => Message::Status(self.source.status()),
-            Request::Poses {} => Message::Poses(self.source.poses()),
             Request::Watch { status, map } => {
                 let want = Watch {
                     status: status.unwrap_or(true),
@@ -480,29 +578,7 @@ impl<S: StatusSource> Connection<S> {
                 };
                 Message::Watch(want)
             }
-            Request::Reregister { sensor } => {
-                let source = Arc::clone(&self.source);
-                let name = sensor.clone();
-                match tokio::task::spawn_blocking(move || source.reregister(&name)).await {
-                    Ok(Ok(message)) => {
-                        Message::Reregister(protocol::Reregister { sensor, message })
-                    }
-                    Ok(Err(refused)) => Message::error(refused.0),
-                    Err(e) => Message::error(format!(
-                        "re-registration failed inside the daemon ({e}); see its log"
-                    )),
-                }
-            }
-            Request::Save {} => {
-                let source = Arc::clone(&self.source);
-                match tokio::task::spawn_blocking(move || source.save()).await {
-                    Ok(Ok(saved)) => Message::Saved(saved),
-                    Ok(Err(refused)) => Message::error(refused.0),
-                    Err(e) => Message::error(format!(
-                        "saving failed inside the daemon ({e}); see its log"
-                    )),
-                }
-            }
+            other => answer_request(&self.source, other).await,
         }
     }
 }

@@ -57,6 +57,7 @@ impl MemorySite {
                 uptime_s: 30.0,
                 queue_drops: 0,
                 sensors: vec![entrance, dock],
+                web: None,
             }),
             poses: Mutex::new(Poses {
                 anchor: "entrance".into(),
@@ -189,7 +190,7 @@ impl LineClient {
     pub async fn connect_past_banner(path: &Path) -> LineClient {
         let mut client = LineClient::connect(path).await;
         match client.message().await {
-            Some(Message::Version(v)) => assert_eq!((v.proto_major, v.proto_minor), (1, 0)),
+            Some(Message::Version(v)) => assert_eq!((v.proto_major, v.proto_minor), (1, 1)),
             other => panic!("expected a VERSION banner, got {other:?}"),
         }
         client

@@ -101,6 +101,10 @@ pub fn write_config(
         ));
     }
     text.push_str(&format!("\n[publish]\n{publish}\n"));
+    // No page unless a test serves one: tests run side by side, and 8080 is the user's.
+    if !publish.contains("[web]") {
+        text.push_str("\n[web]\nlisten = \"\"\n");
+    }
     let path = dir.join("site.toml");
     std::fs::write(&path, text).expect("write config");
     path

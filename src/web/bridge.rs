@@ -1,0 +1,396 @@
+//! What the page's WebSocket carries, daemon → page: the status socket's own lines (`EVENT`,
+//! `FRAME`, `STATUS`, `POSES`, replies), and two classes only the page needs (`MAP`, the
+//! occupancy grid; `SENSORS`, each sensor's field of view). One [`Hub`] per server
+//! subscribes to the [`Publisher`] as a `watch` client does, paces each sensor's scans to
+//! `frames_per_s`, takes snapshots on a timer, and hands every line to every page through a
+//! bounded broadcast: a page that falls `send_queue` lines behind is dropped by its own task
+//! (it reconnects), and nothing here ever waits for a page.
+
+use std::collections::{BTreeMap, VecDeque};
+use std::future::Future;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant, SystemTime};
+
+use axum::extract::ws::Utf8Bytes;
+use base64::Engine;
+use serde::Serialize;
+use tokio::sync::{Notify, broadcast};
+
+use crate::daemon::pipeline::Pipeline;
+use crate::daemon::protocol::{Event, EventKind, Message};
+use crate::daemon::socket::{Publisher, StatusSource};
+use crate::fuse::{Cell, OccupancyGrid};
+
+/// Status, poses and fields of view are sent this often.
+pub const STATE_EVERY: Duration = Duration::from_secs(1);
+/// The occupancy grid is sent this often, when it changed.
+pub const MAP_EVERY: Duration = Duration::from_secs(3);
+/// A grid with more cells is sent coarser (cells merged), to keep `MAP` lines small.
+pub const MAX_MAP_CELLS: usize = 250_000;
+/// Events a page that opens gets from before it opened.
+const EVENTS_KEPT: usize = 60;
+
+/// What the page needs of the daemon beyond the status socket's requests.
+pub trait PageSource: StatusSource {
+    /// The occupancy grid now; `None` when there is none.
+    fn occupancy(&self) -> Option<OccupancyGrid>;
+    /// Each sensor's field of view: id, first and last beam angle (rad, sensor frame).
+    fn fields_of_view(&self) -> Vec<(String, f64, f64)>;
+}
+
+impl PageSource for Pipeline {
+    fn occupancy(&self) -> Option<OccupancyGrid> {
+        Some(Pipeline::occupancy(self))
+    }
+
+    fn fields_of_view(&self) -> Vec<(String, f64, f64)> {
+        Pipeline::fields_of_view(self)
+    }
+}
+
+/// `{"class":"MAP",…}`: the grid's cells, row-major from the bottom row (y = `origin_y_m`)
+/// up, one byte each (0 unknown, 1 free, 2 occupied), base64.
+#[derive(Debug, Serialize)]
+#[serde(tag = "class", rename = "MAP")]
+struct MapMessage {
+    cell_m: f64,
+    origin_x_m: f64,
+    origin_y_m: f64,
+    width: usize,
+    height: usize,
+    cells: String,
+}
+
+/// `{"class":"SENSORS","sensors":[{"id","start_deg","end_deg"}]}`.
+#[derive(Debug, Serialize)]
+#[serde(tag = "class", rename = "SENSORS")]
+struct SensorsMessage {
+    sensors: Vec<FieldOfView>,
+}
+
+#[derive(Debug, Serialize)]
+struct FieldOfView {
+    id: String,
+    start_deg: f64,
+    end_deg: f64,
+}
+
+/// The `MAP` line of `grid`, merging cells so that at most [`MAX_MAP_CELLS`] are sent (a
+/// merged cell is occupied if any of its cells is, else free if any is); `None` while empty.
+pub fn map_line(grid: &OccupancyGrid) -> Option<String> {
+    let (w, h) = grid.size();
+    if w == 0 || h == 0 {
+        return None;
+    }
+    let k = ((w * h) as f64 / MAX_MAP_CELLS as f64)
+        .sqrt()
+        .ceil()
+        .max(1.0) as usize;
+    let (cw, ch) = (w.div_ceil(k), h.div_ceil(k));
+    let mut cells = vec![0u8; cw * ch];
+    for y in 0..h {
+        for x in 0..w {
+            let v = match grid.cell(x as i64, y as i64) {
+                Cell::Unknown => 0,
+                Cell::Free => 1,
+                Cell::Occupied => 2,
+            };
+            if let Some(c) = cells.get_mut((y / k) * cw + x / k) {
+                *c = (*c).max(v);
+            }
+        }
+    }
+    let origin = grid.origin();
+    let message = MapMessage {
+        cell_m: grid.params().cell_m * k as f64,
+        origin_x_m: origin.x,
+        origin_y_m: origin.y,
+        width: cw,
+        height: ch,
+        cells: base64::engine::general_purpose::STANDARD.encode(&cells),
+    };
+    serde_json::to_string(&message).ok()
+}
+
+/// The `SENSORS` line.
+pub fn sensors_line(fov: Vec<(String, f64, f64)>) -> String {
+    let message = SensorsMessage {
+        sensors: fov
+            .into_iter()
+            .map(|(id, a, b)| FieldOfView {
+                id,
+                start_deg: a.to_degrees(),
+                end_deg: b.to_degrees(),
+            })
+            .collect(),
+    };
+    serde_json::to_string(&message).unwrap_or_default()
+}
+
+/// The sensor of a `FRAME` line (its first scan's), without parsing the points: ids are
+/// plain (letters, digits, `_.-`), so the first `"sensor":"…"` is it.
+pub fn frame_sensor(line: &str) -> Option<&str> {
+    const KEY: &str = "\"sensor\":\"";
+    let start = line.find(KEY)? + KEY.len();
+    let rest = line.get(start..)?;
+    rest.get(..rest.find('"')?)
+}
+
+/// The latest of everything, sent first to a page that opens.
+#[derive(Default)]
+struct Cache {
+    status: Option<Utf8Bytes>,
+    poses: Option<Utf8Bytes>,
+    sensors: Option<Utf8Bytes>,
+    map: Option<Utf8Bytes>,
+    events: VecDeque<Utf8Bytes>,
+    frames: BTreeMap<String, Utf8Bytes>,
+}
+
+/// Paces each sensor's scans: at most one per `gap`.
+#[derive(Debug)]
+pub struct Pacer {
+    gap: Duration,
+    last: BTreeMap<String, Instant>,
+}
+
+impl Pacer {
+    pub fn new(frames_per_s: f64) -> Pacer {
+        Pacer {
+            gap: Duration::from_secs_f64(1.0 / frames_per_s.clamp(0.01, 1000.0)),
+            last: BTreeMap::new(),
+        }
+    }
+
+    /// True when `sensor`'s scan at `now` is to be sent.
+    pub fn take(&mut self, sensor: &str, now: Instant) -> bool {
+        match self.last.get(sensor) {
+            Some(&t) if now.saturating_duration_since(t) < self.gap => false,
+            _ => {
+                self.last.insert(sensor.to_string(), now);
+                true
+            }
+        }
+    }
+}
+
+/// The one stream every page of a server shares.
+pub struct Hub {
+    tx: broadcast::Sender<Utf8Bytes>,
+    cache: Mutex<Cache>,
+    wake: Notify,
+    frames_per_s: f64,
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+fn text(line: &str) -> Utf8Bytes {
+    Utf8Bytes::from(line.trim_end().to_string())
+}
+
+impl Hub {
+    /// A hub whose pages may fall `send_queue` lines behind.
+    pub fn new(send_queue: usize, frames_per_s: f64) -> Arc<Hub> {
+        Arc::new(Hub {
+            tx: broadcast::channel(send_queue.max(1)).0,
+            cache: Mutex::new(Cache::default()),
+            wake: Notify::new(),
+            frames_per_s,
+        })
+    }
+
+    /// A new page's stream, and what to send it first: the latest status, poses, fields of
+    /// view, map, recent events and each sensor's latest scan.
+    pub fn subscribe(&self) -> (broadcast::Receiver<Utf8Bytes>, Vec<Utf8Bytes>) {
+        let rx = self.tx.subscribe();
+        let c = lock(&self.cache);
+        let mut first: Vec<Utf8Bytes> = [&c.status, &c.poses, &c.sensors, &c.map]
+            .into_iter()
+            .flatten()
+            .cloned()
+            .collect();
+        first.extend(c.events.iter().cloned());
+        first.extend(c.frames.values().cloned());
+        drop(c);
+        self.wake.notify_one();
+        (rx, first)
+    }
+
+    /// Tells every page an event the daemon's own stream does not carry (a page dropped).
+    pub fn tell_pages(&self, kind: EventKind, message: String) {
+        let line = Message::Event(Event {
+            time: humantime::format_rfc3339_millis(SystemTime::now()).to_string(),
+            kind,
+            sensor: None,
+            message,
+        })
+        .to_line();
+        let _ = self.tx.send(text(&line));
+    }
+
+    /// Pages connected now.
+    pub fn pages(&self) -> usize {
+        self.tx.receiver_count()
+    }
+
+    fn send(&self, line: Utf8Bytes) {
+        // An error only means no page is open.
+        let _ = self.tx.send(line);
+    }
+
+    fn refresh_state<S: PageSource + ?Sized>(&self, source: &S) {
+        let status = text(&Message::Status(source.status()).to_line());
+        let poses = text(&Message::Poses(source.poses()).to_line());
+        let sensors = text(&sensors_line(source.fields_of_view()));
+        {
+            let mut c = lock(&self.cache);
+            c.status = Some(status.clone());
+            c.poses = Some(poses.clone());
+            c.sensors = Some(sensors.clone());
+        }
+        self.send(status);
+        self.send(poses);
+        self.send(sensors);
+    }
+
+    async fn refresh_map<S: PageSource + ?Sized>(&self, source: &Arc<S>) {
+        let s = Arc::clone(source);
+        let Ok(Some(line)) =
+            tokio::task::spawn_blocking(move || s.occupancy().as_ref().and_then(map_line)).await
+        else {
+            return;
+        };
+        let line = text(&line);
+        {
+            let mut c = lock(&self.cache);
+            if c.map.as_ref() == Some(&line) {
+                return;
+            }
+            c.map = Some(line.clone());
+        }
+        self.send(line);
+    }
+
+    /// Runs until `shutdown`: forwards events always (the recent ones are kept for pages
+    /// that open later), and scans, snapshots and the map while a page is open.
+    pub async fn run<S: PageSource + ?Sized>(
+        self: Arc<Self>,
+        source: Arc<S>,
+        publisher: Publisher,
+        shutdown: impl Future<Output = ()>,
+    ) {
+        tokio::pin!(shutdown);
+        let mut events = publisher.subscribe_events();
+        let mut frames: Option<broadcast::Receiver<Arc<str>>> = None;
+        let mut pacer = Pacer::new(self.frames_per_s);
+        let mut state_tick = tokio::time::interval(STATE_EVERY);
+        let mut map_tick = tokio::time::interval(MAP_EVERY);
+        state_tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        map_tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        loop {
+            let open = self.pages() > 0;
+            // Subscribed to scans only while someone looks: the publisher encodes frames only
+            // for subscribers.
+            if open && frames.is_none() {
+                frames = Some(publisher.subscribe_frames());
+            } else if !open {
+                frames = None;
+            }
+            tokio::select! {
+                () = &mut shutdown => return,
+                () = self.wake.notified() => {
+                    self.refresh_state(source.as_ref());
+                    if lock(&self.cache).map.is_none() {
+                        self.refresh_map(&source).await;
+                    }
+                }
+                event = events.recv() => match event {
+                    Ok(line) => {
+                        let line = text(&line);
+                        {
+                            let mut c = lock(&self.cache);
+                            c.events.push_back(line.clone());
+                            while c.events.len() > EVENTS_KEPT {
+                                c.events.pop_front();
+                            }
+                        }
+                        self.send(line);
+                    }
+                    Err(broadcast::error::RecvError::Lagged(_)) => {}
+                    Err(broadcast::error::RecvError::Closed) => return,
+                },
+                frame = async {
+                    match frames.as_mut() {
+                        Some(rx) => rx.recv().await,
+                        None => std::future::pending().await,
+                    }
+                } => match frame {
+                    Ok(line) => {
+                        let Some(sensor) = frame_sensor(&line) else { continue };
+                        if pacer.take(sensor, Instant::now()) {
+                            let sensor = sensor.to_string();
+                            let line = text(&line);
+                            lock(&self.cache).frames.insert(sensor, line.clone());
+                            self.send(line);
+                        }
+                    }
+                    Err(broadcast::error::RecvError::Lagged(_)) => {}
+                    Err(broadcast::error::RecvError::Closed) => frames = None,
+                },
+                _ = state_tick.tick(), if open => self.refresh_state(source.as_ref()),
+                _ = map_tick.tick(), if open => self.refresh_map(&source).await,
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fuse::GridParams;
+    use nalgebra::Point2;
+
+    #[test]
+    fn the_sensor_of_a_frame_line_is_read_without_parsing_the_points() {
+        let line = r#"{"class":"FRAME","stamp_ns":5,"scans":[{"sensor":"dock-2.a","stamp_ns":5,"xy_m":[1.0,2.0]}]}"#;
+        assert_eq!(frame_sensor(line), Some("dock-2.a"));
+        assert_eq!(frame_sensor(r#"{"class":"FRAME","scans":[]}"#), None);
+    }
+
+    #[test]
+    fn each_sensor_is_paced_on_its_own() {
+        let mut p = Pacer::new(10.0);
+        let t0 = Instant::now();
+        assert!(p.take("a", t0));
+        assert!(p.take("b", t0), "another sensor is not held back by a");
+        assert!(!p.take("a", t0 + Duration::from_millis(50)));
+        assert!(p.take("a", t0 + Duration::from_millis(100)));
+    }
+
+    #[test]
+    fn a_large_grid_is_sent_coarser_and_keeps_its_walls() {
+        let mut g = OccupancyGrid::new(GridParams::default());
+        assert_eq!(map_line(&g), None, "nothing seen yet");
+        // A 40 m wall seen from 30 m away: 800 × 600 cells at 5 cm, more than the limit.
+        for i in 0..400 {
+            let x = -20.0 + i as f64 * 0.1;
+            g.insert_ray(Point2::new(0.0, 0.0), Point2::new(x, 30.0), true);
+        }
+        let line = map_line(&g).unwrap();
+        let v: serde_json::Value = serde_json::from_str(&line).unwrap();
+        assert_eq!(v["class"], "MAP");
+        let (w, h) = (v["width"].as_u64().unwrap(), v["height"].as_u64().unwrap());
+        assert!(w * h <= MAX_MAP_CELLS as u64, "{w} × {h}");
+        assert!(v["cell_m"].as_f64().unwrap() > 0.05);
+        let cells = base64::engine::general_purpose::STANDARD
+            .decode(v["cells"].as_str().unwrap())
+            .unwrap();
+        assert_eq!(cells.len() as u64, w * h);
+        assert!(
+            cells.contains(&2) && cells.contains(&1),
+            "walls and free space survive"
+        );
+    }
+}

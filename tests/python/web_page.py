@@ -1,0 +1,164 @@
+"""The live page in a real browser (headless Chromium driven by Playwright).
+
+Opens the page a running daemon serves, waits until it is drawn, checks each sensor drawn on
+the page (its data-sensor and data-pose) against the status socket's `poses` reply, drags
+one sensor, and checks that `poses` then shows it surveyed where it was dropped. Saves a
+screenshot before the drag (FILE-before.png) and after it (FILE). Run by tests/web_page_browser.rs:
+
+    python web_page.py --url http://127.0.0.1:PORT/ --socket PATH --screenshot FILE.png
+"""
+
+import argparse
+import json
+import socket
+import sys
+import time
+
+from playwright.sync_api import sync_playwright
+
+XY_TOL_M = 0.01
+YAW_TOL_DEG = 0.1
+
+
+def ask(path, request):
+    """One request on the status socket; the reply (past the VERSION banner)."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
+        s.settimeout(10)
+        s.connect(path)
+        f = s.makefile("rw")
+        banner = json.loads(f.readline())
+        assert banner["class"] == "VERSION", banner
+        f.write(json.dumps(request) + "\n")
+        f.flush()
+        return json.loads(f.readline())
+
+
+def drawn(page):
+    """{id: (x, y, yaw)} of every sensor drawn on the page."""
+    out = {}
+    for el in page.query_selector_all("[data-sensor]"):
+        x, y, yaw = (float(v) for v in el.get_attribute("data-pose").split())
+        out[el.get_attribute("data-sensor")] = (x, y, yaw)
+    return out
+
+
+def yaw_diff(a, b):
+    return abs((a - b + 180.0) % 360.0 - 180.0)
+
+
+def placed(poses):
+    return {
+        s["id"]: (s["x_m"], s["y_m"], s["yaw_deg"])
+        for s in poses["sensors"]
+        if s["registered"] and "x_m" in s
+    }
+
+
+def agree(page_poses, socket_poses):
+    if set(page_poses) != set(socket_poses):
+        return False
+    for sid, (x, y, yaw) in socket_poses.items():
+        px, py, pyaw = page_poses[sid]
+        if abs(px - x) > XY_TOL_M or abs(py - y) > XY_TOL_M or yaw_diff(pyaw, yaw) > YAW_TOL_DEG:
+            return False
+    return True
+
+
+def until(what, seconds, check):
+    end = time.monotonic() + seconds
+    last = None
+    while time.monotonic() < end:
+        last = check()
+        if last:
+            return last
+        time.sleep(0.25)
+    sys.exit(f"timed out after {seconds} s waiting for {what}")
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--url", required=True)
+    ap.add_argument("--socket", required=True)
+    ap.add_argument("--screenshot", required=True)
+    ap.add_argument("--browser", default="/usr/bin/chromium")
+    args = ap.parse_args()
+
+    with sync_playwright() as p:
+        browser = p.chromium.launch(
+            executable_path=args.browser, headless=True, args=["--no-sandbox"]
+        )
+        page = browser.new_page(viewport={"width": 1280, "height": 800})
+        errors = []
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        page.goto(args.url)
+        page.wait_for_selector('body[data-ready="1"]', timeout=60_000)
+
+        # Every placed sensor drawn where the socket says it stands (registration may still
+        # be settling: both are read again until they agree).
+        def same():
+            socket_poses = placed(ask(args.socket, {"cmd": "poses"}))
+            page_poses = drawn(page)
+            if len(socket_poses) >= 2 and agree(page_poses, socket_poses):
+                return socket_poses
+            return None
+
+        before = until("the page to show every placed sensor as `poses` has it", 60, same)
+        time.sleep(1.0)  # a map and a status round more, for the picture
+        page.screenshot(path=args.screenshot.replace(".png", "-before.png"))
+        anchor = ask(args.socket, {"cmd": "poses"})["anchor"]
+        sensor = next(sid for sid in sorted(before) if sid != anchor)
+
+        # Drag it: press on its glyph, move, release.
+        box = page.locator(f'[data-sensor="{sensor}"] .body').bounding_box()
+        x0, y0 = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+        page.mouse.move(x0, y0)
+        page.mouse.down()
+        page.mouse.move(x0 + 30, y0 - 20, steps=12)
+        page.mouse.up()
+        dropped = drawn(page)[sensor]
+        bx, by, byaw = before[sensor]
+        moved_m = ((dropped[0] - bx) ** 2 + (dropped[1] - by) ** 2) ** 0.5
+        if moved_m < 0.05:
+            sys.exit(f"the drag did not move {sensor} on the page: {before[sensor]} → {dropped}")
+
+        def surveyed_there():
+            for s in ask(args.socket, {"cmd": "poses"})["sensors"]:
+                if s["id"] != sensor:
+                    continue
+                if (
+                    s.get("source") == "surveyed"
+                    and abs(s["x_m"] - dropped[0]) <= XY_TOL_M
+                    and abs(s["y_m"] - dropped[1]) <= XY_TOL_M
+                    and yaw_diff(s["yaw_deg"], dropped[2]) <= YAW_TOL_DEG
+                ):
+                    return s
+            return None
+
+        after = until(f"`poses` to show {sensor} surveyed where it was dropped", 30, surveyed_there)
+        # The page shows it there too, once its next poses arrive.
+        until(
+            "the page to show the surveyed pose",
+            10,
+            lambda: yaw_diff(drawn(page)[sensor][2], after["yaw_deg"]) <= YAW_TOL_DEG
+            and abs(drawn(page)[sensor][0] - after["x_m"]) <= XY_TOL_M,
+        )
+        time.sleep(1.5)  # one more map and status round, for the picture
+        page.screenshot(path=args.screenshot)
+        browser.close()
+        if errors:
+            sys.exit(f"the page raised: {errors}")
+        print(
+            json.dumps(
+                {
+                    "sensors": sorted(before),
+                    "dragged": sensor,
+                    "from": before[sensor],
+                    "to": [after["x_m"], after["y_m"], after["yaw_deg"]],
+                    "moved_m": round(moved_m, 3),
+                }
+            )
+        )
+
+
+if __name__ == "__main__":
+    main()
