@@ -10,6 +10,22 @@ use crate::scan::Scan;
 /// return only when more than half of the scans saw one there. `None` when there are no scans;
 /// scans with a different beam count than the first are skipped.
 pub fn static_view(scans: &[Scan], window_s: f64) -> Option<Scan> {
+    per_beam(scans, window_s, |returns, used| {
+        if returns.len() * 2 <= used {
+            return 0.0;
+        }
+        returns.get(returns.len() / 2).copied().unwrap_or(0.0)
+    })
+}
+
+/// A view of the scans within `window_s` of the first (of its beam count), one range per beam
+/// from `reduce(returns, scans)`: that beam's returns (finite, above zero) sorted, and how many
+/// scans there were.
+fn per_beam(
+    scans: &[Scan],
+    window_s: f64,
+    mut reduce: impl FnMut(&[f32], usize) -> f32,
+) -> Option<Scan> {
     let first = scans.first()?;
     let n = first.ranges_m.len();
     let window_ns = (window_s * 1e9) as u64;
@@ -26,11 +42,8 @@ pub fn static_view(scans: &[Scan], window_s: f64) -> Option<Scan> {
                     .filter_map(|s| s.ranges_m.get(i).copied())
                     .filter(|r| r.is_finite() && *r > 0.0),
             );
-            if column.len() * 2 <= used.len() {
-                return 0.0;
-            }
             column.sort_by(f32::total_cmp);
-            column[column.len() / 2]
+            reduce(&column, used.len())
         })
         .collect();
     Some(Scan {
@@ -66,46 +79,25 @@ pub const PERSIST_TOL_M: f32 = 0.05;
 /// median taken; no return where nothing persists. People hide a wall for a while; the wall
 /// is still the farthest thing that keeps coming back. `None` without scans.
 pub fn persistent_view(scans: &[Scan], window_s: f64, min_share: f64, tol_m: f32) -> Option<Scan> {
-    let first = scans.first()?;
-    let n = first.ranges_m.len();
-    let window_ns = (window_s * 1e9) as u64;
-    let used: Vec<&Scan> = scans
-        .iter()
-        .filter(|s| s.ranges_m.len() == n && s.stamp_ns.saturating_sub(first.stamp_ns) <= window_ns)
-        .collect();
-    let need = ((min_share * used.len() as f64).ceil() as usize).max(2);
-    let mut column: Vec<f32> = Vec::with_capacity(used.len());
-    let ranges_m = (0..n)
-        .map(|i| {
-            column.clear();
-            column.extend(
-                used.iter()
-                    .filter_map(|s| s.ranges_m.get(i).copied())
-                    .filter(|r| r.is_finite() && *r > 0.0),
-            );
-            column.sort_by(f32::total_cmp);
-            // From the far end: the first run of `need` returns within tolerance of each other.
-            let mut hi = column.len();
-            while hi >= need {
-                let top = column[hi - 1];
-                let lo = hi - need;
-                if top - column[lo] <= tol_m + 0.01 * top {
-                    // The whole cluster around it, and its median.
-                    let start = column[..hi]
-                        .iter()
-                        .rposition(|r| top - *r > tol_m + 0.01 * top)
-                        .map_or(0, |k| k + 1);
-                    return column[(start + hi) / 2];
-                }
-                hi -= 1;
+    per_beam(scans, window_s, |column, used| {
+        let need = ((min_share * used as f64).ceil() as usize).max(2);
+        // From the far end: the first run of `need` returns within tolerance of each other.
+        let mut hi = column.len();
+        while hi >= need {
+            let (Some(&top), Some(&low)) = (column.get(hi - 1), column.get(hi - need)) else {
+                break;
+            };
+            if top - low <= tol_m + 0.01 * top {
+                // The whole cluster around it, and its median.
+                let start = column[..hi]
+                    .iter()
+                    .rposition(|r| top - *r > tol_m + 0.01 * top)
+                    .map_or(0, |k| k + 1);
+                return column.get((start + hi) / 2).copied().unwrap_or(top);
             }
-            0.0
-        })
-        .collect();
-    Some(Scan {
-        ranges_m,
-        intensities: Vec::new(),
-        ..first.clone()
+            hi -= 1;
+        }
+        0.0
     })
 }
 
