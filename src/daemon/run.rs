@@ -133,6 +133,8 @@ struct ReplayClock {
     gate: ReplayGate,
     /// The recorded stamp at stream offset 0: the earliest first scan of the recordings.
     origin_ns: u64,
+    /// One loop of all the recordings: the latest last scan, plus a scan period.
+    pass_ns: u64,
     /// The stamp replayed scans get at stream offset 0.
     base_ns: u64,
 }
@@ -142,6 +144,7 @@ impl Emulators {
     /// without any. A recording that cannot be read is left for [`start_sensor`] to report.
     fn replay_clock(&mut self, config: &Config, options: &RunOptions) -> Option<ReplayClock> {
         let mut origin_ns = u64::MAX;
+        let mut last_ns = 0u64;
         let mut scans_per_s = 0.0;
         let mut longest_period_s: f64 = 0.025;
         let mut count = 0;
@@ -153,8 +156,10 @@ impl Emulators {
             let Some(recording) = self.recording(file).ok() else {
                 continue;
             };
-            if let Some(first) = recording.scans_of(rid).first() {
+            let scans = recording.scans_of(rid);
+            if let (Some(first), Some(last)) = (scans.first(), scans.last()) {
                 origin_ns = origin_ns.min(first.stamp_ns);
+                last_ns = last_ns.max(last.stamp_ns);
             }
             if let Some(g) = recording.sensor(rid).and_then(|i| i.geometry) {
                 scans_per_s += 1.0 / g.period_s().max(1e-3);
@@ -179,6 +184,7 @@ impl Emulators {
         Some(ReplayClock {
             gate: ReplayGate::new(count, speed.is_finite().then_some(speed), lead),
             origin_ns,
+            pass_ns: last_ns.saturating_sub(origin_ns) + (longest_period_s * 1e9) as u64,
             base_ns: if options.replay_recorded_time {
                 origin_ns
             } else {
@@ -269,6 +275,7 @@ async fn start_sensor(
                     gate: c.gate.clone(),
                     id: sensor.id.clone(),
                     origin_ns: c.origin_ns,
+                    pass_ns: c.pass_ns,
                 }),
                 ..EmulatorConfig::default()
             };

@@ -40,6 +40,16 @@ impl Playback {
         }
     }
 
+    /// Loops every `pass_ms` instead (several recordings of one site loop together), when that
+    /// is longer than this recording.
+    pub fn with_pass_ms(mut self, pass_ms: f64) -> Self {
+        let last = self.offsets_ms.last().copied().unwrap_or(0.0);
+        if pass_ms.is_finite() && pass_ms > last {
+            self.pass_ms = pass_ms;
+        }
+        self
+    }
+
     pub fn len(&self) -> usize {
         self.offsets_ms.len()
     }
@@ -120,5 +130,34 @@ mod tests {
         let once = Playback::new(&scans(&[0, 25]), 25.0, 1.0, false);
         assert_eq!(once.due_ms(2), None);
         assert_eq!(once.current(1000.0), Some(1));
+    }
+
+    #[test]
+    fn recordings_of_one_site_loop_together() {
+        // 40 Hz and 20 Hz units of one 2 s recording: on their own they loop every 2.000 s
+        // and 2.025 s; given the site's pass, both every 2.05 s.
+        let fast = Playback::new(
+            &scans(&(0..80).map(|k| k * 25).collect::<Vec<_>>()),
+            25.0,
+            1.0,
+            true,
+        );
+        let slow = Playback::new(
+            &scans(&(0..40).map(|k| 25 + k * 50).collect::<Vec<_>>()),
+            50.0,
+            1.0,
+            true,
+        );
+        assert_ne!(fast.due_ms(80), slow.due_ms(40).map(|d| d - 25.0));
+        let (fast, slow) = (fast.with_pass_ms(2050.0), slow.with_pass_ms(2050.0));
+        assert_eq!(fast.due_ms(80), Some(2050.0));
+        assert_eq!(
+            slow.due_ms(40),
+            Some(2050.0),
+            "offsets are its own: the site adds its shift"
+        );
+        assert_eq!(fast.current(2060.0), Some(80));
+        // Shorter than the recording: ignored.
+        assert_eq!(slow.with_pass_ms(10.0).due_ms(40), Some(2050.0));
     }
 }

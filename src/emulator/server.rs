@@ -56,6 +56,9 @@ pub struct Gated {
     pub id: String,
     /// The recorded stamp (ns) at stream offset 0: the earliest first scan of the replay.
     pub origin_ns: u64,
+    /// Every recording of the replay loops with this period (ns), so that the sensors of one
+    /// site stay in step loop after loop (their own lengths differ by a scan period or so).
+    pub pass_ns: u64,
 }
 
 impl Default for EmulatorConfig {
@@ -138,6 +141,10 @@ impl Emulator {
             config.speed
         };
         let playback = Playback::new(scans, geometry.period_s() * 1000.0, speed, config.looping);
+        let playback = match &config.gate {
+            Some(g) if config.looping => playback.with_pass_ms(g.pass_ns as f64 / 1e6),
+            _ => playback,
+        };
         let first_ns = scans.first().map_or(0, |s| s.stamp_ns);
         let gate = config
             .gate
