@@ -126,8 +126,8 @@ pub struct PairResult {
     pub icp_iterations: usize,
     /// Walkers at the best pose, when both scans carry people seen over time.
     pub motion: Option<MotionEvidence>,
-    /// The pose people both sensors saw walk agree on, when they decide it: the best pose is
-    /// then theirs (refined on the walls where the walls agree).
+    /// The pose people both sensors saw walk agree on, when it chose the best pose among the
+    /// walls' candidates (the pose itself is the walls').
     pub walkers: Option<WalkerFit>,
     /// The two watched together this long (s) and no one walked in either view: the walls
     /// alone decided, and the pose is not confirmed by people.
@@ -195,12 +195,13 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
     }
     let (mut distinct, mut evidence, refuted) = sift_by_people(a, b, distinct, p);
     let mut disputed: Option<WalkerFit> = None;
-    // People both saw walk propose a pose of their own; where they decide it, it leads.
+    // People both saw walk propose a pose of their own; where it is decisive, the walls'
+    // candidate in its basin leads.
     let walkers = decisive_walkers(a, b, p);
     let walkers = match walkers {
         Some(fit) if lead_with_walkers(&fit, &mut distinct, &mut evidence, p) => Some(fit),
-        // The walkers' own check of their pose failed: they lead nothing, but their
-        // disagreement with the walls is still reported below.
+        // No wall candidate there, or it failed the walkers' own check: they lead nothing,
+        // but a walls' best they contradict is refused below.
         Some(fit) => {
             disputed = Some(fit);
             None
