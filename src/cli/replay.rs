@@ -49,6 +49,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let mut sensors: Vec<SensorConfig> = Vec::new();
     let mut truth = std::collections::BTreeMap::new();
+    let mut moved = std::collections::BTreeMap::new();
     for file in &args.files {
         let recording = record::read(file)?;
         if recording.sensors.is_empty() {
@@ -66,6 +67,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     info.id
                 ))
                 .into());
+            }
+            if let Some(m) = super::run::recorded_moves(&recording).remove(&info.id) {
+                moved.insert(info.id.clone(), m);
             }
             if let Some(t) = info.truth {
                 truth.insert(info.id.clone(), t);
@@ -146,7 +150,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         tap: Some(tap),
         ..RunOptions::default()
     };
-    let printer = std::thread::spawn(move || Terminal::new(truth).follow(reports));
+    let printer =
+        std::thread::spawn(move || Terminal::new(truth).with_moves(moved).follow(reports));
     let summary = daemon_runtime()?.block_on(run_daemon(config, options));
     let _ = printer.join();
     finish(summary?, &args.out)

@@ -12,7 +12,9 @@ use std::time::Duration;
 use anyhow::Context as _;
 use scanfuse::daemon::config::{Config, Connect};
 use scanfuse::daemon::pipeline::Report;
-use scanfuse::daemon::protocol::{Event, EventKind, Poses, SensorPose, SensorState, Status};
+use scanfuse::daemon::protocol::{
+    Event, EventKind, PoseSource, Poses, SensorPose, SensorState, Status,
+};
 use scanfuse::daemon::run::{RunOptions, RunSummary, run_daemon};
 use scanfuse::geometry::{pose_error, pose2};
 use scanfuse::record;
@@ -43,7 +45,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ))
         .into());
     }
-    let truth = replay_truth(&config);
+    let (truth, moved) = replay_truth(&config);
     let (tap, reports) = mpsc::channel();
     let options = RunOptions {
         duration: args.duration,
@@ -74,7 +76,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
     )
     .map_err(stdout_error)?;
-    let printer = std::thread::spawn(move || Terminal::new(truth).follow(reports));
+    let printer =
+        std::thread::spawn(move || Terminal::new(truth).with_moves(moved).follow(reports));
     let summary = daemon_runtime()?.block_on(run_daemon(config.clone(), options));
     let _ = printer.join();
     finish(summary?, &config.site.state_dir)
@@ -102,10 +105,20 @@ pub(super) fn finish(summary: RunSummary, dir: &std::path::Path) -> anyhow::Resu
     }
 }
 
+/// Where each sensor of `recording` stands after its last move, by its recorded id.
+pub(super) fn recorded_moves(recording: &record::Recording) -> BTreeMap<String, TruthPose> {
+    let mut moves: Vec<&scanfuse::scan::MoveTruth> = recording.moves.iter().collect();
+    moves.sort_by_key(|m| m.at_ns);
+    moves
+        .into_iter()
+        .map(|m| (m.sensor_id.clone(), m.pose))
+        .collect()
+}
+
 /// The recordings' truth of every `replay:` sensor, by configured id.
-fn replay_truth(config: &Config) -> BTreeMap<String, TruthPose> {
+fn replay_truth(config: &Config) -> (BTreeMap<String, TruthPose>, BTreeMap<String, TruthPose>) {
     let mut recordings = BTreeMap::new();
-    let mut truth = BTreeMap::new();
+    let (mut truth, mut moved) = (BTreeMap::new(), BTreeMap::new());
     for s in &config.sensors {
         let Connect::Replay { file, sensor } = &s.connect else {
             continue;
@@ -120,8 +133,14 @@ fn replay_truth(config: &Config) -> BTreeMap<String, TruthPose> {
         {
             truth.insert(s.id.clone(), t);
         }
+        if let Some(m) = recording
+            .as_ref()
+            .and_then(|r| recorded_moves(r).remove(sensor))
+        {
+            moved.insert(s.id.clone(), m);
+        }
     }
-    truth
+    (truth, moved)
 }
 
 /// Prints reports: events as they come, the poses once registration has answered (again
@@ -129,6 +148,9 @@ fn replay_truth(config: &Config) -> BTreeMap<String, TruthPose> {
 /// line; otherwise the events are the log's, and only the pose table is printed here.
 pub(super) struct Terminal {
     truth: BTreeMap<String, TruthPose>,
+    /// Where a sensor the recording moves stands after its (last) move: a re-registered pose
+    /// is compared with that.
+    moved: BTreeMap<String, TruthPose>,
     console: Console,
     out: Box<dyn Write + Send>,
     /// Which sensors were placed in the pose table last printed; `None` before one.
@@ -144,6 +166,11 @@ impl Terminal {
         Terminal::with(truth, Console::detect(), Box::new(std::io::stdout()))
     }
 
+    /// The recordings' moves ([`recorded_moves`]).
+    pub(super) fn with_moves(self, moved: BTreeMap<String, TruthPose>) -> Terminal {
+        Terminal { moved, ..self }
+    }
+
     fn with(
         truth: BTreeMap<String, TruthPose>,
         console: Console,
@@ -151,6 +178,7 @@ impl Terminal {
     ) -> Terminal {
         Terminal {
             truth,
+            moved: BTreeMap::new(),
             console,
             out,
             shown: None,
@@ -257,7 +285,13 @@ impl Terminal {
                 p.id,
                 p.source.map_or("", |s| s.as_str())
             );
-            if let (Some(w_a), Some(t)) = (world_from_anchor, self.truth.get(&p.id)) {
+            // A re-registered sensor of a recording that moves it stands where it was moved to
+            // (in a looping replay, only until the recording starts over).
+            let truth = match p.source {
+                Some(PoseSource::ReRegistered) => self.moved.get(&p.id).or(self.truth.get(&p.id)),
+                _ => self.truth.get(&p.id),
+            };
+            if let (Some(w_a), Some(t)) = (world_from_anchor, truth) {
                 let truth = w_a.inverse() * pose2(t.x_m, t.y_m, t.yaw_deg.to_radians());
                 let (err_m, err_rad) = pose_error(&pose2(x, y, yaw.to_radians()), &truth);
                 let _ = write!(
@@ -591,6 +625,44 @@ mod tests {
         ] {
             assert!(!text.contains(absent), "{absent:?} in:\n{text}");
         }
+    }
+
+    #[test]
+    fn a_re_registered_sensor_is_compared_with_where_the_recording_moved_it() {
+        let t = |x_m: f64, yaw_deg: f64| TruthPose {
+            x_m,
+            y_m: 0.0,
+            yaw_deg,
+        };
+        let truth = BTreeMap::from([("gate".to_string(), t(0.0, 0.0)), ("b".into(), t(2.0, 0.0))]);
+        let moved = BTreeMap::from([("b".to_string(), t(2.5, 10.0))]);
+        let out = Shared::default();
+        let mut terminal =
+            Terminal::with(truth, Console::Journal, Box::new(out.clone())).with_moves(moved);
+        let pose = |id: &str, x_m: f64, yaw_deg: f64, source: PoseSource| {
+            let mut p = SensorPose::unregistered(id, "");
+            p.registered = true;
+            p.reason = None;
+            (p.x_m, p.y_m, p.yaw_deg, p.source) =
+                (Some(x_m), Some(0.0), Some(yaw_deg), Some(source));
+            p
+        };
+        terminal.print_poses(&Poses {
+            anchor: "gate".into(),
+            sensors: vec![
+                pose("gate", 0.0, 0.0, PoseSource::Registered),
+                pose("b", 2.5, 10.0, PoseSource::ReRegistered),
+            ],
+        });
+        let text = String::from_utf8(out.0.lock().unwrap().clone()).unwrap();
+        let b = text
+            .lines()
+            .find(|l| l.starts_with("b "))
+            .unwrap_or_default();
+        assert!(
+            b.ends_with("0.0   0.00"),
+            "error against the moved truth: {b}"
+        );
     }
 
     #[test]
