@@ -141,7 +141,7 @@ fn agree(ticks: &[&Tick], a_from_b: &Pose2, reach_m: f64, keep: bool) -> Agreeme
                 .filter(|(i, _)| !used.get(*i).copied().unwrap_or(true))
                 .map(|(i, a)| (i, (a - q).norm()))
                 .min_by(|x, y| x.1.total_cmp(&y.1));
-            if let Some((i, d)) = nearest.filter(|(_, d)| *d <= reach_m) {
+            if let Some((i, _)) = nearest.filter(|(_, d)| *d <= reach_m) {
                 if let Some(u) = used.get_mut(i) {
                     *u = true;
                 }
@@ -149,7 +149,6 @@ fn agree(ticks: &[&Tick], a_from_b: &Pose2, reach_m: f64, keep: bool) -> Agreeme
                 if keep && let Some(a) = tick.a.get(i) {
                     out.pairs.push((*a, *b, tick.t_s));
                 }
-                let _ = d;
             }
         }
     }
