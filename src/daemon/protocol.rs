@@ -79,6 +79,9 @@ pub enum Message {
     Survey(Survey),
     Event(Event),
     Frame(Frame),
+    Tracks(Tracks),
+    Zones(Zones),
+    Crossing(Crossing),
     Error(ErrorReply),
 }
 
@@ -418,6 +421,73 @@ pub struct FrameScan {
     /// Points in the site frame, flattened: `[x0, y0, x1, y1, …]`, m. Finite values only:
     /// JSON has no NaN (serde_json would write `null`).
     pub xy_m: Vec<f32>,
+}
+
+/// The people tracked at one instant, streamed to watchers with `tracks` on (and written by
+/// `scanfuse track`, one per line). Only confirmed tracks are listed; tentative ones are not.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Tracks {
+    /// The scans' clock (a recording's own stamps in a replay), ns since the Unix epoch.
+    pub t_ns: u64,
+    pub tracks: Vec<Track>,
+}
+
+/// One tracked person, site frame (building frame when a drawing is set).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Track {
+    /// Never reused within a run.
+    pub id: u64,
+    pub x_m: f64,
+    pub y_m: f64,
+    pub vx_m_s: f64,
+    pub vy_m_s: f64,
+    /// One-sigma position uncertainty (m): the root of the larger eigenvalue of the filter's
+    /// position covariance.
+    pub sigma_m: f64,
+    /// Seconds since the track was born.
+    pub age_s: f64,
+    /// Sensors whose detections updated the track at this instant (empty while coasting).
+    pub sensors: Vec<String>,
+}
+
+/// How many people stand in each configured zone (`[[zone]]`), streamed with `tracks`
+/// whenever a count changes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Zones {
+    pub t_ns: u64,
+    pub zones: Vec<ZoneCount>,
+}
+
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ZoneCount {
+    pub id: String,
+    /// Confirmed tracks inside the polygon now.
+    pub count: u32,
+    /// Ids of those tracks.
+    pub tracks: Vec<u64>,
+}
+
+/// Which way a track crossed a counting line (`[[line]] from → to`): to the left of the
+/// directed line, or to its right.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Side {
+    Left,
+    Right,
+}
+
+/// A track crossed a counting line, streamed with `tracks`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Crossing {
+    pub t_ns: u64,
+    /// The line's `id` from the config.
+    pub line: String,
+    pub track: u64,
+    /// The side it crossed to.
+    pub to: Side,
+    /// Crossings of this line since the daemon started, to each side.
+    pub left_total: u64,
+    pub right_total: u64,
 }
 
 /// A failure, with a sentence a person can act on.
