@@ -197,6 +197,9 @@ impl Default for ServerOptions {
 pub struct Publisher {
     events: broadcast::Sender<Arc<str>>,
     frames: broadcast::Sender<Arc<str>>,
+    /// Tracking output (`TRACKS`, `ZONES`, `CROSSING`), typed: the socket encodes it for its
+    /// watchers, other outputs (OSC, MQTT, the page) read the fields.
+    people: broadcast::Sender<Arc<Message>>,
 }
 
 impl Publisher {
@@ -205,6 +208,7 @@ impl Publisher {
         Publisher {
             events: broadcast::channel(backlog.max(1)).0,
             frames: broadcast::channel(backlog.max(1)).0,
+            people: broadcast::channel(backlog.max(1)).0,
         }
     }
 
@@ -232,6 +236,20 @@ impl Publisher {
         }
         let line = format!("{}\n", Message::Frame(frame).to_line());
         let _ = self.frames.send(line.into());
+    }
+
+    /// Publishes tracking output (`Message::Tracks`, `Zones` or `Crossing`) to every
+    /// output that subscribed; a no-op when none did.
+    pub fn people(&self, message: Message) {
+        if self.people.receiver_count() == 0 {
+            return;
+        }
+        let _ = self.people.send(Arc::new(message));
+    }
+
+    /// A stream of tracking output, as [`people`](Publisher::people) publishes it.
+    pub fn subscribe_people(&self) -> broadcast::Receiver<Arc<Message>> {
+        self.people.subscribe()
     }
 
     /// A stream of every event line (as a `watch` client with `status` gets them), for
