@@ -304,6 +304,11 @@ pub struct RegistrationConfig {
     pub refine_radius_m: f64,
     /// …and this far in heading, before falling back to a global search.
     pub refine_yaw_deg: f64,
+    /// Seconds of people walking kept per sensor (one scan per 0.1 s, ranges only: about
+    /// 1.3 MB for a 1081-beam unit over 30 s): unplaced sensors are tried again as walkers
+    /// accrue, and placed ones that walkers contradict are withdrawn. 0 turns it off (the
+    /// static view's window alone, where walkers only refute).
+    pub motion_buffer_s: f64,
 }
 
 impl Default for RegistrationConfig {
@@ -315,6 +320,7 @@ impl Default for RegistrationConfig {
             moved_persist_s: 0.5,
             refine_radius_m: 0.5,
             refine_yaw_deg: 10.0,
+            motion_buffer_s: 30.0,
         }
     }
 }
@@ -1069,6 +1075,9 @@ fn check_registration(r: &RegistrationConfig) -> Result<(), (&'static str, Strin
     positive("moved_persist_s", r.moved_persist_s, 60.0)?;
     positive("refine_radius_m", r.refine_radius_m, 10.0)?;
     positive("refine_yaw_deg", r.refine_yaw_deg, 180.0)?;
+    if !(0.0..=60.0).contains(&r.motion_buffer_s) {
+        return Err(("motion_buffer_s", "must be 0 (off) to 60".into()));
+    }
     Ok(())
 }
 

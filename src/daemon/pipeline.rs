@@ -549,6 +549,17 @@ impl Pipeline {
         }
     }
 
+    /// People walking confirmed the pose of sensor `id` that walls alone gave: its caveat goes.
+    pub(super) fn confirm(&self, id: &str) {
+        let mut inner = lock(&self.inner);
+        if let Some(entry) = inner.poses.get_mut(id) {
+            entry.caveat = entry
+                .caveat
+                .as_deref()
+                .and_then(crate::register::site::confirmed_caveat);
+        }
+    }
+
     /// Why sensor `id` cannot be placed whatever registration says, while it sees almost
     /// nothing.
     pub fn blind_reason(&self, id: &str) -> Option<String> {

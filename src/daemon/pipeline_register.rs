@@ -23,9 +23,15 @@ use super::pipeline::{Pipeline, PoseEntry};
 use super::protocol::{EventKind, PoseSource};
 use super::queue::WorkerEnd;
 use super::reorder::Reorder;
-use crate::features::static_view;
+use crate::features::static_view::{PERSIST_MIN_SCANS, PERSIST_SHARE, PERSIST_TOL_M};
+use crate::features::{persistent_view, static_view};
+use crate::geometry::Pose2;
 use crate::geometry::{Mount, Pose3, pose2};
-use crate::register::site::{Prior, SensorInput, SiteParams, register_site};
+use crate::register::motion::{MotionEvidence, MotionTrack, co_motion};
+use crate::register::pair::Abstain;
+use crate::register::site::{
+    Prior, SensorInput, SiteParams, SiteResult, UNCONFIRMED, confirmed_caveat, register_site,
+};
 use crate::register::{RegisterParams, ScanModel};
 use crate::scan::{Scan, ScanGeometry};
 
@@ -40,6 +46,10 @@ pub const CHANGE_TOL_M: f32 = 0.2;
 pub const UNCHANGED_TO_RESET: u32 = 3;
 /// Scans are taken in stamp order; a sensor this far behind the newest stamp holds none back.
 pub const REORDER_HOLD_S: f64 = 0.5;
+/// With a motion buffer, a sensor that failed is tried again this soon, then after twice as
+/// long each time (up to [`RETRY_S`]): people who walk meanwhile may settle it. Placed
+/// sensors are checked against the walkers this often.
+pub const RECHECK_S: f64 = 5.0;
 
 /// One scan for the worker.
 #[derive(Debug, Clone)]
@@ -127,6 +137,16 @@ struct Track {
     /// Placed by hand: stands where it was put, and only a move detected or a request
     /// re-registers it.
     pinned: bool,
+    /// One scan per motion tick (ranges only) over the last `motion_buffer_s`, since it last
+    /// needed a pose: the walkers registration weighs, and a static view through a crowd.
+    motion: VecDeque<Scan>,
+    /// Registrations that failed since it last needed a pose (the retries back off).
+    failures: u32,
+    /// After a failure it is not tried again before this stream time (ns), unless the
+    /// others' registration places it meanwhile.
+    retry_at_ns: u64,
+    /// The caveat its pose came with ("not confirmed by people…").
+    caveat: Option<String>,
 }
 
 /// Share of the background's returns that `scan` now sees beyond (by more than
@@ -152,6 +172,36 @@ pub fn changed_fraction(background: &[f32], scan: &Scan) -> Option<f64> {
     (seen > 0).then(|| changed as f64 / seen as f64)
 }
 
+/// Keeps `scan` in `motion` as the scan of its tick (`tick_ns` apart on the common clock, the
+/// one nearest the tick, as [`crate::register::motion::MotionTrack`] picks its frames), ranges
+/// only, and lets go of scans older than `keep_ns` before it.
+fn keep_tick(motion: &mut VecDeque<Scan>, scan: &Scan, tick_ns: u64, keep_ns: u64) {
+    let tick_ns = tick_ns.max(1);
+    let tick = |t: u64| (t + tick_ns / 2) / tick_ns;
+    let off = |t: u64| t.abs_diff(tick(t) * tick_ns);
+    if let Some(last) = motion.back() {
+        if scan.stamp_ns < last.stamp_ns {
+            return;
+        }
+        if tick(last.stamp_ns) == tick(scan.stamp_ns) {
+            if off(last.stamp_ns) <= off(scan.stamp_ns) {
+                return;
+            }
+            motion.pop_back();
+        }
+    }
+    motion.push_back(Scan {
+        intensities: Vec::new(),
+        ..scan.clone()
+    });
+    while motion
+        .front()
+        .is_some_and(|s| scan.stamp_ns.saturating_sub(s.stamp_ns) > keep_ns)
+    {
+        motion.pop_front();
+    }
+}
+
 /// A sensor whose view of static structure changed consistently.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Moved {
@@ -163,6 +213,40 @@ pub struct Moved {
 }
 
 impl Track {
+    /// Its static view for registration and its scans of people walking: through a crowd
+    /// (per beam, what keeps coming back) once the motion buffer holds enough scans for that to
+    /// mean something, the median of the last `window_s` before.
+    fn view(&self, window_s: f64, motion_s: f64) -> Option<(Scan, Vec<Scan>)> {
+        let recent: Vec<Scan> = self.scans.iter().cloned().collect();
+        if self.motion.len() < PERSIST_MIN_SCANS {
+            let view = static_view(&recent, window_s)?;
+            // The motion buffer reaches back at least as far as the recent scans.
+            let walking = if self.motion.is_empty() {
+                recent
+            } else {
+                self.motion.iter().cloned().collect()
+            };
+            return Some((view, walking));
+        }
+        let walking: Vec<Scan> = self.motion.iter().cloned().collect();
+        let view = persistent_view(&walking, motion_s, PERSIST_SHARE, PERSIST_TOL_M)
+            .or_else(|| static_view(&recent, window_s))?;
+        Some((view, walking))
+    }
+
+    /// Waiting after a failure to be tried again.
+    fn waiting(&self, now_ns: u64) -> bool {
+        self.retry_at_ns > now_ns
+    }
+
+    /// Bytes its motion buffer holds.
+    fn motion_bytes(&self) -> usize {
+        self.motion
+            .iter()
+            .map(|s| std::mem::size_of::<Scan>() + s.ranges_m.len() * 4)
+            .sum()
+    }
+
     /// A static view's worth of scans, all newer than what the sensor needs.
     fn ready(&self, window_s: f64) -> bool {
         let (Some(first), Some(last)) = (self.scans.front(), self.scans.back()) else {
@@ -185,6 +269,24 @@ pub struct Outcome {
     pub method: Method,
     /// Why local refinement was not accepted, when it was tried first.
     pub local_refused: Option<String>,
+    /// When it failed: it is tried again in this many seconds of stream time (absent at the
+    /// end of the scans).
+    pub retry_in_s: Option<f64>,
+}
+
+/// What the walkers say, later, of a placed sensor's pose.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Verdict {
+    /// People walking contradict it, and none confirm it: it is withdrawn and registered
+    /// again; `reason` says why, for a person.
+    Withdrawn { id: String, reason: String },
+    /// It was placed by the walls alone (not confirmed by people); now someone both it and
+    /// `with` saw walking stands where its pose puts them.
+    Confirmed {
+        id: String,
+        with: String,
+        seen: usize,
+    },
 }
 
 /// The worker's state: recent scans per sensor and who needs a pose.
@@ -198,6 +300,10 @@ pub struct Registrar {
     bounds: LocalBounds,
     params: RegisterParams,
     site_params: SiteParams,
+    /// Seconds of motion kept per sensor; 0: none.
+    motion_s: f64,
+    /// Stream time of the last check of placed sensors against the walkers.
+    checked_ns: u64,
     /// Stream time: the newest stamp pushed. Every timer here runs on it, so a replay at any
     /// speed registers as it would live.
     stream_ns: u64,
@@ -217,6 +323,8 @@ impl Registrar {
             },
             params: RegisterParams::default(),
             site_params: SiteParams::default(),
+            motion_s: config.motion_buffer_s,
+            checked_ns: 0,
             stream_ns: 0,
         }
     }
@@ -258,6 +366,10 @@ impl Registrar {
                         changed_since_ns: None,
                         unchanged_run: 0,
                         pinned: false,
+                        motion: VecDeque::new(),
+                        failures: 0,
+                        retry_at_ns: 0,
+                        caveat: None,
                     },
                 );
             }
@@ -292,6 +404,9 @@ impl Registrar {
             Command::Reregister { id, after_ns } => {
                 if let Some(t) = self.tracks.get_mut(&id) {
                     t.scans.clear();
+                    t.motion.clear();
+                    t.failures = 0;
+                    t.retry_at_ns = 0;
                     t.background = None;
                     t.background_model = None;
                     t.changed_since_ns = None;
@@ -343,7 +458,10 @@ impl Registrar {
                     t.background = None;
                     t.background_model = None;
                     t.changed_since_ns = None;
+                    t.failures = 0;
+                    t.retry_at_ns = 0;
                     t.scans.retain(|s| s.stamp_ns >= since);
+                    t.motion.retain(|s| s.stamp_ns >= since);
                 }
             } else {
                 t.unchanged_run += 1;
@@ -356,6 +474,14 @@ impl Registrar {
             && stamp_ns < since_ns
         {
             return moved;
+        }
+        if self.motion_s > 0.0 {
+            keep_tick(
+                &mut t.motion,
+                &item.scan,
+                (params.motion.tick_s * 1e9) as u64,
+                (self.motion_s * 1e9) as u64,
+            );
         }
         t.scans.push_back(item.scan);
         while t
@@ -375,6 +501,125 @@ impl Registrar {
                 .map(|bg| ScanModel::from_scan(bg, t.geometry.as_ref(), &t.mount, params));
         }
         moved
+    }
+
+    /// True when the placed sensors are due a check against the walkers gathered since.
+    pub fn check_due(&self, now_ns: u64) -> bool {
+        self.motion_s > 0.0
+            && now_ns.saturating_sub(self.checked_ns) as f64 >= RECHECK_S * 1e9
+            && self.tracks.values().any(|t| t.need == Need::Nothing)
+    }
+
+    /// Weighs each pair of placed sensors' walkers under the poses they have. A sensor some
+    /// pair refutes (its walkers stand where the other saw through at that moment) and no pair
+    /// confirms is withdrawn: it needs a pose again, tried after [`RECHECK_S`]. The anchor,
+    /// sensors placed by hand and surveyed ones stand. A sensor placed by walls alone that a
+    /// pair now confirms is reported confirmed.
+    pub fn check(&mut self, now_ns: u64) -> Vec<Verdict> {
+        self.checked_ns = now_ns;
+        let placed: Vec<(&String, Pose2, MotionTrack)> = self
+            .tracks
+            .iter()
+            .filter(|(_, t)| t.need == Need::Nothing && t.motion.len() >= 2)
+            .filter_map(|(id, t)| {
+                let pose = t.pose?.planar();
+                let (view, walking) = t.view(self.window_s, self.motion_s)?;
+                let motion = MotionTrack::new(
+                    &walking,
+                    &view,
+                    t.geometry.as_ref(),
+                    &t.mount,
+                    &self.params.project,
+                    &self.params.motion,
+                )?;
+                Some((id, pose, motion))
+            })
+            .collect();
+        let mut refuted: BTreeMap<&str, Vec<(&str, MotionEvidence)>> = BTreeMap::new();
+        let mut confirmed: BTreeMap<&str, Vec<(&str, usize)>> = BTreeMap::new();
+        for (i, (a, pose_a, ma)) in placed.iter().enumerate() {
+            for (b, pose_b, mb) in placed.iter().skip(i + 1) {
+                let e = co_motion(ma, mb, &(pose_a.inverse() * pose_b), &self.params.motion);
+                if e.refutes(&self.params.motion) {
+                    refuted.entry(a).or_default().push((b, e));
+                    refuted.entry(b).or_default().push((a, e));
+                } else if e.seen > 0 {
+                    confirmed.entry(a).or_default().push((b, e.seen));
+                    confirmed.entry(b).or_default().push((a, e.seen));
+                }
+            }
+        }
+        let mut verdicts = Vec::new();
+        for (id, _, _) in &placed {
+            let Some(t) = self.tracks.get(id.as_str()) else {
+                continue;
+            };
+            if **id == self.anchor || t.pinned || t.survey.is_some() {
+                continue;
+            }
+            let confirms = confirmed.get(id.as_str());
+            match (refuted.get(id.as_str()), confirms) {
+                (Some(against), None) => {
+                    let said: Vec<String> = against
+                        .iter()
+                        .map(|(other, e)| {
+                            format!(
+                                "with {other}, {} walkers stood where the other saw straight through ({} seen by both)",
+                                e.seen_through, e.seen
+                            )
+                        })
+                        .collect();
+                    verdicts.push(Verdict::Withdrawn {
+                        id: (*id).clone(),
+                        reason: format!(
+                            "people walking contradict its pose ({}), and no other sensor confirms it; registering it again",
+                            said.join("; ")
+                        ),
+                    });
+                }
+                (_, Some(with)) if t.caveat.as_deref().is_some_and(|c| c.contains(UNCONFIRMED)) => {
+                    if let Some((other, seen)) = with.iter().max_by_key(|(_, seen)| *seen) {
+                        verdicts.push(Verdict::Confirmed {
+                            id: (*id).clone(),
+                            with: other.to_string(),
+                            seen: *seen,
+                        });
+                    }
+                }
+                _ => {}
+            }
+        }
+        for v in &verdicts {
+            match v {
+                Verdict::Withdrawn { id, .. } => {
+                    if let Some(t) = self.tracks.get_mut(id) {
+                        t.need = Need::Pose {
+                            since_ns: 0,
+                            source: PoseSource::ReRegistered,
+                            refine_from: None,
+                        };
+                        t.pose = None;
+                        t.caveat = None;
+                        t.failures = 1;
+                        t.retry_at_ns = now_ns + (RECHECK_S * 1e9) as u64;
+                    }
+                }
+                Verdict::Confirmed { id, .. } => {
+                    if let Some(t) = self.tracks.get_mut(id) {
+                        t.caveat = t.caveat.as_deref().and_then(confirmed_caveat);
+                    }
+                }
+            }
+        }
+        verdicts
+    }
+
+    /// Bytes held in motion buffers, per sensor.
+    pub fn motion_bytes(&self) -> BTreeMap<&str, usize> {
+        self.tracks
+            .iter()
+            .map(|(id, t)| (id.as_str(), t.motion_bytes()))
+            .collect()
     }
 
     /// Sensors waiting for a pose.
@@ -426,7 +671,7 @@ impl Registrar {
         let pending: Vec<&Track> = self
             .tracks
             .values()
-            .filter(|t| t.need != Need::Nothing)
+            .filter(|t| t.need != Need::Nothing && !t.waiting(now_ns))
             .collect();
         if !pending.iter().any(|t| t.ready(self.window_s)) {
             return false;
@@ -499,7 +744,7 @@ impl Registrar {
                 continue;
             };
             // Registered just now, or waiting to retry: its reason is already out.
-            if since_ns > now_ns || outcomes.iter().any(|o| &o.id == id) {
+            if since_ns > now_ns || t.waiting(now_ns) || outcomes.iter().any(|o| &o.id == id) {
                 continue;
             }
             let had_s = match (t.scans.front(), t.scans.back()) {
@@ -526,6 +771,7 @@ impl Registrar {
                 pose: Err(reason),
                 method: Method::Global,
                 local_refused: t.local_refused.take(),
+                retry_in_s: None,
             });
         }
         outcomes
@@ -571,6 +817,7 @@ impl Registrar {
                         }),
                         method: Method::Local,
                         local_refused: None,
+                        retry_in_s: None,
                     });
                 }
                 Err(reason) => {
@@ -600,13 +847,12 @@ impl Registrar {
         let inputs: Vec<SensorInput> = ready
             .iter()
             .filter_map(|(id, t)| {
-                let scans: Vec<Scan> = t.scans.iter().cloned().collect();
-                let view = static_view(&scans, window_s)?;
+                let (view, walking) = t.view(window_s, self.motion_s)?;
                 let geometry = t.geometry.as_ref();
                 Some(SensorInput {
                     id: (*id).clone(),
                     model: ScanModel::from_scan(&view, geometry, &t.mount, &self.params)
-                        .with_motion(&scans, &view, geometry, &t.mount, &self.params),
+                        .with_motion(&walking, &view, geometry, &t.mount, &self.params),
                     mount: t.mount,
                     prior: t.survey.map(|s| Prior {
                         anchor_from_sensor: pose2(s.x_m, s.y_m, s.yaw_rad),
@@ -620,6 +866,13 @@ impl Registrar {
             return Vec::new();
         };
         let site = register_site(&inputs, anchor, &self.params, &self.site_params);
+        let hints: BTreeMap<String, String> = if self.motion_s > 0.0 {
+            (0..site.sensors.len())
+                .filter_map(|i| Some((site.sensors.get(i)?.id.clone(), walk_hint(&site, i)?)))
+                .collect()
+        } else {
+            BTreeMap::new()
+        };
         let mut outcomes = Vec::new();
         for placement in site.sensors {
             let Some(track) = self.tracks.get_mut(&placement.id) else {
@@ -628,7 +881,17 @@ impl Registrar {
             let Need::Pose { source, .. } = track.need else {
                 continue;
             };
-            let pose = match placement.pose {
+            // Waiting to be tried again: only a placement is news.
+            if track.waiting(now_ns) && placement.pose.is_err() {
+                continue;
+            }
+            let placement_pose = placement
+                .pose
+                .map_err(|reason| match hints.get(&placement.id) {
+                    Some(hint) => format!("{reason}; {hint}"),
+                    None => reason,
+                });
+            let pose = match placement_pose {
                 Ok(placed) => Ok(PoseEntry {
                     site_from_sensor: placed.pose,
                     sigma_x_m: Some(placed.sigma_x_m),
@@ -644,28 +907,81 @@ impl Registrar {
                     None => Err(reason),
                 },
             };
-            track.need = match pose {
-                Ok(_) => Need::Nothing,
-                Err(_) => Need::Pose {
-                    since_ns: now_ns + (RETRY_S * 1e9) as u64,
-                    source,
-                    refine_from: None,
-                },
-            };
-            if let Ok(entry) = &pose {
-                track.pose = Some(entry.site_from_sensor);
-            } else {
-                track.scans.clear();
+            let mut retry_in_s = None;
+            match &pose {
+                Ok(entry) => {
+                    track.need = Need::Nothing;
+                    track.pose = Some(entry.site_from_sensor);
+                    track.caveat = entry.caveat.clone();
+                    track.failures = 0;
+                    track.retry_at_ns = 0;
+                }
+                Err(_) if self.motion_s > 0.0 => {
+                    // The scans it has stay: the walkers gathered so far count next time.
+                    track.failures += 1;
+                    let wait_s = backoff_s(track.failures);
+                    track.retry_at_ns = now_ns + (wait_s * 1e9) as u64;
+                    retry_in_s = Some(wait_s);
+                }
+                Err(_) => {
+                    track.need = Need::Pose {
+                        since_ns: now_ns + (RETRY_S * 1e9) as u64,
+                        source,
+                        refine_from: None,
+                    };
+                    track.scans.clear();
+                    retry_in_s = Some(RETRY_S);
+                }
             }
             outcomes.push(Outcome {
                 id: placement.id,
                 pose,
                 method: Method::Global,
                 local_refused: track.local_refused.take(),
+                retry_in_s,
             });
         }
         outcomes
     }
+}
+
+/// What would settle unplaced sensor `i` where people can: the placed sensor it shares the
+/// most view with in a pair the walls leave open (look-alike poses, a corridor seen
+/// lengthwise) or that walkers have not yet confirmed.
+fn walk_hint(site: &SiteResult, i: usize) -> Option<String> {
+    let placed = |k: usize| site.sensors.get(k).is_some_and(|s| s.pose.is_ok());
+    if placed(i) {
+        return None;
+    }
+    let (other, _) = site
+        .pairs
+        .iter()
+        .filter(|p| {
+            matches!(
+                p.result.verdict,
+                Err(Abstain::Ambiguous { .. }
+                    | Abstain::Unconfirmed { .. }
+                    | Abstain::WalkersDisagree { .. }
+                    | Abstain::PeopleDisagree { .. }
+                    | Abstain::Degenerate { .. })
+            )
+        })
+        .filter_map(|p| match (p.a == i, p.b == i) {
+            (true, _) => Some((p.b, p.result.overlap)),
+            (_, true) => Some((p.a, p.result.overlap)),
+            _ => None,
+        })
+        .filter(|&(k, _)| placed(k))
+        .max_by(|x, y| x.1.total_cmp(&y.1))?;
+    let (me, them) = (&site.sensors.get(i)?.id, &site.sensors.get(other)?.id);
+    Some(format!(
+        "waiting for people to walk through the view {me} shares with {them}: walkers both see settle what the walls leave open"
+    ))
+}
+
+/// How long a sensor that failed `failures` times in a row waits to be tried again (s).
+fn backoff_s(failures: u32) -> f64 {
+    (RECHECK_S * 2f64.powi(failures.saturating_sub(1).min(8) as i32)).min(RETRY_S)
 }
 
 /// The pose an installer surveyed, as the pipeline holds it.
@@ -720,6 +1036,9 @@ pub fn run_worker(
         if registrar.due(registrar.stream_ns()) {
             register_and_publish(&pipeline, registrar);
         }
+        if registrar.check_due(registrar.stream_ns()) {
+            check_and_publish(&pipeline, registrar);
+        }
     };
     let arrive = |order: &mut Reorder<WorkItem>, item: WorkItem| {
         if let Some(c) = &consumed {
@@ -767,6 +1086,9 @@ pub fn run_worker(
                 if registrar.due(registrar.stream_ns()) {
                     register_and_publish(&pipeline, &mut registrar);
                 }
+                if registrar.check_due(registrar.stream_ns()) {
+                    check_and_publish(&pipeline, &mut registrar);
+                }
             }
         }
     }
@@ -783,8 +1105,39 @@ fn register_and_publish(pipeline: &Pipeline, registrar: &mut Registrar) {
     publish(pipeline, outcomes, true);
 }
 
-/// Announces each outcome, hands it to the pipeline and saves; `retrying`: a failed sensor
-/// is tried again after [`RETRY_S`] (not so once the scans have ended).
+/// Checks the placed sensors against the walkers; withdraws what they contradict and reports
+/// what they confirm.
+fn check_and_publish(pipeline: &Pipeline, registrar: &mut Registrar) {
+    let verdicts = registrar.check(registrar.stream_ns());
+    if verdicts.is_empty() {
+        return;
+    }
+    for verdict in verdicts {
+        match verdict {
+            Verdict::Withdrawn { id, reason } => {
+                pipeline.announce(
+                    EventKind::Withdrawn,
+                    Some(&id),
+                    format!("{id} withdrawn: {reason}"),
+                );
+                pipeline.set_pose(&id, Err(format!("withdrawn: {reason}")));
+            }
+            Verdict::Confirmed { id, with, seen } => {
+                let message = format!(
+                    "{id} is confirmed by people: {seen} walkers it and {with} saw stood where its pose puts them"
+                );
+                pipeline.confirm(&id);
+                pipeline.announce(EventKind::Registered, Some(&id), message);
+            }
+        }
+    }
+    if let Err(e) = pipeline.save_now() {
+        pipeline.announce(EventKind::Error, None, format!("cannot save poses: {e}"));
+    }
+}
+
+/// Announces each outcome, hands it to the pipeline and saves; a failed sensor says when it
+/// is tried again (not once the scans have ended).
 fn publish(pipeline: &Pipeline, outcomes: Vec<Outcome>, retrying: bool) {
     if outcomes.is_empty() {
         return;
@@ -826,10 +1179,9 @@ fn publish(pipeline: &Pipeline, outcomes: Vec<Outcome>, retrying: bool) {
             Err(reason) => {
                 // A unit that sees nothing fails for that reason, whatever the walls say.
                 let reason = pipeline.blind_reason(&outcome.id).unwrap_or(reason.clone());
-                let again = if retrying {
-                    format!("; trying again in {RETRY_S:.0} s")
-                } else {
-                    String::new()
+                let again = match outcome.retry_in_s {
+                    Some(s) if retrying => format!("; trying again in {s:.0} s"),
+                    _ => String::new(),
                 };
                 pipeline.announce(
                     EventKind::Error,
@@ -1083,5 +1435,194 @@ mod tests {
         // The anchor alone registered (it is the site frame), with no pair to fail.
         assert!(outcomes.iter().any(|o| o.id == "a"), "{outcomes:?}");
         assert!(r.finish(SystemTime::now()).is_empty(), "said once");
+    }
+}
+
+/// The motion buffer against people walking, on simulated scans: a room that is the same
+/// turned end for end, two sensors facing each other, two people crossing it.
+#[cfg(test)]
+mod walker_tests {
+    use super::*;
+    use crate::geometry::pose_error;
+    use crate::sim::Simulation;
+    use crate::sim::plan::Plan;
+
+    /// Doors at both ends, symmetric too; people come in through them after a few seconds.
+    const TWIN: &str = r#"
+name = "twin"
+[[wall]]
+points = [[0, 0], [12, 0], [12, 6], [0, 6]]
+closed = true
+[[door]]
+at = [0, 3]
+width_m = 1.0
+[[door]]
+at = [12, 3]
+width_m = 1.0
+[[sensor]]
+id = "a"
+model = "UTM-30LX-EW"
+x = 2.0
+y = 3.0
+[[sensor]]
+id = "b"
+model = "UTM-30LX-EW"
+x = 10.0
+y = 3.0
+yaw_deg = 180
+[[crowd]]
+people = 0
+max_people = 4
+rate_per_min = 20
+stop_share = 0.0
+group_share = 0.0
+"#;
+
+    /// Where b stands in a's frame.
+    fn truth() -> Pose2 {
+        pose2(8.0, 0.0, std::f64::consts::PI)
+    }
+
+    /// What the worker reported, by stream time (s from the start).
+    #[derive(Default)]
+    struct Seen {
+        outcomes: Vec<(f64, Outcome)>,
+        verdicts: Vec<(f64, Verdict)>,
+    }
+
+    /// Feeds `seconds` of the twin room to a registrar holding `a` (the anchor, placed) and
+    /// `b` (placed at `b_pose`, or pending), as the worker does.
+    fn run(b_pose: Option<Pose2>, seconds: f64) -> (Registrar, Seen) {
+        let plan = Plan::from_toml(TWIN, "twin").expect("plan");
+        let mut sim = Simulation::new(&plan, 3).expect("simulates");
+        let infos = sim.sensors().to_vec();
+        let mut r = Registrar::new("a", &RegistrationConfig::default());
+        let mount = Mount {
+            height_m: Some(1.0),
+            pitch_rad: 0.0,
+        };
+        let placed = |p: Pose2| Pose3::from_planar(&p, 1.0, 0.0);
+        // The anchor's frame is the site's.
+        for (id, pose) in [("a", Some(pose2(0.0, 0.0, 0.0))), ("b", b_pose)] {
+            let command = Command::Add {
+                id: id.into(),
+                mount,
+                survey: None,
+                pose: pose.map(placed),
+            };
+            r.command(command, 0);
+        }
+        let start = sim.start_ns();
+        let mut seen = Seen::default();
+        let _ = sim.run(seconds, |i, scan| -> Result<(), ()> {
+            let info = &infos[i];
+            r.push(WorkItem {
+                sensor: info.id.clone(),
+                scan,
+                geometry: info.geometry,
+            });
+            let now = r.stream_ns();
+            let t_s = now.saturating_sub(start) as f64 * 1e-9;
+            if r.due(now) {
+                let outcomes = r.register(now, SystemTime::now());
+                seen.outcomes.extend(outcomes.into_iter().map(|o| (t_s, o)));
+            }
+            if r.check_due(now) {
+                seen.verdicts
+                    .extend(r.check(now).into_iter().map(|v| (t_s, v)));
+            }
+            Ok(())
+        });
+        (r, seen)
+    }
+
+    #[test]
+    fn a_pose_people_contradict_is_withdrawn_and_the_right_one_stands() {
+        // b placed where the room turned end for end puts it: on a, facing the same way.
+        let (_, seen) = run(Some(pose2(0.0, 0.0, 0.0)), 12.0);
+        let withdrawn: Vec<&str> = seen
+            .verdicts
+            .iter()
+            .filter_map(|(_, v)| match v {
+                Verdict::Withdrawn { id, reason } => {
+                    assert!(reason.contains("with a"), "{reason}");
+                    Some(id.as_str())
+                }
+                Verdict::Confirmed { .. } => None,
+            })
+            .collect();
+        assert_eq!(withdrawn.first(), Some(&"b"), "{:?}", seen.verdicts);
+
+        let (_, seen) = run(Some(truth()), 12.0);
+        assert!(
+            seen.verdicts
+                .iter()
+                .all(|(_, v)| !matches!(v, Verdict::Withdrawn { .. })),
+            "{:?}",
+            seen.verdicts
+        );
+    }
+
+    #[test]
+    fn walls_leave_the_twin_room_open_and_people_settle_it_within_seconds() {
+        let (r, seen) = run(None, 20.0);
+        let placed = seen.outcomes.iter().find(|(_, o)| o.pose.is_ok());
+        let Some((
+            t_s,
+            Outcome {
+                pose: Ok(entry), ..
+            },
+        )) = placed
+        else {
+            panic!("b never placed: {:?}", seen.outcomes);
+        };
+        let (dt, dyaw) = pose_error(&entry.site_from_sensor.planar(), &truth());
+        assert!(
+            dt < 0.05 && dyaw < 0.5f64.to_radians(),
+            "{dt} m, {dyaw} rad"
+        );
+        // The first try, from about a second of scans, cannot tell the room from itself
+        // turned; the retries with the walkers gathered since can.
+        let first = seen.outcomes.first().map(|(_, o)| o.pose.is_err());
+        assert_eq!(first, Some(true), "{:?}", seen.outcomes);
+        assert!(*t_s <= 16.0, "placed only at {t_s:.1} s");
+        // No pose ever reported before it was right.
+        assert_eq!(
+            seen.outcomes.iter().filter(|(_, o)| o.pose.is_ok()).count(),
+            1
+        );
+        // The motion buffer stays within 2 MB a sensor (1081-beam units over 30 s: ~1.3 MB).
+        assert!(r.motion_bytes().values().all(|&b| b > 0 && b <= 2 << 20));
+    }
+
+    #[test]
+    fn the_motion_buffer_keeps_one_scan_a_tick_over_its_span() {
+        let mut buffer = VecDeque::new();
+        let tick = 100_000_000;
+        let scan = |t: u64| Scan {
+            stamp_ns: t,
+            sensor_stamp_ms: None,
+            start_angle_rad: -1.0,
+            end_angle_rad: 1.0,
+            ranges_m: vec![1.0; 1081],
+            intensities: vec![1.0; 1081],
+        };
+        // 40 Hz for 40 s into a 30 s buffer.
+        for k in 0..1600u64 {
+            keep_tick(&mut buffer, &scan(k * 25_000_000), tick, 30_000_000_000);
+        }
+        assert!((300..=302).contains(&buffer.len()), "{}", buffer.len());
+        assert!(buffer.iter().all(|s| s.intensities.is_empty()));
+        // The one kept per tick is the nearest to it (the newest may yet be replaced).
+        let settled = buffer.iter().take(buffer.len() - 1);
+        assert!(
+            settled.clone().all(|s| s.stamp_ns % tick == 0),
+            "not on ticks"
+        );
+        let bytes: usize = buffer
+            .iter()
+            .map(|s| std::mem::size_of::<Scan>() + s.ranges_m.len() * 4)
+            .sum();
+        assert!(bytes < 2 << 20, "{bytes} bytes");
     }
 }

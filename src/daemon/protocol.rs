@@ -388,6 +388,8 @@ pub enum EventKind {
     ConfigReloaded,
     /// A survey was set or cleared by hand (`survey` / `unsurvey`).
     Surveyed,
+    /// A placed pose that people walking later contradicted was taken back.
+    Withdrawn,
     Error,
 }
 

@@ -7,6 +7,24 @@ use crate::geometry::{Mount, Pose2, Pose3, pose_error, pose2, wrap_angle_rad, ya
 use nalgebra::{DMatrix, DVector, Matrix3};
 use rayon::prelude::*;
 
+/// How a caveat begins when walls alone placed a sensor and nobody walked to confirm it (the
+/// daemon clears it once people do).
+pub const UNCONFIRMED: &str = "is not confirmed by people";
+
+/// `caveat` once people confirmed the pose: without its [`UNCONFIRMED`] part (what else it
+/// says, such as resting on one pair, stays).
+pub fn confirmed_caveat(caveat: &str) -> Option<String> {
+    let rest = match caveat.find(UNCONFIRMED) {
+        Some(k) => caveat
+            .get(..k)
+            .unwrap_or_default()
+            .trim_end_matches("; it "),
+        None => caveat,
+    };
+    let rest = rest.trim();
+    (!rest.is_empty()).then(|| rest.to_string())
+}
+
 /// One sensor to place.
 #[derive(Debug, Clone)]
 pub struct SensorInput {
@@ -392,8 +410,8 @@ pub fn register_site(
             .flatten()
             .map(|watched_s| {
                 format!(
-                    "is not confirmed by people: no one walked in {watched_s:.0} s, so the walls \
-                     alone placed it; walk through its shared views while recording to confirm it"
+                    "{UNCONFIRMED}: no one walked in {watched_s:.0} s, so the walls alone placed \
+                     it; walk through its shared views while recording to confirm it"
                 )
             });
         let thin = (i != anchor && !surveyed && partners.len() < sp.confirming_pairs).then(|| {
