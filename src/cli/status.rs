@@ -88,11 +88,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 Ok(Message::Event(e)) => {
                     writeln!(out, "{}", render_event(&e)).map_err(stdout_error)?
                 }
-                Ok(Message::Tracks(t)) => {
-                    if last_tracks_ns.is_none_or(|last| t.t_ns >= last + TRACKS_EVERY_NS) {
-                        last_tracks_ns = Some(t.t_ns);
-                        writeln!(out, "{}", render_tracks(&t)).map_err(stdout_error)?
-                    }
+                Ok(Message::Tracks(t))
+                    if last_tracks_ns.is_none_or(|last| {
+                        t.t_ns < last || t.t_ns >= last.saturating_add(TRACKS_EVERY_NS)
+                    }) =>
+                {
+                    last_tracks_ns = Some(t.t_ns);
+                    writeln!(out, "{}", render_tracks(&t)).map_err(stdout_error)?
                 }
                 Ok(Message::Zones(z)) => {
                     writeln!(out, "{}", render_zones(&z)).map_err(stdout_error)?
