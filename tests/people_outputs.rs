@@ -332,11 +332,8 @@ async fn mqtt_reaches_a_real_broker_and_survives_it_going_away() {
     }
     // Walk north through the door, as the tracker would report it.
     let mut received: Vec<(String, Message)> = Vec::new();
-    let mut t_ns = 2;
-    let walk = [-0.5, 0.5, 1.0];
-    for y in walk {
+    for (t_ns, y) in [(2, -0.5), (3, 0.5), (4, 1.0)] {
         publisher.people(at(t_ns, 7, y));
-        t_ns += 1;
     }
     while !received
         .iter()
