@@ -11,6 +11,7 @@
 //! when its client is missing, except under CI.
 
 mod common;
+mod daemon_run_common;
 
 use std::io::{BufRead, BufReader};
 use std::net::TcpListener;
@@ -377,4 +378,35 @@ async fn mqtt_reaches_a_real_broker_and_survives_it_going_away() {
     drop(broker_process);
     let _ = stop_tx.send(());
     task.await.unwrap();
+}
+
+/// The real daemon starts its people outputs from the site file: `scanfuse run` with `[mqtt]`
+/// and a zone connects to the broker (its log says so once the broker acknowledged it).
+#[test]
+fn the_daemon_starts_its_outputs_from_the_config() {
+    let test = "the_daemon_starts_its_outputs_from_the_config";
+    let Some((broker, _)) = mosquitto(test) else {
+        return;
+    };
+    let runtime = tokio::runtime::Runtime::new().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let port = free_port();
+    let _broker = runtime.block_on(start_broker(&broker, dir.path(), port));
+    let hall = daemon_run_common::fixture("hall.mcap");
+    let sensors = daemon_run_common::replay_sensors(&hall, &daemon_run_common::HALL[..1]);
+    let config = daemon_run_common::write_config(
+        dir.path(),
+        "gate",
+        &sensors,
+        &format!(
+            "\n[[zone]]\nid = \"hall\"\npolygon = [[0, 0], [4, 0], [4, 4]]\n\n[mqtt]\nurl = \"mqtt://127.0.0.1:{port}\"\n"
+        ),
+    );
+    let _daemon = daemon_run_common::start_daemon(&config, dir.path());
+    let want = format!("MQTT: publishing tracks to mqtt://127.0.0.1:{port}");
+    daemon_run_common::wait_for(PATIENCE, "the daemon connected to the broker", || {
+        std::fs::read_to_string(dir.path().join("daemon.log"))
+            .ok()
+            .filter(|log| log.contains(&want))
+    });
 }

@@ -1307,6 +1307,10 @@ impl Config {
                 "registration.queue_scans",
                 self.registration.queue_scans != new.registration.queue_scans,
             ),
+            ("zone", self.people.zones != new.people.zones),
+            ("line", self.people.lines != new.people.lines),
+            ("osc", self.people.osc_targets != new.people.osc_targets),
+            ("mqtt", self.people.mqtt != new.people.mqtt),
         ] {
             if differs {
                 changes.need_restart.push(key);
@@ -1749,6 +1753,12 @@ map_cell_m = 0.1
         assert_eq!(changes.removed, vec!["replayed"]);
         assert_eq!(changes.changed, vec!["entrance"]);
         assert_eq!(changes.need_restart, vec!["site.socket"]);
+        // The people outputs start with the daemon; a reload says they wait for a restart.
+        let zoned = parse(&format!(
+            "{GOOD}\n[[line]]\nid = \"door\"\nfrom = [0, 0]\nto = [1, 0]\n"
+        ))
+        .unwrap();
+        assert_eq!(old.changes_to(&zoned).need_restart, vec!["line"]);
         assert!(!changes.anchor_changed);
         let re_anchored =
             parse(&GOOD.replace("anchor = \"entrance\"", "anchor = \"dock\"")).unwrap();
