@@ -7,7 +7,7 @@ use std::process::{Command, Output, Stdio};
 use std::time::Duration;
 
 use daemon_common::start;
-use scanfuse::daemon::protocol::{EventKind, Message};
+use scanfuse::daemon::protocol::{Crossing, EventKind, Message, Side, Track, Tracks};
 use scanfuse::daemon::socket::ServerOptions;
 
 const BIN: &str = env!("CARGO_BIN_EXE_scanfuse");
@@ -298,6 +298,41 @@ async fn status_watch_follows_events() {
         .announce(EventKind::Moved, Some("dock"), "dock moved by 0.8 m");
     let line = next(&mut rx).await.expect("an event line");
     assert!(line.ends_with("dock  moved: dock moved by 0.8 m"), "{line}");
+    // People: a summary per second of the scans' clock, every crossing.
+    let track = |id: u64, x_m: f64| Track {
+        id,
+        x_m,
+        y_m: 2.0,
+        vx_m_s: 0.0,
+        vy_m_s: 0.0,
+        sigma_m: 0.05,
+        age_s: 1.0,
+        sensors: vec![],
+    };
+    for (i, x) in [4.1, 4.15, 4.2].iter().enumerate() {
+        server.publisher.people(Message::Tracks(Tracks {
+            t_ns: 1_000_000_000 + i as u64 * 100_000_000,
+            tracks: vec![track(3, *x), track(5, 0.3)],
+        }));
+    }
+    server.publisher.people(Message::Crossing(Crossing {
+        t_ns: 1_300_000_000,
+        line: "door".into(),
+        track: 5,
+        to: Side::Right,
+        left_total: 0,
+        right_total: 1,
+    }));
+    let line = next(&mut rx).await.expect("a people line");
+    assert!(
+        line.ends_with("2 people: t3 (4.1, 2.0) t5 (0.3, 2.0)"),
+        "{line}"
+    );
+    let line = next(&mut rx).await.expect("a crossing line");
+    assert!(
+        line.ends_with("door: t5 crossed to the right (left 0, right 1)"),
+        "{line} (the other TRACKS of that second are not printed)"
+    );
     // When the daemon stops, the client says so and exits 1.
     server.shutdown().await;
     let status = tokio::task::spawn_blocking(move || child.wait().unwrap())

@@ -8,7 +8,9 @@ use std::os::unix::fs::PermissionsExt;
 use std::time::Duration;
 
 use daemon_common::{LineClient, error_text, start};
-use scanfuse::daemon::protocol::{EventKind, Frame, FrameScan, Message, SensorState};
+use scanfuse::daemon::protocol::{
+    Crossing, EventKind, Frame, FrameScan, Message, SensorState, Side, Track, Tracks,
+};
 use scanfuse::daemon::socket::{FIRST_REQUEST_WITHIN, ServerOptions, SocketError, StatusServer};
 use scanfuse::daemon::state::PosesFile;
 
@@ -537,4 +539,112 @@ async fn the_socket_never_appears_with_another_mode_than_configured() {
         .filter(|n| n.contains("tmp"))
         .collect();
     assert!(left.is_empty(), "temporary names left behind: {left:?}");
+}
+
+fn tracks_at(t_ns: u64, ids: &[u64]) -> Message {
+    Message::Tracks(Tracks {
+        t_ns,
+        tracks: ids
+            .iter()
+            .map(|&id| Track {
+                id,
+                x_m: id as f64,
+                y_m: 2.0,
+                vx_m_s: 0.5,
+                vy_m_s: 0.0,
+                sigma_m: 0.05,
+                age_s: 1.5,
+                sensors: vec!["entrance".into()],
+            })
+            .collect(),
+    })
+}
+
+/// `"tracks":true` streams TRACKS, ZONES and CROSSING lines; a client that does not ask for
+/// them (every client written before protocol 1.2) gets none, and its WATCH reply says so.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn people_go_only_to_tracks_watchers() {
+    let dir = tempfile::tempdir().unwrap();
+    let sock = dir.path().join("s.sock");
+    let server = start(&sock, dir.path(), options(), 64);
+    let mut people = LineClient::connect_past_banner(&sock).await;
+    match people
+        .ask(r#"{"cmd":"watch","status":false,"tracks":true}"#)
+        .await
+    {
+        Message::Watch(w) => assert!(!w.status && !w.map && w.tracks),
+        other => panic!("{other:?}"),
+    }
+    let mut old = LineClient::connect_past_banner(&sock).await;
+    old.send(br#"{"cmd":"watch"}"#).await;
+    let reply = old.line().await.unwrap();
+    assert_eq!(
+        reply,
+        r#"{"class":"WATCH","status":true,"map":false,"tracks":false}"#
+    );
+    assert_eq!(server.publisher.people_watchers(), 1);
+    server.publisher.people(tracks_at(11, &[3, 5]));
+    server.publisher.people(Message::Crossing(Crossing {
+        t_ns: 11,
+        line: "door".into(),
+        track: 3,
+        to: Side::Left,
+        left_total: 1,
+        right_total: 0,
+    }));
+    server.publisher.announce(EventKind::Saved, None, "saved");
+    let line = people.line().await.unwrap();
+    assert!(
+        line.starts_with(r#"{"class":"TRACKS","t_ns":11,"tracks":[{"id":3,"x_m":3.0"#),
+        "{line}"
+    );
+    match serde_json::from_str::<Message>(&line).unwrap() {
+        Message::Tracks(t) => assert_eq!(t.tracks.len(), 2),
+        other => panic!("{other:?}"),
+    }
+    match people.message().await {
+        Some(Message::Crossing(c)) => assert_eq!((c.line.as_str(), c.to), ("door", Side::Left)),
+        other => panic!("{other:?}"),
+    }
+    match old.message().await {
+        Some(Message::Event(e)) => assert_eq!(e.kind, EventKind::Saved),
+        other => panic!("{other:?} (a client that did not ask for tracks must not get them)"),
+    }
+    // Off again: no more people; the next line is the reply asked for.
+    assert!(matches!(
+        people
+            .ask(r#"{"cmd":"watch","status":false,"tracks":false}"#)
+            .await,
+        Message::Watch(_)
+    ));
+    assert_eq!(server.publisher.people_watchers(), 0);
+    server.publisher.people(tracks_at(12, &[3]));
+    assert!(matches!(
+        people.ask(r#"{"cmd":"poses"}"#).await,
+        Message::Poses(_)
+    ));
+    server.shutdown().await;
+}
+
+/// The people stream is bounded like the others: a tracks watcher that falls behind is told
+/// and dropped.
+#[tokio::test(flavor = "current_thread")]
+async fn a_tracks_watcher_that_falls_behind_gets_a_final_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let sock = dir.path().join("s.sock");
+    let server = start(&sock, dir.path(), options(), 16);
+    let mut w = LineClient::connect_past_banner(&sock).await;
+    assert!(matches!(
+        w.ask(r#"{"cmd":"watch","status":false,"tracks":true}"#)
+            .await,
+        Message::Watch(_)
+    ));
+    for i in 0..100 {
+        server.publisher.people(tracks_at(i, &[1]));
+    }
+    let goodbye = w.message().await.expect("a final ERROR");
+    let text = error_text(&goodbye);
+    assert!(text.contains("fell 84 messages behind"), "{text}");
+    assert_eq!(w.line().await, None, "then the watcher is closed");
+    server.shutdown().await;
 }

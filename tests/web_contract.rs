@@ -250,6 +250,14 @@ async fn the_pages_websocket_keeps_its_contract() {
         _ => None,
     })
     .await;
+    // A page always watches everything, people included (protocol 1.2).
+    send(&mut page, serde_json::json!({"cmd":"watch","tracks":true})).await;
+    let watch = until(&mut page, 2000, "the WATCH reply", |m| match m {
+        Message::Watch(w) => Some(*w),
+        _ => None,
+    })
+    .await;
+    assert!(watch.status && watch.map && watch.tracks, "{watch:?}");
     send(&mut page, serde_json::json!({"cmd":"poses"})).await;
     let after = until(&mut page, 2000, "the POSES reply", |m| match m {
         Message::Poses(p) => p.sensors.iter().find(|s| s.id == id).cloned(),

@@ -121,6 +121,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             listen: args.web,
             ..WebConfig::off()
         },
+        people: config::PeopleConfig::default(),
     };
     if let Some(addr) = args.web
         && !addr.ip().is_loopback()

@@ -10,7 +10,8 @@ use std::time::Duration;
 use anyhow::{Context as _, bail};
 use scanfuse::daemon::config::{self, Config};
 use scanfuse::daemon::protocol::{
-    Event, Message, PROTO_MAJOR, PoseSource, Poses, SensorPose, SensorStatus, Status,
+    Crossing, Event, Message, PROTO_MAJOR, PoseSource, Poses, SensorPose, SensorStatus, Side,
+    Status, Tracks, Zones,
 };
 
 use super::{BadInput, stdout_error};
@@ -29,7 +30,8 @@ pub struct Args {
     /// Print the daemon's JSON objects as they arrive, one per line.
     #[arg(long)]
     json: bool,
-    /// After the table, follow events until the daemon stops (Ctrl-C to quit).
+    /// After the table, follow events, and the people tracked (a summary a second, every zone
+    /// change and line crossing), until the daemon stops (Ctrl-C to quit).
     #[arg(long)]
     watch: bool,
 }
@@ -65,12 +67,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if !args.watch {
         return Ok(());
     }
-    let reply = client.request(r#"{"cmd":"watch","status":true}"#)?;
+    let reply = client.request(r#"{"cmd":"watch","status":true,"tracks":true}"#)?;
     if args.json {
         writeln!(out, "{reply}").map_err(stdout_error)?;
     } else {
-        writeln!(out, "\nwatching events (Ctrl-C to stop)").map_err(stdout_error)?;
+        writeln!(out, "\nwatching events and people (Ctrl-C to stop)").map_err(stdout_error)?;
     }
+    // TRACKS come at the fused rate; a person reads one summary a second.
+    let mut last_tracks_ns: Option<u64> = None;
     out.flush().map_err(stdout_error)?;
     client.stream.set_read_timeout(None)?;
     loop {
@@ -83,6 +87,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             match serde_json::from_str::<Message>(&line) {
                 Ok(Message::Event(e)) => {
                     writeln!(out, "{}", render_event(&e)).map_err(stdout_error)?
+                }
+                Ok(Message::Tracks(t))
+                    if last_tracks_ns.is_none_or(|last| {
+                        t.t_ns < last || t.t_ns >= last.saturating_add(TRACKS_EVERY_NS)
+                    }) =>
+                {
+                    last_tracks_ns = Some(t.t_ns);
+                    writeln!(out, "{}", render_tracks(&t)).map_err(stdout_error)?
+                }
+                Ok(Message::Zones(z)) => {
+                    writeln!(out, "{}", render_zones(&z)).map_err(stdout_error)?
+                }
+                Ok(Message::Crossing(c)) => {
+                    writeln!(out, "{}", render_crossing(&c)).map_err(stdout_error)?
                 }
                 Ok(Message::Error(e)) => bail!("the daemon says: {}", e.message),
                 _ => {}
@@ -272,6 +290,70 @@ pub fn render_event(e: &Event) -> String {
     }
 }
 
+/// `status --watch` prints one `TRACKS` summary per this much of the scans' clock.
+const TRACKS_EVERY_NS: u64 = 1_000_000_000;
+/// Tracks named in a summary line; the rest are counted.
+const TRACKS_SHOWN: usize = 10;
+
+/// A `t_ns` (the scans' clock) as RFC 3339 UTC, like an event's time.
+fn stamp(t_ns: u64) -> String {
+    let t = std::time::UNIX_EPOCH + Duration::from_nanos(t_ns);
+    humantime::format_rfc3339_millis(t).to_string()
+}
+
+/// `TRACKS` as one line: `… 12 people: t3 (4.1, 2.0) t5 (0.3, -1.2) …`.
+pub fn render_tracks(t: &Tracks) -> String {
+    let n = t.tracks.len();
+    let mut line = format!(
+        "{}  {n} {}",
+        stamp(t.t_ns),
+        if n == 1 { "person" } else { "people" }
+    );
+    if n > 0 {
+        line.push(':');
+    }
+    for track in t.tracks.iter().take(TRACKS_SHOWN) {
+        let _ = write!(line, " t{} ({:.1}, {:.1})", track.id, track.x_m, track.y_m);
+    }
+    if n > TRACKS_SHOWN {
+        let _ = write!(line, " and {} more", n - TRACKS_SHOWN);
+    }
+    line
+}
+
+/// `ZONES` as one line: `… zones: desk 2 (t3, t5), hall 0`.
+pub fn render_zones(z: &Zones) -> String {
+    let zones: Vec<String> = z
+        .zones
+        .iter()
+        .map(|zone| {
+            if zone.tracks.is_empty() {
+                format!("{} {}", zone.id, zone.count)
+            } else {
+                let ids: Vec<String> = zone.tracks.iter().map(|id| format!("t{id}")).collect();
+                format!("{} {} ({})", zone.id, zone.count, ids.join(", "))
+            }
+        })
+        .collect();
+    format!("{}  zones: {}", stamp(z.t_ns), zones.join(", "))
+}
+
+/// `CROSSING` as one line: `… door: t3 crossed to the left (left 5, right 3)`.
+pub fn render_crossing(c: &Crossing) -> String {
+    let side = match c.to {
+        Side::Left => "left",
+        Side::Right => "right",
+    };
+    format!(
+        "{}  {}: t{} crossed to the {side} (left {}, right {})",
+        stamp(c.t_ns),
+        c.line,
+        c.track,
+        c.left_total,
+        c.right_total
+    )
+}
+
 /// `42s`, `3m05s`, `2h01m`, `3d04h`.
 fn duration(seconds: f64) -> String {
     let s = seconds.max(0.0).round() as u64;
@@ -349,5 +431,63 @@ mod tests {
         assert_eq!(duration(61.0), "1m01s");
         assert_eq!(duration(7300.0), "2h01m");
         assert_eq!(duration(90_000.0), "1d01h");
+    }
+
+    #[test]
+    fn people_read_as_one_line_each() {
+        use scanfuse::daemon::protocol::{Track, ZoneCount};
+        let track = |id, x_m, y_m| Track {
+            id,
+            x_m,
+            y_m,
+            vx_m_s: 0.0,
+            vy_m_s: 0.0,
+            sigma_m: 0.05,
+            age_s: 3.0,
+            sensors: vec![],
+        };
+        let t = Tracks {
+            t_ns: 1_700_000_000_000_000_000,
+            tracks: vec![track(3, 4.12, 2.0), track(5, 0.3, -1.25)],
+        };
+        assert_eq!(
+            render_tracks(&t),
+            "2023-11-14T22:13:20.000Z  2 people: t3 (4.1, 2.0) t5 (0.3, -1.2)"
+        );
+        let many = Tracks {
+            t_ns: 0,
+            tracks: (0..12).map(|i| track(i, 0.0, 0.0)).collect(),
+        };
+        assert!(render_tracks(&many).ends_with("t9 (0.0, 0.0) and 2 more"));
+        let none = Tracks {
+            t_ns: 0,
+            tracks: vec![],
+        };
+        assert!(render_tracks(&none).ends_with("  0 people"));
+        let z = Zones {
+            t_ns: 0,
+            zones: vec![
+                ZoneCount {
+                    id: "desk".into(),
+                    count: 2,
+                    tracks: vec![3, 5],
+                },
+                ZoneCount {
+                    id: "hall".into(),
+                    count: 0,
+                    tracks: vec![],
+                },
+            ],
+        };
+        assert!(render_zones(&z).ends_with("  zones: desk 2 (t3, t5), hall 0"));
+        let c = Crossing {
+            t_ns: 0,
+            line: "door".into(),
+            track: 3,
+            to: Side::Left,
+            left_total: 5,
+            right_total: 3,
+        };
+        assert!(render_crossing(&c).ends_with("  door: t3 crossed to the left (left 5, right 3)"));
     }
 }

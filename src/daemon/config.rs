@@ -13,6 +13,7 @@ use serde::Deserialize;
 use toml::Spanned;
 
 use crate::scan::check_sensor_id;
+use crate::track::zones::{self, CountLine, DEFAULT_HYSTERESIS_M, Zone};
 
 /// Default state directory (systemd's `StateDirectory=scanfuse`).
 pub const DEFAULT_STATE_DIR: &str = "/var/lib/scanfuse";
@@ -38,6 +39,37 @@ pub struct Config {
     pub registration: RegistrationConfig,
     pub publish: PublishConfig,
     pub web: WebConfig,
+    /// `[[zone]]`, `[[line]]`, `[osc]`, `[mqtt]`: what is done with the tracks.
+    pub people: PeopleConfig,
+}
+
+/// The tracking outputs: zones and lines counted, and where tracks are sent besides the
+/// status socket and the page.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct PeopleConfig {
+    pub zones: Vec<Zone>,
+    pub lines: Vec<CountLine>,
+    /// `[osc] targets`: UDP addresses every OSC message goes to; empty sends none.
+    pub osc_targets: Vec<std::net::SocketAddr>,
+    /// `[mqtt]`; `None` publishes nothing.
+    pub mqtt: Option<MqttConfig>,
+}
+
+/// MQTT broker port unless the url names one.
+pub const DEFAULT_MQTT_PORT: u16 = 1883;
+
+/// `[mqtt]`: the broker tracks, zones and crossings are published to.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MqttConfig {
+    /// The url as written, for messages.
+    pub url: String,
+    pub host: String,
+    pub port: u16,
+    /// Topics are `<topic_prefix>/tracks`, `/zones`, `/crossing`; default `scanfuse/<site>`.
+    pub topic_prefix: String,
+    pub username: Option<String>,
+    /// A file holding the password (read when the daemon connects).
+    pub password_file: Option<PathBuf>,
 }
 
 /// Where the page listens unless `[web] listen` says otherwise.
@@ -399,6 +431,46 @@ struct RawConfig {
     publish: Option<Spanned<PublishConfig>>,
     #[serde(default)]
     web: Option<Spanned<RawWeb>>,
+    #[serde(default)]
+    zone: Vec<Spanned<RawZone>>,
+    #[serde(default)]
+    line: Vec<Spanned<RawLine>>,
+    #[serde(default)]
+    osc: Option<Spanned<RawOsc>>,
+    #[serde(default)]
+    mqtt: Option<Spanned<RawMqtt>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawZone {
+    id: Spanned<String>,
+    polygon: Spanned<Vec<Vec<f64>>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawLine {
+    id: Spanned<String>,
+    from: Spanned<Vec<f64>>,
+    to: Spanned<Vec<f64>>,
+    hysteresis_m: Option<Spanned<f64>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawOsc {
+    #[serde(default)]
+    targets: Vec<Spanned<String>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawMqtt {
+    url: Spanned<String>,
+    topic_prefix: Option<Spanned<String>>,
+    username: Option<Spanned<String>>,
+    password_file: Option<Spanned<String>>,
 }
 
 #[derive(Deserialize)]
@@ -803,6 +875,17 @@ impl Config {
             Some(w) => parse_web(&loc, w, &resolve, token_ok)?,
             None => WebConfig::default(),
         };
+        let people = parse_people(
+            &loc,
+            People {
+                zones: raw.zone,
+                lines: raw.line,
+                osc: raw.osc,
+                mqtt: raw.mqtt,
+            },
+            &name,
+            &resolve,
+        )?;
 
         Ok(Config {
             path: path.to_path_buf(),
@@ -818,6 +901,7 @@ impl Config {
             registration,
             publish,
             web,
+            people,
         })
     }
 
@@ -857,6 +941,23 @@ impl Config {
                 t.display(),
                 a.port()
             )),
+        }
+        let p = &self.people;
+        if !p.zones.is_empty() || !p.lines.is_empty() {
+            out.push_str(&format!(
+                "  {} zone{}, {} counting line{}\n",
+                p.zones.len(),
+                if p.zones.len() == 1 { "" } else { "s" },
+                p.lines.len(),
+                if p.lines.len() == 1 { "" } else { "s" },
+            ));
+        }
+        if !p.osc_targets.is_empty() {
+            let to: Vec<String> = p.osc_targets.iter().map(|a| a.to_string()).collect();
+            out.push_str(&format!("  OSC to {}\n", to.join(", ")));
+        }
+        if let Some(m) = &p.mqtt {
+            out.push_str(&format!("  MQTT to {} under {}/\n", m.url, m.topic_prefix));
         }
         out
     }
@@ -921,6 +1022,218 @@ fn parse_web(
         };
     }
     Ok(web)
+}
+
+/// The raw tables of [`PeopleConfig`].
+struct People {
+    zones: Vec<Spanned<RawZone>>,
+    lines: Vec<Spanned<RawLine>>,
+    osc: Option<Spanned<RawOsc>>,
+    mqtt: Option<Spanned<RawMqtt>>,
+}
+
+/// `[[zone]]`, `[[line]]`, `[osc]` and `[mqtt]`, checked.
+fn parse_people(
+    loc: &Locator<'_>,
+    raw: People,
+    site: &str,
+    resolve: &dyn Fn(&str) -> PathBuf,
+) -> Result<PeopleConfig, ConfigError> {
+    let mut people = PeopleConfig::default();
+    let check_id = |id: &Spanned<String>, key: &str, seen: &mut BTreeMap<String, usize>| {
+        let text = id.get_ref();
+        check_sensor_id(text).map_err(|_| {
+            loc.at(
+                id.span(),
+                key,
+                format!("{text:?} is not valid: use 1–64 ASCII letters, digits, '_', '-' or '.'"),
+            )
+        })?;
+        let line = loc.line_of(id.span().start);
+        if let Some(first) = seen.insert(text.clone(), line) {
+            return Err(loc.at(
+                id.span(),
+                key,
+                format!("duplicate id {text:?}, first used at line {first}; give each its own id"),
+            ));
+        }
+        Ok(())
+    };
+    let mut seen = BTreeMap::new();
+    for z in raw.zones {
+        let z = z.into_inner();
+        check_id(&z.id, "zone.id", &mut seen)?;
+        let polygon = z
+            .polygon
+            .get_ref()
+            .iter()
+            .map(|p| xy(p))
+            .collect::<Option<Vec<_>>>()
+            .ok_or_else(|| {
+                loc.at(
+                    z.polygon.span(),
+                    "zone.polygon",
+                    "every point must be [x, y] (metres, site frame), e.g. [[0, 0], [4, 0], [4, 3]]",
+                )
+            })?;
+        zones::check_polygon(&polygon)
+            .map_err(|m| loc.at(z.polygon.span(), "zone.polygon", format!("the polygon {m}")))?;
+        people.zones.push(Zone {
+            id: z.id.into_inner(),
+            polygon,
+        });
+    }
+    let mut seen = BTreeMap::new();
+    for l in raw.lines {
+        let l = l.into_inner();
+        check_id(&l.id, "line.id", &mut seen)?;
+        let end = |v: &Spanned<Vec<f64>>, key: &str| {
+            xy(v.get_ref()).ok_or_else(|| {
+                loc.at(
+                    v.span(),
+                    key,
+                    "must be [x, y] (metres, site frame), e.g. [2.0, 0.5]",
+                )
+            })
+        };
+        let (from, to) = (end(&l.from, "line.from")?, end(&l.to, "line.to")?);
+        zones::check_line(from, to)
+            .map_err(|m| loc.at(l.to.span(), "line.to", format!("the line {m}")))?;
+        let hysteresis_m = match &l.hysteresis_m {
+            Some(h) if !(0.0..=5.0).contains(h.get_ref()) => {
+                return Err(loc.at(
+                    h.span(),
+                    "line.hysteresis_m",
+                    "must be 0–5 (metres from the line before a side counts)",
+                ));
+            }
+            Some(h) => *h.get_ref(),
+            None => DEFAULT_HYSTERESIS_M,
+        };
+        people.lines.push(CountLine {
+            id: l.id.into_inner(),
+            from,
+            to,
+            hysteresis_m,
+        });
+    }
+    if let Some(osc) = raw.osc {
+        for t in &osc.get_ref().targets {
+            let text = t.get_ref().trim();
+            let addr = text.parse().map_err(|_| {
+                loc.at(
+                    t.span(),
+                    "osc.targets",
+                    format!("{text:?} is not an address and port; write IP:PORT, e.g. \"127.0.0.1:9000\""),
+                )
+            })?;
+            people.osc_targets.push(addr);
+        }
+    }
+    if let Some(mqtt) = raw.mqtt {
+        let m = mqtt.into_inner();
+        let (host, port) =
+            parse_mqtt_url(m.url.get_ref()).map_err(|e| loc.at(m.url.span(), "mqtt.url", e))?;
+        let topic_prefix = match &m.topic_prefix {
+            Some(p) => {
+                let text = p.get_ref().trim_end_matches('/');
+                if text.is_empty() || text.contains(['+', '#']) || text.starts_with('/') {
+                    return Err(loc.at(
+                        p.span(),
+                        "mqtt.topic_prefix",
+                        "must be a topic without wildcards (+, #) or a leading /, e.g. \"scanfuse/hall-3f\"",
+                    ));
+                }
+                text.to_string()
+            }
+            None => format!("scanfuse/{site}"),
+        };
+        let username = match &m.username {
+            Some(u) if u.get_ref().is_empty() => {
+                return Err(loc.at(
+                    u.span(),
+                    "mqtt.username",
+                    "must not be empty; leave it out to connect without one",
+                ));
+            }
+            Some(u) => Some(u.get_ref().clone()),
+            None => None,
+        };
+        let password_file = match &m.password_file {
+            Some(p) if p.get_ref().trim().is_empty() => {
+                return Err(loc.at(
+                    p.span(),
+                    "mqtt.password_file",
+                    "must not be empty; name a file holding the password",
+                ));
+            }
+            Some(p) if username.is_none() => {
+                return Err(loc.at(
+                    p.span(),
+                    "mqtt.password_file",
+                    "needs mqtt.username: a broker takes a password only with a user name",
+                ));
+            }
+            Some(p) => Some(resolve(p.get_ref())),
+            None => None,
+        };
+        people.mqtt = Some(MqttConfig {
+            url: m.url.get_ref().clone(),
+            host,
+            port,
+            topic_prefix,
+            username,
+            password_file,
+        });
+    }
+    Ok(people)
+}
+
+/// `[x, y]`, or `None` for another number of values.
+fn xy(v: &[f64]) -> Option<[f64; 2]> {
+    match v {
+        [x, y] => Some([*x, *y]),
+        _ => None,
+    }
+}
+
+/// `mqtt://HOST[:PORT]` → host and port.
+fn parse_mqtt_url(url: &str) -> Result<(String, u16), String> {
+    let example = "write mqtt://HOST:PORT, e.g. \"mqtt://127.0.0.1:1883\"";
+    let Some(rest) = url
+        .strip_prefix("mqtt://")
+        .or_else(|| url.strip_prefix("tcp://"))
+    else {
+        if url.starts_with("mqtts://") || url.starts_with("ssl://") {
+            return Err(format!(
+                "{url:?}: TLS is not supported; connect to a plain listener (e.g. on this machine or over a VPN); {example}"
+            ));
+        }
+        return Err(format!("{url:?} is not an MQTT url; {example}"));
+    };
+    let rest = rest.trim_end_matches('/');
+    let (host, port) = if let Some(v6) = rest.strip_prefix('[') {
+        let (h, after) = v6
+            .split_once(']')
+            .ok_or_else(|| format!("{url:?}: unclosed [; {example}"))?;
+        (h, after.strip_prefix(':'))
+    } else {
+        match rest.rsplit_once(':') {
+            Some((h, p)) => (h, Some(p)),
+            None => (rest, None),
+        }
+    };
+    if host.is_empty() || host.contains(['/', '@', ' ']) {
+        return Err(format!("{url:?} has no host name; {example}"));
+    }
+    let port = match port {
+        Some(p) => match p.parse::<u16>() {
+            Ok(p) if p > 0 => p,
+            _ => return Err(format!("{url:?}: the port must be 1–65535; {example}")),
+        },
+        None => DEFAULT_MQTT_PORT,
+    };
+    Ok((host.to_string(), port))
 }
 
 /// Prefixes an error's key with its table's name.
@@ -1000,6 +1313,10 @@ impl Config {
                 "registration.queue_scans",
                 self.registration.queue_scans != new.registration.queue_scans,
             ),
+            ("zone", self.people.zones != new.people.zones),
+            ("line", self.people.lines != new.people.lines),
+            ("osc", self.people.osc_targets != new.people.osc_targets),
+            ("mqtt", self.people.mqtt != new.people.mqtt),
         ] {
             if differs {
                 changes.need_restart.push(key);
@@ -1445,6 +1762,12 @@ map_cell_m = 0.1
         assert_eq!(changes.removed, vec!["replayed"]);
         assert_eq!(changes.changed, vec!["entrance"]);
         assert_eq!(changes.need_restart, vec!["site.socket"]);
+        // The people outputs start with the daemon; a reload says they wait for a restart.
+        let zoned = parse(&format!(
+            "{GOOD}\n[[line]]\nid = \"door\"\nfrom = [0, 0]\nto = [1, 0]\n"
+        ))
+        .unwrap();
+        assert_eq!(old.changes_to(&zoned).need_restart, vec!["line"]);
         assert!(!changes.anchor_changed);
         let re_anchored =
             parse(&GOOD.replace("anchor = \"entrance\"", "anchor = \"dock\"")).unwrap();
@@ -1504,5 +1827,115 @@ map_cell_m = 0.1
         for bad in ["", "0o660", "1777", "0440", "rw"] {
             assert!(parse_mode(bad).is_err(), "{bad}");
         }
+    }
+    const SITE: &str = "[site]\nname = \"hall\"\nanchor = \"a\"\n[[sensor]]\nid = \"a\"\nconnect = \"tcp://10.0.0.1:10940\"\n";
+
+    #[test]
+    fn zones_lines_osc_and_mqtt_parse() {
+        let c = parse(&format!(
+            "{SITE}[[zone]]\nid = \"desk\"\npolygon = [[0, 0], [4, 0], [4, 3.5], [0, 3]]\n[[line]]\nid = \"door\"\nfrom = [0, 0]\nto = [2, 0]\n[[line]]\nid = \"gate\"\nfrom = [5, 0]\nto = [5, 2]\nhysteresis_m = 0.3\n[osc]\ntargets = [\"127.0.0.1:9000\", \"[::1]:9001\"]\n[mqtt]\nurl = \"mqtt://broker.local\"\nusername = \"sf\"\npassword_file = \"mqtt.pw\"\n"
+        ))
+        .unwrap();
+        let p = &c.people;
+        assert_eq!(p.zones.len(), 1);
+        assert_eq!(p.zones[0].polygon[2], [4.0, 3.5]);
+        assert_eq!(p.lines[0].hysteresis_m, DEFAULT_HYSTERESIS_M);
+        assert_eq!(p.lines[1].hysteresis_m, 0.3);
+        assert_eq!(p.osc_targets.len(), 2);
+        let m = p.mqtt.as_ref().unwrap();
+        assert_eq!((m.host.as_str(), m.port), ("broker.local", 1883));
+        assert_eq!(m.topic_prefix, "scanfuse/hall");
+        assert_eq!(
+            m.password_file.as_deref(),
+            Some(Path::new("/etc/scanfuse/mqtt.pw"))
+        );
+        let none = parse(SITE).unwrap().people;
+        assert_eq!(none, PeopleConfig::default());
+    }
+
+    #[test]
+    fn bad_zones_lines_and_outputs_name_line_key_and_fix() {
+        let cases: [(&str, usize, &str, &str); 11] = [
+            (
+                "[[zone]]\nid = \"z\"\npolygon = [[0, 0], [1, 0]]\n",
+                9,
+                "zone.polygon",
+                "at least 3 corners",
+            ),
+            (
+                "[[zone]]\nid = \"z\"\npolygon = [[0, 0], [2, 2], [2, 0], [0, 2]]\n",
+                9,
+                "zone.polygon",
+                "crosses itself",
+            ),
+            (
+                "[[zone]]\nid = \"z\"\npolygon = [[0, 0], [1, 0], [0, 1]]\n[[zone]]\nid = \"z\"\npolygon = [[0, 0], [1, 0], [0, 1]]\n",
+                11,
+                "zone.id",
+                "duplicate id \"z\", first used at line 8",
+            ),
+            (
+                "[[zone]]\nid = \"a b\"\npolygon = [[0, 0], [1, 0], [0, 1]]\n",
+                8,
+                "zone.id",
+                "not valid",
+            ),
+            (
+                "[[line]]\nid = \"l\"\nfrom = [1, 1]\nto = [1, 1]\n",
+                10,
+                "line.to",
+                "the same point",
+            ),
+            (
+                "[[line]]\nid = \"l\"\nfrom = [1, 1]\nto = [1, 2]\n[[line]]\nid = \"l\"\nfrom = [1, 1]\nto = [1, 2]\n",
+                12,
+                "line.id",
+                "duplicate id",
+            ),
+            (
+                "[[line]]\nid = \"l\"\nfrom = [1, 1]\nto = [1, 2]\nhysteresis_m = -1\n",
+                11,
+                "line.hysteresis_m",
+                "0–5",
+            ),
+            (
+                "[osc]\ntargets = [\"localhost\"]\n",
+                8,
+                "osc.targets",
+                "IP:PORT",
+            ),
+            (
+                "[mqtt]\nurl = \"http://x\"\n",
+                8,
+                "mqtt.url",
+                "mqtt://HOST:PORT",
+            ),
+            (
+                "[mqtt]\nurl = \"mqtts://x:8883\"\n",
+                8,
+                "mqtt.url",
+                "TLS is not supported",
+            ),
+            (
+                "[mqtt]\nurl = \"mqtt://x\"\npassword_file = \"p\"\n",
+                9,
+                "mqtt.password_file",
+                "needs mqtt.username",
+            ),
+        ];
+        for (tail, line, key, want) in cases {
+            let (l, k, m) = invalid(&format!("{SITE}{tail}"));
+            assert_eq!((l, k.as_str()), (line, key), "{tail}: {m}");
+            assert!(m.contains(want), "{tail}: {m}");
+        }
+        let (_, k, m) = invalid(&format!(
+            "{SITE}[[zone]]\nid = \"z\"\npolygon = [[0, 0, 1], [1, 0], [0, 1]]\n"
+        ));
+        assert_eq!(k, "zone.polygon", "{m}");
+        assert!(m.contains("every point must be [x, y]"), "{m}");
+        let (_, k, _) = invalid(&format!(
+            "{SITE}[[line]]\nid = \"l\"\nfrom = [1]\nto = [1, 2]\n"
+        ));
+        assert_eq!(k, "line.from");
     }
 }

@@ -15,6 +15,7 @@ pub mod config;
 pub mod lines;
 pub mod local_refine;
 pub mod notify;
+pub mod people_out;
 pub mod pipeline;
 pub mod pipeline_fuse;
 pub mod pipeline_register;

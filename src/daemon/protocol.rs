@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 /// Major protocol version: bumped when a client written for the old one would misread.
 pub const PROTO_MAJOR: u32 = 1;
 /// Minor protocol version: bumped when fields or classes are added.
-pub const PROTO_MINOR: u32 = 1;
+pub const PROTO_MINOR: u32 = 2;
 
 /// Request lines longer than this are rejected (and discarded up to their newline).
 pub const MAX_LINE_BYTES: usize = 64 * 1024;
@@ -28,8 +28,9 @@ pub enum Request {
     Status {},
     /// `{"cmd":"poses"}` → [`Poses`].
     Poses {},
-    /// `{"cmd":"watch","status":true,"map":false}` → [`Watch`], then a stream of [`Event`]s
-    /// (`status`) and [`Frame`]s (`map`). Both false stops the stream.
+    /// `{"cmd":"watch","status":true,"map":false,"tracks":false}` → [`Watch`], then a stream
+    /// of [`Event`]s (`status`), [`Frame`]s (`map`) and [`Tracks`], [`Zones`] and
+    /// [`Crossing`]s (`tracks`, since protocol 1.2). All false stops the stream.
     Watch {
         /// Stream events (connects, moves, registrations…); default true.
         #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -37,6 +38,9 @@ pub enum Request {
         /// Stream fused frames; default false.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         map: Option<bool>,
+        /// Stream people: `TRACKS`, `ZONES`, `CROSSING`; default false.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        tracks: Option<bool>,
     },
     /// `{"cmd":"reregister","sensor":"hall"}` → [`Reregister`].
     Reregister { sensor: String },
@@ -336,6 +340,9 @@ impl SensorPose {
 pub struct Watch {
     pub status: bool,
     pub map: bool,
+    /// Absent from daemons before protocol 1.2 (which had no such stream).
+    #[serde(default)]
+    pub tracks: bool,
 }
 
 /// Reply to `reregister`: the request was accepted; the outcome follows as an [`Event`].
@@ -499,7 +506,7 @@ pub struct ErrorReply {
 }
 
 /// The commands a client may send, for error messages.
-pub const COMMANDS: &str = r#"{"cmd":"status"}, {"cmd":"poses"}, {"cmd":"watch","status":true,"map":false}, {"cmd":"reregister","sensor":"ID"}, {"cmd":"save"}, {"cmd":"survey","sensor":"ID","x_m":0.0,"y_m":0.0,"yaw_deg":0.0,"sigma_xy_m":0.05,"sigma_yaw_deg":2.0}, {"cmd":"unsurvey","sensor":"ID"}"#;
+pub const COMMANDS: &str = r#"{"cmd":"status"}, {"cmd":"poses"}, {"cmd":"watch","status":true,"map":false,"tracks":false}, {"cmd":"reregister","sensor":"ID"}, {"cmd":"save"}, {"cmd":"survey","sensor":"ID","x_m":0.0,"y_m":0.0,"yaw_deg":0.0,"sigma_xy_m":0.05,"sigma_yaw_deg":2.0}, {"cmd":"unsurvey","sensor":"ID"}"#;
 
 /// Parses one request line, or explains what is wrong and what would be valid.
 pub fn parse_request(line: &[u8]) -> Result<Request, String> {
@@ -558,11 +565,11 @@ mod tests {
 
         /// Requests survive encoding and parsing.
         #[test]
-        fn requests_round_trip(sensor in "[a-z0-9_.-]{1,12}", status in any::<Option<bool>>(), map in any::<Option<bool>>()) {
+        fn requests_round_trip(sensor in "[a-z0-9_.-]{1,12}", status in any::<Option<bool>>(), map in any::<Option<bool>>(), tracks in any::<Option<bool>>()) {
             for request in [
                 Request::Status {},
                 Request::Poses {},
-                Request::Watch { status, map },
+                Request::Watch { status, map, tracks },
                 Request::Reregister { sensor: sensor.clone() },
                 Request::Save {},
             ] {
@@ -587,7 +594,16 @@ mod tests {
             parse_request(br#"{"cmd":"watch","map":true}"#),
             Ok(Request::Watch {
                 status: None,
-                map: Some(true)
+                map: Some(true),
+                tracks: None,
+            })
+        );
+        assert_eq!(
+            parse_request(br#"{"cmd":"watch","tracks":true}"#),
+            Ok(Request::Watch {
+                status: None,
+                map: None,
+                tracks: Some(true),
             })
         );
         assert_eq!(
@@ -641,6 +657,33 @@ mod tests {
             assert!(err.contains(r#"{"cmd":"status"}"#), "{err}");
         }
         assert!(parse_request(b"\xff\xfe").unwrap_err().contains("UTF-8"));
+    }
+
+    #[test]
+    fn a_watch_reply_from_an_older_daemon_still_parses() {
+        let old: Message =
+            serde_json::from_str(r#"{"class":"WATCH","status":true,"map":false}"#).unwrap();
+        assert_eq!(
+            old,
+            Message::Watch(Watch {
+                status: true,
+                map: false,
+                tracks: false
+            })
+        );
+        let crossing = Message::Crossing(Crossing {
+            t_ns: 1,
+            line: "door".into(),
+            track: 2,
+            to: Side::Right,
+            left_total: 0,
+            right_total: 1,
+        })
+        .to_line();
+        assert_eq!(
+            crossing,
+            r#"{"class":"CROSSING","t_ns":1,"line":"door","track":2,"to":"right","left_total":0,"right_total":1}"#
+        );
     }
 
     #[test]
@@ -708,6 +751,36 @@ mod tests {
             Message::Watch(Watch {
                 status: true,
                 map: false,
+                tracks: true,
+            }),
+            Message::Tracks(Tracks {
+                t_ns: 7,
+                tracks: vec![Track {
+                    id: 3,
+                    x_m: 4.1,
+                    y_m: 2.0,
+                    vx_m_s: 0.5,
+                    vy_m_s: -0.25,
+                    sigma_m: 0.04,
+                    age_s: 12.5,
+                    sensors: vec!["a".into(), "b".into()],
+                }],
+            }),
+            Message::Zones(Zones {
+                t_ns: 7,
+                zones: vec![ZoneCount {
+                    id: "desk".into(),
+                    count: 1,
+                    tracks: vec![3],
+                }],
+            }),
+            Message::Crossing(Crossing {
+                t_ns: 7,
+                line: "door".into(),
+                track: 3,
+                to: Side::Left,
+                left_total: 1,
+                right_total: 0,
             }),
             Message::Reregister(Reregister {
                 sensor: "a".into(),

@@ -495,6 +495,18 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
     } else {
         None
     };
+    // Zones, lines, OSC and MQTT: fed by the people stream (the tracker publishes TRACKS).
+    if super::people_out::wanted(&config.people) {
+        let mut rx = server_stop_rx.clone();
+        tokio::spawn(super::people_out::run(
+            config.people.clone(),
+            config.site.name.clone(),
+            publisher.clone(),
+            async move {
+                let _ = rx.wait_for(|s| *s).await;
+            },
+        ));
+    }
     if let Err(e) = notifier.ready(&status_line(&pipeline.status(), &pipeline.poses())) {
         tracing::warn!("{e}");
     }

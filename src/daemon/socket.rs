@@ -269,6 +269,11 @@ impl Publisher {
         self.events.receiver_count()
     }
 
+    /// Outputs currently subscribed to the people stream (socket watchers, OSC/MQTT, pages).
+    pub fn people_watchers(&self) -> usize {
+        self.people.receiver_count()
+    }
+
     /// Clients currently watching frames.
     pub fn frame_watchers(&self) -> usize {
         self.frames.receiver_count()
@@ -468,6 +473,16 @@ async fn write_line(
     }
 }
 
+/// Receives from the people stream as protocol lines, or waits forever when not subscribed.
+async fn next_people(
+    rx: &mut Option<broadcast::Receiver<Arc<Message>>>,
+) -> Result<Arc<str>, broadcast::error::RecvError> {
+    match rx {
+        Some(rx) => rx.recv().await.map(|m| Arc::from(m.to_line())),
+        None => std::future::pending().await,
+    }
+}
+
 /// Receives from a watch stream, or waits forever when not subscribed.
 async fn next_item(
     rx: &mut Option<broadcast::Receiver<Arc<str>>>,
@@ -500,6 +515,7 @@ impl<S: StatusSource> Connection<S> {
         let mut buf = vec![0u8; READ_CHUNK];
         let mut events: Option<broadcast::Receiver<Arc<str>>> = None;
         let mut frames: Option<broadcast::Receiver<Arc<str>>> = None;
+        let mut people: Option<broadcast::Receiver<Arc<Message>>> = None;
         // False once the client has shut its sending side: a watcher may still be listening
         // (`echo '{"cmd":"watch"}' | socat - UNIX:…`), so the stream goes on until a write fails.
         let mut reading = true;
@@ -524,7 +540,7 @@ impl<S: StatusSource> Connection<S> {
                 read = reader.read(&mut buf), if reading => {
                     let n = read?;
                     if n == 0 {
-                        if events.is_none() && frames.is_none() {
+                        if events.is_none() && frames.is_none() && people.is_none() {
                             return Ok(());
                         }
                         reading = false;
@@ -535,7 +551,7 @@ impl<S: StatusSource> Connection<S> {
                             LineFrame::Line(line) if line.iter().all(u8::is_ascii_whitespace) => continue,
                             LineFrame::Line(line) => {
                                 asked = true;
-                                self.answer(&line, &mut events, &mut frames).await
+                                self.answer(&line, &mut events, &mut frames, &mut people).await
                             }
                             LineFrame::TooLong { .. } => {
                                 asked = true;
@@ -550,6 +566,7 @@ impl<S: StatusSource> Connection<S> {
                 }
                 item = next_item(&mut events) => item,
                 item = next_item(&mut frames) => item,
+                item = next_people(&mut people) => item,
             };
             match item {
                 Ok(line) => write_line(&mut writer, &line, timeout).await?,
@@ -573,16 +590,22 @@ impl<S: StatusSource> Connection<S> {
         line: &[u8],
         events: &mut Option<broadcast::Receiver<Arc<str>>>,
         frames: &mut Option<broadcast::Receiver<Arc<str>>>,
+        people: &mut Option<broadcast::Receiver<Arc<Message>>>,
     ) -> Message {
         let request = match protocol::parse_request(line) {
             Ok(r) => r,
             Err(message) => return Message::error(message),
         };
         match request {
-            Request::Watch { status, map } => {
+            Request::Watch {
+                status,
+                map,
+                tracks,
+            } => {
                 let want = Watch {
                     status: status.unwrap_or(true),
                     map: map.unwrap_or(false),
+                    tracks: tracks.unwrap_or(false),
                 };
                 *events = match (want.status, events.take()) {
                     (true, Some(rx)) => Some(rx),
@@ -592,6 +615,11 @@ impl<S: StatusSource> Connection<S> {
                 *frames = match (want.map, frames.take()) {
                     (true, Some(rx)) => Some(rx),
                     (true, None) => Some(self.publisher.frames.subscribe()),
+                    (false, _) => None,
+                };
+                *people = match (want.tracks, people.take()) {
+                    (true, Some(rx)) => Some(rx),
+                    (true, None) => Some(self.publisher.people.subscribe()),
                     (false, _) => None,
                 };
                 Message::Watch(want)

@@ -1,5 +1,6 @@
 //! What the page's WebSocket carries, daemon → page: the status socket's own lines (`EVENT`,
-//! `FRAME`, `STATUS`, `POSES`, replies), and two classes only the page needs (`MAP`, the
+//! `FRAME`, `STATUS`, `POSES`, replies; `TRACKS` paced like one sensor's scans, every `ZONES`
+//! and `CROSSING`), and two classes only the page needs (`MAP`, the
 //! occupancy grid; `SENSORS`, each sensor's field of view). One [`Hub`] per server
 //! subscribes to the [`Publisher`] as a `watch` client does, paces each sensor's scans to
 //! `frames_per_s`, takes snapshots on a timer, and hands every line to every page through a
@@ -145,7 +146,12 @@ struct Cache {
     map: Option<Utf8Bytes>,
     events: VecDeque<Utf8Bytes>,
     frames: BTreeMap<String, Utf8Bytes>,
+    /// The latest `ZONES`.
+    zones: Option<Utf8Bytes>,
 }
+
+/// The [`Pacer`] key of `TRACKS` (no sensor id can be it: ids are printable).
+const TRACKS_KEY: &str = "\u{0}tracks";
 
 /// Paces each sensor's scans: at most one per `gap`.
 #[derive(Debug)]
@@ -206,7 +212,7 @@ impl Hub {
     pub fn subscribe(&self) -> (broadcast::Receiver<Utf8Bytes>, Vec<Utf8Bytes>) {
         let rx = self.tx.subscribe();
         let c = lock(&self.cache);
-        let mut first: Vec<Utf8Bytes> = [&c.status, &c.poses, &c.sensors, &c.map]
+        let mut first: Vec<Utf8Bytes> = [&c.status, &c.poses, &c.sensors, &c.map, &c.zones]
             .into_iter()
             .flatten()
             .cloned()
@@ -284,6 +290,7 @@ impl Hub {
         tokio::pin!(shutdown);
         let mut events = publisher.subscribe_events();
         let mut frames: Option<broadcast::Receiver<Arc<str>>> = None;
+        let mut people: Option<broadcast::Receiver<Arc<Message>>> = None;
         let mut pacer = Pacer::new(self.frames_per_s);
         let mut state_tick = tokio::time::interval(STATE_EVERY);
         let mut map_tick = tokio::time::interval(MAP_EVERY);
@@ -297,6 +304,12 @@ impl Hub {
                 frames = Some(publisher.subscribe_frames());
             } else if !open {
                 frames = None;
+            }
+            // People too (the latest ZONES is kept for pages that open later by then).
+            if open && people.is_none() {
+                people = Some(publisher.subscribe_people());
+            } else if !open {
+                people = None;
             }
             tokio::select! {
                 () = &mut shutdown => return,
@@ -338,6 +351,28 @@ impl Hub {
                     }
                     Err(broadcast::error::RecvError::Lagged(_)) => {}
                     Err(broadcast::error::RecvError::Closed) => frames = None,
+                },
+                item = async {
+                    match people.as_mut() {
+                        Some(rx) => rx.recv().await,
+                        None => std::future::pending().await,
+                    }
+                } => match item {
+                    Ok(message) => {
+                        match message.as_ref() {
+                            Message::Tracks(_) if !pacer.take(TRACKS_KEY, Instant::now()) => continue,
+                            Message::Tracks(_) | Message::Crossing(_) => {}
+                            Message::Zones(_) => {}
+                            _ => continue,
+                        }
+                        let line = text(&message.to_line());
+                        if matches!(message.as_ref(), Message::Zones(_)) {
+                            lock(&self.cache).zones = Some(line.clone());
+                        }
+                        self.send(line);
+                    }
+                    Err(broadcast::error::RecvError::Lagged(_)) => {}
+                    Err(broadcast::error::RecvError::Closed) => people = None,
                 },
                 _ = state_tick.tick(), if open => self.refresh_state(source.as_ref()),
                 _ = map_tick.tick(), if open => self.refresh_map(&source).await,
@@ -392,5 +427,119 @@ mod tests {
             cells.contains(&2) && cells.contains(&1),
             "walls and free space survive"
         );
+    }
+
+    /// TRACKS reach a page paced like a sensor's scans; ZONES and CROSSING all reach it, and
+    /// the latest ZONES is among the first lines of a page that opens later.
+    #[tokio::test]
+    async fn people_reach_pages_paced_and_zones_are_kept() {
+        use crate::daemon::protocol::{
+            Crossing, Poses, Saved, Side, Status, Track, Tracks, ZoneCount, Zones,
+        };
+        use crate::daemon::socket::Refused;
+        struct Nothing;
+        impl StatusSource for Nothing {
+            fn status(&self) -> Status {
+                Status {
+                    site: "s".into(),
+                    uptime_s: 0.0,
+                    queue_drops: 0,
+                    sensors: vec![],
+                    web: None,
+                }
+            }
+            fn poses(&self) -> Poses {
+                Poses {
+                    anchor: "a".into(),
+                    sensors: vec![],
+                }
+            }
+            fn reregister(&self, _: &str) -> Result<String, Refused> {
+                Err(Refused("no".into()))
+            }
+            fn save(&self) -> Result<Saved, Refused> {
+                Err(Refused("no".into()))
+            }
+        }
+        impl PageSource for Nothing {
+            fn occupancy(&self) -> Option<OccupancyGrid> {
+                None
+            }
+            fn fields_of_view(&self) -> Vec<(String, f64, f64)> {
+                Vec::new()
+            }
+        }
+        let publisher = Publisher::new(64);
+        // One TRACKS per 1000 s: only the first of a burst passes.
+        let hub = Hub::new(64, 0.001);
+        let (mut page, _) = hub.subscribe();
+        let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+        let task =
+            tokio::spawn(
+                Arc::clone(&hub).run(Arc::new(Nothing), publisher.clone(), async move {
+                    let _ = stop_rx.await;
+                }),
+            );
+        while publisher.people_watchers() == 0 {
+            tokio::task::yield_now().await;
+        }
+        let tracks = |t_ns| {
+            Message::Tracks(Tracks {
+                t_ns,
+                tracks: vec![Track {
+                    id: 4,
+                    x_m: 1.0,
+                    y_m: 2.0,
+                    vx_m_s: 0.0,
+                    vy_m_s: 0.0,
+                    sigma_m: 0.1,
+                    age_s: 1.0,
+                    sensors: vec![],
+                }],
+            })
+        };
+        let zones = Message::Zones(Zones {
+            t_ns: 2,
+            zones: vec![ZoneCount {
+                id: "desk".into(),
+                count: 1,
+                tracks: vec![4],
+            }],
+        });
+        let crossing = Message::Crossing(Crossing {
+            t_ns: 2,
+            line: "door".into(),
+            track: 4,
+            to: Side::Left,
+            left_total: 1,
+            right_total: 0,
+        });
+        for m in [
+            tracks(1),
+            tracks(2),
+            zones.clone(),
+            crossing.clone(),
+            tracks(3),
+        ] {
+            publisher.people(m);
+        }
+        let mut got = Vec::new();
+        while got.len() < 3 {
+            let line = page.recv().await.unwrap();
+            // STATUS, POSES and SENSORS come too; only people are looked at.
+            if let Ok(m @ (Message::Tracks(_) | Message::Zones(_) | Message::Crossing(_))) =
+                serde_json::from_str::<Message>(line.as_str())
+            {
+                got.push(m);
+            }
+        }
+        assert_eq!(got, vec![tracks(1), zones.clone(), crossing]);
+        let (_, first) = hub.subscribe();
+        assert!(
+            first.iter().any(|l| l.as_str() == zones.to_line()),
+            "a new page gets the latest ZONES first"
+        );
+        let _ = stop_tx.send(());
+        task.await.unwrap();
     }
 }

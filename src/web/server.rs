@@ -508,6 +508,7 @@ async fn answer(shared: &Shared, text: &[u8]) -> Message {
         Ok(Cmd::Watch { .. }) => Message::Watch(protocol::Watch {
             status: true,
             map: true,
+            tracks: true,
         }),
         Ok(request) => answer_request(&shared.source, request).await,
     }
