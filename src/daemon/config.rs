@@ -38,6 +38,7 @@ pub struct Config {
     pub registration: RegistrationConfig,
     pub publish: PublishConfig,
     pub web: WebConfig,
+    pub foxglove: FoxgloveConfig,
 }
 
 /// Where the page listens unless `[web] listen` says otherwise.
@@ -76,6 +77,28 @@ impl WebConfig {
         WebConfig {
             listen: None,
             ..WebConfig::default()
+        }
+    }
+}
+
+/// `[foxglove]`: the live site as a Foxglove WebSocket server (see `crate::web::foxglove`).
+/// Read-only: a Foxglove client sees the site but cannot change it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FoxgloveConfig {
+    /// Where it is served; `None` (the default, or `listen = ""`) serves none.
+    pub listen: Option<std::net::SocketAddr>,
+    /// Scans of one sensor (and fused clouds) sent per second at most.
+    pub frames_per_s: f64,
+    /// Messages a client may fall behind; past that its oldest are dropped.
+    pub send_queue: usize,
+}
+
+impl Default for FoxgloveConfig {
+    fn default() -> Self {
+        FoxgloveConfig {
+            listen: None,
+            frames_per_s: 10.0,
+            send_queue: 256,
         }
     }
 }
@@ -393,6 +416,16 @@ struct RawConfig {
     publish: Option<Spanned<PublishConfig>>,
     #[serde(default)]
     web: Option<Spanned<RawWeb>>,
+    #[serde(default)]
+    foxglove: Option<Spanned<RawFoxglove>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawFoxglove {
+    listen: Option<Spanned<String>>,
+    frames_per_s: Option<Spanned<f64>>,
+    send_queue: Option<Spanned<i64>>,
 }
 
 #[derive(Deserialize)]
@@ -797,6 +830,10 @@ impl Config {
             Some(w) => parse_web(&loc, w, &resolve, token_ok)?,
             None => WebConfig::default(),
         };
+        let foxglove = match raw.foxglove {
+            Some(f) => parse_foxglove(&loc, f)?,
+            None => FoxgloveConfig::default(),
+        };
 
         Ok(Config {
             path: path.to_path_buf(),
@@ -812,6 +849,7 @@ impl Config {
             registration,
             publish,
             web,
+            foxglove,
         })
     }
 
@@ -852,8 +890,54 @@ impl Config {
                 a.port()
             )),
         }
+        if let Some(a) = &self.foxglove.listen {
+            out.push_str(&format!(
+                "  Foxglove at ws://{a} (read-only{})\n",
+                if a.ip().is_loopback() {
+                    ", this machine only"
+                } else {
+                    ", no token: anyone who reaches the port sees the site"
+                }
+            ));
+        }
         out
     }
+}
+
+/// `[foxglove]`, checked. Any address is allowed: the server takes no requests that change
+/// anything (no client publishing, services or parameters).
+fn parse_foxglove(
+    loc: &Locator<'_>,
+    raw: Spanned<RawFoxglove>,
+) -> Result<FoxgloveConfig, ConfigError> {
+    let span = raw.span();
+    let f = raw.into_inner();
+    let mut out = FoxgloveConfig::default();
+    if let Some(listen) = &f.listen {
+        let text = listen.get_ref().trim();
+        out.listen = if text.is_empty() {
+            None
+        } else {
+            Some(text.parse().map_err(|_| {
+                loc.at(listen.span(), "foxglove.listen", format!(
+                    "{text:?} is not an address and port; write IP:PORT, e.g. \"127.0.0.1:8765\", or \"\" to serve none"
+                ))
+            })?)
+        };
+    }
+    if let Some(v) = &f.frames_per_s {
+        let v = *v.get_ref();
+        positive("frames_per_s", v, 60.0)
+            .map_err(|(k, m)| rename(loc.in_table(span.clone(), k, m), "foxglove"))?;
+        out.frames_per_s = v;
+    }
+    if let Some(n) = &f.send_queue {
+        out.send_queue = match usize::try_from(*n.get_ref()) {
+            Ok(n @ 4..=65536) => n,
+            _ => return Err(loc.at(n.span(), "foxglove.send_queue", "must be 4–65536 messages")),
+        };
+    }
+    Ok(out)
 }
 
 /// `[web]`, checked: a listener that is not loopback needs a token file that passes
@@ -1440,6 +1524,36 @@ map_cell_m = 0.1
         let re_anchored =
             parse(&GOOD.replace("anchor = \"entrance\"", "anchor = \"dock\"")).unwrap();
         assert!(old.changes_to(&re_anchored).anchor_changed);
+    }
+
+    #[test]
+    fn foxglove_is_off_by_default_and_its_errors_name_the_line() {
+        let c = parse(GOOD).unwrap();
+        assert_eq!(c.foxglove.listen, None);
+        let on = parse(&format!(
+            "{GOOD}\n[foxglove]\nlisten = \"127.0.0.1:8765\"\nframes_per_s = 5\nsend_queue = 32\n"
+        ))
+        .unwrap();
+        assert_eq!(on.foxglove.listen, Some("127.0.0.1:8765".parse().unwrap()));
+        assert_eq!(
+            (on.foxglove.frames_per_s, on.foxglove.send_queue),
+            (5.0, 32)
+        );
+        assert!(on.summary().contains("Foxglove at ws://127.0.0.1:8765"));
+        let off = parse(&format!("{GOOD}\n[foxglove]\nlisten = \"\"\n")).unwrap();
+        assert_eq!(off.foxglove.listen, None);
+        let (line, key, msg) = invalid(&format!("{GOOD}\n[foxglove]\nlisten = \"localhost\"\n"));
+        assert_eq!(
+            (line, key.as_str()),
+            (GOOD.lines().count() + 3, "foxglove.listen"),
+            "{msg}"
+        );
+        let (_, key, _) = invalid(&format!("{GOOD}\n[foxglove]\nframes_per_s = 0\n"));
+        assert_eq!(key, "foxglove.frames_per_s");
+        let (_, key, _) = invalid(&format!("{GOOD}\n[foxglove]\nsend_queue = 1\n"));
+        assert_eq!(key, "foxglove.send_queue");
+        let (_, key, _) = invalid(&format!("{GOOD}\n[foxglove]\nport = 1\n"));
+        assert_eq!(key, "foxglove.port");
     }
 
     #[test]

@@ -164,6 +164,10 @@ pub struct Status {
     /// Where the page is served (`page at http://…`), or why it is not; absent without one.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub web: Option<String>,
+    /// Where the Foxglove server listens (`Foxglove at ws://…`), or why it does not; absent
+    /// without one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub foxglove: Option<String>,
 }
 
 /// One sensor's driver in a [`Status`] reply.
@@ -659,6 +663,7 @@ mod tests {
             queue_drops: 0,
             sensors: vec![SensorStatus::new("a", SensorState::Connecting)],
             web: None,
+            foxglove: None,
         })
         .to_line();
         assert!(!status.contains("null"), "{status}");
@@ -698,6 +703,7 @@ mod tests {
                 queue_drops: 3,
                 sensors: vec![SensorStatus::new("a", SensorState::Streaming)],
                 web: Some("page at http://127.0.0.1:8080/".into()),
+                foxglove: None,
             }),
             Message::Poses(Poses {
                 anchor: "a".into(),
