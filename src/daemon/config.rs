@@ -1078,6 +1078,9 @@ impl Config {
                 "registration.queue_scans",
                 self.registration.queue_scans != new.registration.queue_scans,
             ),
+            // The page and Foxglove servers are bound once, at start.
+            ("web", self.web != new.web),
+            ("foxglove", self.foxglove != new.foxglove),
         ] {
             if differs {
                 changes.need_restart.push(key);
@@ -1524,6 +1527,17 @@ map_cell_m = 0.1
         let re_anchored =
             parse(&GOOD.replace("anchor = \"entrance\"", "anchor = \"dock\"")).unwrap();
         assert!(old.changes_to(&re_anchored).anchor_changed);
+    }
+
+    #[test]
+    fn a_reload_says_the_page_and_foxglove_need_a_restart() {
+        let a = parse(GOOD).unwrap();
+        let b = parse(&format!(
+            "{GOOD}\n[web]\nframes_per_s = 5\n\n[foxglove]\nlisten = \"127.0.0.1:8765\"\n"
+        ))
+        .unwrap();
+        assert_eq!(a.changes_to(&b).need_restart, ["web", "foxglove"]);
+        assert!(a.changes_to(&a).is_empty());
     }
 
     #[test]
