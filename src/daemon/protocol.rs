@@ -422,7 +422,8 @@ pub struct Frame {
 pub struct FrameScan {
     pub sensor: String,
     pub stamp_ns: u64,
-    /// Points in the site frame, flattened: `[x0, y0, x1, y1, …]`, m. Finite values only:
+    /// Points in the site frame, flattened: `[x0, y0, x1, y1, …]`, m, to the millimetre.
+    /// Finite values only:
     /// JSON has no NaN (serde_json would write `null`).
     pub xy_m: Vec<f32>,
 }
