@@ -7,7 +7,9 @@
 //! - the daemon's CPU (utime + stime of the child from /proc/PID/stat over a window) with no
 //!   page open, then with 10 page clients reading everything (`[web] frames_per_s` = 10):
 //!   the 10 clients should cost < 10 % of one core;
-//! - bytes per second per page client, and which classes they go to.
+//! - bytes per second per page client, and which classes they go to;
+//! - the same for one Foxglove client (`[foxglove]`, subscribed to every topic): the daemon's
+//!   CPU with it and its bytes per second per topic.
 //!
 //! Run: `cargo build --release --bin scanfuse` then
 //! `SCANFUSE_BIN=target/release/scanfuse cargo bench --bench web_page` (the daemon's figures
@@ -24,9 +26,11 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
-use futures_util::StreamExt;
+use futures_util::{SinkExt, StreamExt};
 use scanfuse::daemon::protocol::Message;
 use tokio_tungstenite::tungstenite::Message as Ws;
+use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+use tokio_tungstenite::tungstenite::http::HeaderValue;
 
 type Error = Box<dyn std::error::Error + Send + Sync>;
 
@@ -184,6 +188,50 @@ async fn client(
     Ok(tally)
 }
 
+/// One Foxglove client subscribed to every channel for `window`: bytes of message data per
+/// topic.
+async fn foxglove_client(port: u16, window: Duration) -> Result<BTreeMap<String, u64>, Error> {
+    let mut request = format!("ws://127.0.0.1:{port}").into_client_request()?;
+    request.headers_mut().insert(
+        "Sec-WebSocket-Protocol",
+        HeaderValue::from_static("foxglove.sdk.v1"),
+    );
+    let (mut ws, _) = tokio_tungstenite::connect_async(request).await?;
+    let mut topics: BTreeMap<u64, String> = BTreeMap::new();
+    let mut subscriptions: BTreeMap<u32, String> = BTreeMap::new();
+    let mut bytes: BTreeMap<String, u64> = BTreeMap::new();
+    let end = tokio::time::Instant::now() + window;
+    while let Ok(next) = tokio::time::timeout_at(end, ws.next()).await {
+        match next.ok_or("the Foxglove server closed")?? {
+            Ws::Text(t) => {
+                let v: serde_json::Value = serde_json::from_str(&t)?;
+                if v["op"] != "advertise" {
+                    continue;
+                }
+                let mut subs = Vec::new();
+                for ch in v["channels"].as_array().into_iter().flatten() {
+                    let (Some(id), Some(topic)) = (ch["id"].as_u64(), ch["topic"].as_str()) else {
+                        continue;
+                    };
+                    topics.insert(id, topic.to_string());
+                    let sub = subscriptions.len() as u32 + 1;
+                    subscriptions.insert(sub, topic.to_string());
+                    subs.push(serde_json::json!({"id": sub, "channelId": id}));
+                }
+                let msg = serde_json::json!({"op": "subscribe", "subscriptions": subs});
+                ws.send(Ws::Text(msg.to_string().into())).await?;
+            }
+            Ws::Binary(b) if b.first() == Some(&1) && b.len() >= 13 => {
+                let sub = u32::from_le_bytes([b[1], b[2], b[3], b[4]]);
+                let topic = subscriptions.get(&sub).cloned().unwrap_or_default();
+                *bytes.entry(topic).or_default() += b.len() as u64;
+            }
+            _ => {}
+        }
+    }
+    Ok(bytes)
+}
+
 fn main() -> Result<(), Error> {
     let window_s = env_f64("SCANFUSE_BENCH_S", 20.0);
     let clients = env_f64("SCANFUSE_BENCH_CLIENTS", 10.0) as usize;
@@ -193,6 +241,9 @@ fn main() -> Result<(), Error> {
     let dir = tempfile::tempdir()?;
     let socket = dir.path().join("s.sock");
     let port = std::net::TcpListener::bind("127.0.0.1:0")?
+        .local_addr()?
+        .port();
+    let fox_port = std::net::TcpListener::bind("127.0.0.1:0")?
         .local_addr()?
         .port();
     let mut text = format!(
@@ -209,6 +260,9 @@ fn main() -> Result<(), Error> {
     text.push_str(&format!(
         "\n[web]\nlisten = \"127.0.0.1:{port}\"\nframes_per_s = 10\nmax_clients = {}\n",
         clients.max(1) + 2
+    ));
+    text.push_str(&format!(
+        "\n[foxglove]\nlisten = \"127.0.0.1:{fox_port}\"\n"
     ));
     let config = dir.path().join("site.toml");
     std::fs::write(&config, text)?;
@@ -333,6 +387,24 @@ fn main() -> Result<(), Error> {
             *v as f64 / window / alive.max(1) as f64 / 1000.0,
             100.0 * *v as f64 / sum.max(1) as f64
         );
+    }
+
+    // One Foxglove client, no page open.
+    std::thread::sleep(Duration::from_secs(2));
+    let c0 = cpu_s(pid, ticks)?;
+    let t0 = Instant::now();
+    let topics = runtime.block_on(foxglove_client(fox_port, Duration::from_secs_f64(window_s)))?;
+    let window = t0.elapsed().as_secs_f64();
+    let fox = (cpu_s(pid, ticks)? - c0) / window;
+    let sum: u64 = topics.values().sum();
+    println!(
+        "  daemon CPU, 1 Foxglove client: {:5.1} % of one core ({:+.1} %); {:.0} kB/s to it",
+        fox * 100.0,
+        (fox - idle) * 100.0,
+        sum as f64 / window / 1000.0
+    );
+    for (k, v) in &topics {
+        println!("    {k:<12} {:7.1} kB/s", *v as f64 / window / 1000.0);
     }
     Ok(())
 }
