@@ -74,6 +74,7 @@ fn site() -> FixedSite {
             queue_drops: 0,
             sensors,
             web: None,
+            foxglove: None,
         },
         poses: Poses {
             anchor: ids[0].clone(),

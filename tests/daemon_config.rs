@@ -52,7 +52,8 @@ fn the_example_sets_every_key() {
         "moved_fraction",
         "moved_persist_s",
         "refine_radius_m",
-        "refine_yaw_deg", // [registration]
+        "refine_yaw_deg",
+        "motion_buffer_s", // [registration]
         "map_cell_m",
         "save_interval_s",
         "map_rate_hz",
@@ -62,7 +63,7 @@ fn the_example_sets_every_key() {
         "listen",
         "max_clients",
         "frames_per_s",
-        "send_queue", // [web] (token_file is shown commented out: check needs the file)
+        "send_queue", // [web] (token_file is shown commented out: check needs the file), [foxglove]
     ];
     for key in keys {
         let set = text.lines().any(|l| {
@@ -74,7 +75,7 @@ fn the_example_sets_every_key() {
     }
     // Every key the loader accepts is in the list above: an unknown key is rejected with the
     // list of valid ones, which must all be documented.
-    for table in ["[site]", "[registration]", "[publish]"] {
+    for table in ["[site]", "[registration]", "[publish]", "[foxglove]"] {
         let probe = text.replacen(table, &format!("{table}\nzz_probe = 1"), 1);
         let err = Config::parse(&probe, &example_path())
             .unwrap_err()

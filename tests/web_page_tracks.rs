@@ -32,6 +32,7 @@ impl StatusSource for Site {
             queue_drops: 0,
             sensors: vec![],
             web: None,
+            foxglove: None,
         }
     }
     fn poses(&self) -> Poses {

@@ -7,8 +7,8 @@ use std::path::PathBuf;
 use std::sync::mpsc;
 
 use scanfuse::daemon::config::{
-    self, Config, Connect, PublishConfig, RegistrationConfig, ScanMode, SensorConfig, SiteConfig,
-    WebConfig,
+    self, Config, Connect, FoxgloveConfig, PublishConfig, RegistrationConfig, ScanMode,
+    SensorConfig, SiteConfig, WebConfig,
 };
 use scanfuse::daemon::run::{RunOptions, run_daemon};
 use scanfuse::record;
@@ -37,6 +37,10 @@ pub struct Args {
     /// a page reachable from elsewhere needs `scanfuse run` with [web] token_file).
     #[arg(long, value_name = "ADDR")]
     web: Option<std::net::SocketAddr>,
+    /// Serve the site to Foxglove/Lichtblick here while the replay runs (a Foxglove
+    /// WebSocket, e.g. 127.0.0.1:8765).
+    #[arg(long, value_name = "ADDR")]
+    foxglove: Option<std::net::SocketAddr>,
     /// The sensor whose frame is the site frame (default: the first one found).
     #[arg(long)]
     anchor: Option<String>,
@@ -122,6 +126,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             ..WebConfig::off()
         },
         people: config::PeopleConfig::default(),
+        foxglove: FoxgloveConfig {
+            listen: args.foxglove,
+            ..FoxgloveConfig::default()
+        },
     };
     if let Some(addr) = args.web
         && !addr.ip().is_loopback()

@@ -486,6 +486,7 @@ mod tests {
             queue_drops: 0,
             sensors: vec![a, b, c],
             web: None,
+            foxglove: None,
         });
         assert_eq!(
             line,
@@ -522,6 +523,7 @@ mod tests {
             queue_drops: 0,
             sensors,
             web: None,
+            foxglove: None,
         }
     }
 

@@ -200,6 +200,9 @@ pub fn render_table(status: &Status, poses: &Poses) -> String {
     if let Some(web) = &status.web {
         let _ = write!(out, " · {web}");
     }
+    if let Some(foxglove) = &status.foxglove {
+        let _ = write!(out, " · {foxglove}");
+    }
     out.push('\n');
     let _ = writeln!(
         out,
@@ -383,6 +386,7 @@ mod tests {
             queue_drops: 3,
             sensors: vec![a, b],
             web: None,
+            foxglove: None,
         };
         let mut pa = SensorPose::unregistered("entrance", "");
         pa.registered = true;

@@ -41,6 +41,7 @@ pub struct Config {
     pub web: WebConfig,
     /// `[[zone]]`, `[[line]]`, `[osc]`, `[mqtt]`: what is done with the tracks.
     pub people: PeopleConfig,
+    pub foxglove: FoxgloveConfig,
 }
 
 /// The tracking outputs: zones and lines counted, and where tracks are sent besides the
@@ -108,6 +109,28 @@ impl WebConfig {
         WebConfig {
             listen: None,
             ..WebConfig::default()
+        }
+    }
+}
+
+/// `[foxglove]`: the live site as a Foxglove WebSocket server (see `crate::web::foxglove`).
+/// Read-only: a Foxglove client sees the site but cannot change it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FoxgloveConfig {
+    /// Where it is served; `None` (the default, or `listen = ""`) serves none.
+    pub listen: Option<std::net::SocketAddr>,
+    /// Scans of one sensor (and fused clouds) sent per second at most.
+    pub frames_per_s: f64,
+    /// Messages a client may fall behind; past that its oldest are dropped.
+    pub send_queue: usize,
+}
+
+impl Default for FoxgloveConfig {
+    fn default() -> Self {
+        FoxgloveConfig {
+            listen: None,
+            frames_per_s: 10.0,
+            send_queue: 256,
         }
     }
 }
@@ -439,6 +462,8 @@ struct RawConfig {
     osc: Option<Spanned<RawOsc>>,
     #[serde(default)]
     mqtt: Option<Spanned<RawMqtt>>,
+    #[serde(default)]
+    foxglove: Option<Spanned<RawFoxglove>>,
 }
 
 #[derive(Deserialize)]
@@ -471,6 +496,14 @@ struct RawMqtt {
     topic_prefix: Option<Spanned<String>>,
     username: Option<Spanned<String>>,
     password_file: Option<Spanned<String>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawFoxglove {
+    listen: Option<Spanned<String>>,
+    frames_per_s: Option<Spanned<f64>>,
+    send_queue: Option<Spanned<i64>>,
 }
 
 #[derive(Deserialize)]
@@ -886,6 +919,10 @@ impl Config {
             &name,
             &resolve,
         )?;
+        let foxglove = match raw.foxglove {
+            Some(f) => parse_foxglove(&loc, f)?,
+            None => FoxgloveConfig::default(),
+        };
 
         Ok(Config {
             path: path.to_path_buf(),
@@ -902,6 +939,7 @@ impl Config {
             publish,
             web,
             people,
+            foxglove,
         })
     }
 
@@ -959,8 +997,54 @@ impl Config {
         if let Some(m) = &p.mqtt {
             out.push_str(&format!("  MQTT to {} under {}/\n", m.url, m.topic_prefix));
         }
+        if let Some(a) = &self.foxglove.listen {
+            out.push_str(&format!(
+                "  Foxglove at ws://{a} (read-only{})\n",
+                if a.ip().is_loopback() {
+                    ", this machine only"
+                } else {
+                    ", no token: anyone who reaches the port sees the site"
+                }
+            ));
+        }
         out
     }
+}
+
+/// `[foxglove]`, checked. Any address is allowed: the server takes no requests that change
+/// anything (no client publishing, services or parameters).
+fn parse_foxglove(
+    loc: &Locator<'_>,
+    raw: Spanned<RawFoxglove>,
+) -> Result<FoxgloveConfig, ConfigError> {
+    let span = raw.span();
+    let f = raw.into_inner();
+    let mut out = FoxgloveConfig::default();
+    if let Some(listen) = &f.listen {
+        let text = listen.get_ref().trim();
+        out.listen = if text.is_empty() {
+            None
+        } else {
+            Some(text.parse().map_err(|_| {
+                loc.at(listen.span(), "foxglove.listen", format!(
+                    "{text:?} is not an address and port; write IP:PORT, e.g. \"127.0.0.1:8765\", or \"\" to serve none"
+                ))
+            })?)
+        };
+    }
+    if let Some(v) = &f.frames_per_s {
+        let v = *v.get_ref();
+        positive("frames_per_s", v, 60.0)
+            .map_err(|(k, m)| rename(loc.in_table(span.clone(), k, m), "foxglove"))?;
+        out.frames_per_s = v;
+    }
+    if let Some(n) = &f.send_queue {
+        out.send_queue = match usize::try_from(*n.get_ref()) {
+            Ok(n @ 4..=65536) => n,
+            _ => return Err(loc.at(n.span(), "foxglove.send_queue", "must be 4–65536 messages")),
+        };
+    }
+    Ok(out)
 }
 
 /// `[web]`, checked: a listener that is not loopback needs a token file that passes
@@ -1317,6 +1401,9 @@ impl Config {
             ("line", self.people.lines != new.people.lines),
             ("osc", self.people.osc_targets != new.people.osc_targets),
             ("mqtt", self.people.mqtt != new.people.mqtt),
+            // The page and Foxglove servers are bound once, at start.
+            ("web", self.web != new.web),
+            ("foxglove", self.foxglove != new.foxglove),
         ] {
             if differs {
                 changes.need_restart.push(key);
@@ -1772,6 +1859,47 @@ map_cell_m = 0.1
         let re_anchored =
             parse(&GOOD.replace("anchor = \"entrance\"", "anchor = \"dock\"")).unwrap();
         assert!(old.changes_to(&re_anchored).anchor_changed);
+    }
+
+    #[test]
+    fn a_reload_says_the_page_and_foxglove_need_a_restart() {
+        let a = parse(GOOD).unwrap();
+        let b = parse(&format!(
+            "{GOOD}\n[web]\nframes_per_s = 5\n\n[foxglove]\nlisten = \"127.0.0.1:8765\"\n"
+        ))
+        .unwrap();
+        assert_eq!(a.changes_to(&b).need_restart, ["web", "foxglove"]);
+        assert!(a.changes_to(&a).is_empty());
+    }
+
+    #[test]
+    fn foxglove_is_off_by_default_and_its_errors_name_the_line() {
+        let c = parse(GOOD).unwrap();
+        assert_eq!(c.foxglove.listen, None);
+        let on = parse(&format!(
+            "{GOOD}\n[foxglove]\nlisten = \"127.0.0.1:8765\"\nframes_per_s = 5\nsend_queue = 32\n"
+        ))
+        .unwrap();
+        assert_eq!(on.foxglove.listen, Some("127.0.0.1:8765".parse().unwrap()));
+        assert_eq!(
+            (on.foxglove.frames_per_s, on.foxglove.send_queue),
+            (5.0, 32)
+        );
+        assert!(on.summary().contains("Foxglove at ws://127.0.0.1:8765"));
+        let off = parse(&format!("{GOOD}\n[foxglove]\nlisten = \"\"\n")).unwrap();
+        assert_eq!(off.foxglove.listen, None);
+        let (line, key, msg) = invalid(&format!("{GOOD}\n[foxglove]\nlisten = \"localhost\"\n"));
+        assert_eq!(
+            (line, key.as_str()),
+            (GOOD.lines().count() + 3, "foxglove.listen"),
+            "{msg}"
+        );
+        let (_, key, _) = invalid(&format!("{GOOD}\n[foxglove]\nframes_per_s = 0\n"));
+        assert_eq!(key, "foxglove.frames_per_s");
+        let (_, key, _) = invalid(&format!("{GOOD}\n[foxglove]\nsend_queue = 1\n"));
+        assert_eq!(key, "foxglove.send_queue");
+        let (_, key, _) = invalid(&format!("{GOOD}\n[foxglove]\nport = 1\n"));
+        assert_eq!(key, "foxglove.port");
     }
 
     #[test]

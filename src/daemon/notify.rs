@@ -124,6 +124,7 @@ mod tests {
                 SensorStatus::new("b", SensorState::Disconnected),
             ],
             web: None,
+            foxglove: None,
         };
         let mut a = SensorPose::unregistered("a", "");
         a.registered = true;

@@ -202,6 +202,20 @@ pub struct Pipeline {
     stream_ns: AtomicU64,
     /// Where the page is served, or why it is not (`status`' `web`).
     web: Mutex<Option<String>>,
+    /// Where the Foxglove server listens, or why it does not (`status`' `foxglove`).
+    foxglove: Mutex<Option<String>>,
+}
+
+/// A sensor's latest scan, placed or not, for outputs that draw scans in the sensor's own
+/// frame (the Foxglove bridge).
+#[derive(Debug, Clone)]
+pub struct LatestScan {
+    pub id: String,
+    pub scan: Scan,
+    pub geometry: Option<ScanGeometry>,
+    pub mount: Mount,
+    /// Its pose in the site frame, when it has one.
+    pub site_from_sensor: Option<Pose3>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -253,7 +267,36 @@ impl Pipeline {
             fuser_beat_ns: AtomicU64::new(now_ns()),
             stream_ns: AtomicU64::new(0),
             web: Mutex::new(None),
+            foxglove: Mutex::new(None),
         }
+    }
+
+    /// What `status` says of the Foxglove server.
+    pub(super) fn set_foxglove(&self, line: String) {
+        *lock(&self.foxglove) = Some(line);
+    }
+
+    /// Every sensor's latest scan (a copy), with its pose when it has one.
+    pub fn latest_scans(&self) -> Vec<LatestScan> {
+        let inner = lock(&self.inner);
+        inner
+            .sensors
+            .iter()
+            .filter_map(|(id, slot)| {
+                Some(LatestScan {
+                    id: id.clone(),
+                    scan: slot.last_scan.clone()?,
+                    geometry: slot.geometry,
+                    mount: slot.spec.mount,
+                    site_from_sensor: inner.poses.get(id).map(|p| p.site_from_sensor),
+                })
+            })
+            .collect()
+    }
+
+    /// How scans become points (what `watch` frames and the fused cloud use).
+    pub fn project_params(&self) -> ProjectParams {
+        self.project
     }
 
     /// What `status` says of the page.
@@ -695,6 +738,7 @@ impl StatusSource for Pipeline {
             queue_drops: self.queue.drops(),
             sensors,
             web: lock(&self.web).clone(),
+            foxglove: lock(&self.foxglove).clone(),
         }
     }
 

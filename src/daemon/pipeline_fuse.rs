@@ -30,7 +30,17 @@ pub const MAP_PGM: &str = "map.pgm";
 pub const MAP_YAML: &str = "map.yaml";
 pub const MAP_PLY: &str = "map.ply";
 
-/// One posed sensor's scan as a `watch` frame entry: its points in the site frame.
+/// Frame points are rounded to the millimetre: far below a scanner's noise (±30 mm), and the
+/// JSON of a rounded coordinate (`12.346`) is about half as long as an unrounded one's
+/// (`12.345678`), which is most of what a `watch` client or a page receives.
+pub const FRAME_RESOLUTION_M: f64 = 0.001;
+
+fn frame_coordinate(v: f64) -> f32 {
+    ((v / FRAME_RESOLUTION_M).round() * FRAME_RESOLUTION_M) as f32
+}
+
+/// One posed sensor's scan as a `watch` frame entry: its points in the site frame, to the
+/// millimetre.
 pub fn scan_frame(s: &PosedScan, project: &ProjectParams) -> FrameScan {
     let site_from_sensor = s.site_from_sensor.planar();
     let points = project_scan(&s.scan, s.geometry.as_ref(), &s.mount, project);
@@ -38,8 +48,8 @@ pub fn scan_frame(s: &PosedScan, project: &ProjectParams) -> FrameScan {
     for p in &points {
         let site = site_from_sensor * p.p;
         if site.x.is_finite() && site.y.is_finite() {
-            xy_m.push(site.x as f32);
-            xy_m.push(site.y as f32);
+            xy_m.push(frame_coordinate(site.x));
+            xy_m.push(frame_coordinate(site.y));
         }
     }
     FrameScan {
@@ -235,6 +245,26 @@ mod tests {
         );
         assert_eq!(fuser.points().len(), 3);
         assert!(fuser.grid().size().0 > 0, "the rays entered the grid");
+    }
+
+    #[test]
+    fn frame_points_are_rounded_to_the_millimetre_and_written_short() {
+        let mut posed = posed("a", 0, 2.0, 1.0, 0.123_456_7, -3.987_654_3);
+        posed.scan.ranges_m = vec![2.345_678_9; 3];
+        let frame = scan_frame(&posed, &ProjectParams::default());
+        for &v in &frame.xy_m {
+            let mm = f64::from(v) * 1000.0;
+            assert!(
+                (mm - mm.round()).abs() < 1e-3,
+                "{v} is not whole millimetres"
+            );
+        }
+        let json = serde_json::to_string(&frame.xy_m).unwrap();
+        // Every number has at most three decimals.
+        for n in json.trim_matches(|c| c == '[' || c == ']').split(',') {
+            let decimals = n.split_once('.').map_or(0, |(_, d)| d.len());
+            assert!(decimals <= 3, "{n} in {json}");
+        }
     }
 
     fn posed(id: &str, index: u16, range_m: f32, stamp_s: f64, x_m: f64, y_m: f64) -> PosedScan {

@@ -168,6 +168,10 @@ pub struct Status {
     /// Where the page is served (`page at http://…`), or why it is not; absent without one.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub web: Option<String>,
+    /// Where the Foxglove server listens (`Foxglove at ws://…`), or why it does not; absent
+    /// without one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub foxglove: Option<String>,
 }
 
 /// One sensor's driver in a [`Status`] reply.
@@ -427,7 +431,8 @@ pub struct Frame {
 pub struct FrameScan {
     pub sensor: String,
     pub stamp_ns: u64,
-    /// Points in the site frame, flattened: `[x0, y0, x1, y1, …]`, m. Finite values only:
+    /// Points in the site frame, flattened: `[x0, y0, x1, y1, …]`, m, to the millimetre.
+    /// Finite values only:
     /// JSON has no NaN (serde_json would write `null`).
     pub xy_m: Vec<f32>,
 }
@@ -704,6 +709,7 @@ mod tests {
             queue_drops: 0,
             sensors: vec![SensorStatus::new("a", SensorState::Connecting)],
             web: None,
+            foxglove: None,
         })
         .to_line();
         assert!(!status.contains("null"), "{status}");
@@ -743,6 +749,7 @@ mod tests {
                 queue_drops: 3,
                 sensors: vec![SensorStatus::new("a", SensorState::Streaming)],
                 web: Some("page at http://127.0.0.1:8080/".into()),
+                foxglove: None,
             }),
             Message::Poses(Poses {
                 anchor: "a".into(),

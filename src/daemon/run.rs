@@ -48,7 +48,8 @@ pub struct RunOptions {
     pub duration: Option<Duration>,
     /// Serve the status socket at `config.site.socket`.
     pub serve_socket: bool,
-    /// Serve the page at `config.web.listen` (when it names one).
+    /// Serve the page at `config.web.listen` and Foxglove at `config.foxglove.listen` (when
+    /// they name one).
     pub serve_web: bool,
     /// Playback of `replay:` sensors: times the recorded rate; `f64::INFINITY` as fast as the
     /// pipeline takes the scans. Either way nothing is dropped on the way to registration.
@@ -400,6 +401,45 @@ async fn start_page(
     }
 }
 
+/// Serves the site to Foxglove when `[foxglove] listen` asks for it. A server that cannot
+/// start (the port taken) is an error on the log, the socket (`status`' `foxglove`, an event)
+/// and the terminal, and the daemon goes on without it, as for the page.
+async fn start_foxglove(
+    config: &Config,
+    pipeline: &Arc<Pipeline>,
+    stop: &watch::Receiver<bool>,
+) -> Option<JoinHandle<()>> {
+    #[cfg(feature = "foxglove")]
+    match crate::web::foxglove::FoxgloveServer::bind(&config.foxglove).await {
+        Ok(None) => None,
+        Ok(Some(server)) => {
+            let line = format!("Foxglove at {}", server.url());
+            pipeline.set_foxglove(line.clone());
+            pipeline.announce(EventKind::Connected, None, line);
+            let source: Arc<dyn crate::web::foxglove::FoxgloveSource> = Arc::clone(pipeline) as _;
+            Some(tokio::spawn(server.run(source, stop.clone())))
+        }
+        Err(e) => {
+            let why = format!("no Foxglove server: {e}; the sensors are served as before");
+            pipeline.set_foxglove(why.clone());
+            pipeline.announce(EventKind::Error, None, why);
+            None
+        }
+    }
+    #[cfg(not(feature = "foxglove"))]
+    {
+        let _ = stop;
+        if let Some(a) = config.foxglove.listen {
+            let why = format!(
+                "no Foxglove server at {a}: this scanfuse was built without the foxglove feature"
+            );
+            pipeline.set_foxglove(why.clone());
+            pipeline.announce(EventKind::Error, None, why);
+        }
+        None
+    }
+}
+
 /// Runs the daemon on `config` until a stop (see the module doc), then saves.
 pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSummary, RunError> {
     let notifier = Notifier::from_env();
@@ -507,6 +547,11 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
             },
         ));
     }
+    let foxglove = if options.serve_web {
+        start_foxglove(&config, &pipeline, &server_stop_rx).await
+    } else {
+        None
+    };
     if let Err(e) = notifier.ready(&status_line(&pipeline.status(), &pipeline.poses())) {
         tracing::warn!("{e}");
     }
@@ -624,6 +669,9 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
     let _ = server_stop_tx.send(true);
     if let Some(server) = server {
         let _ = server.await;
+    }
+    if let Some(foxglove) = foxglove {
+        let _ = foxglove.await;
     }
     if let Some(web) = web {
         let _ = web.await;

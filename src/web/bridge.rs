@@ -76,9 +76,21 @@ struct FieldOfView {
     end_deg: f64,
 }
 
-/// The `MAP` line of `grid`, merging cells so that at most [`MAX_MAP_CELLS`] are sent (a
-/// merged cell is occupied if any of its cells is, else free if any is); `None` while empty.
-pub fn map_line(grid: &OccupancyGrid) -> Option<String> {
+/// A grid's cells merged `k` × `k` so that at most [`MAX_MAP_CELLS`] remain: row-major from
+/// the bottom row (y = the grid's origin) up, 0 unknown, 1 free, 2 occupied (a merged cell is
+/// occupied if any of its cells is, else free if any is).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CoarseGrid {
+    pub cell_m: f64,
+    pub origin_x_m: f64,
+    pub origin_y_m: f64,
+    pub width: usize,
+    pub height: usize,
+    pub cells: Vec<u8>,
+}
+
+/// `grid` coarsened to at most [`MAX_MAP_CELLS`] cells; `None` while empty.
+pub fn coarse_grid(grid: &OccupancyGrid) -> Option<CoarseGrid> {
     let (w, h) = grid.size();
     if w == 0 || h == 0 {
         return None;
@@ -102,13 +114,26 @@ pub fn map_line(grid: &OccupancyGrid) -> Option<String> {
         }
     }
     let origin = grid.origin();
-    let message = MapMessage {
+    Some(CoarseGrid {
         cell_m: grid.params().cell_m * k as f64,
         origin_x_m: origin.x,
         origin_y_m: origin.y,
         width: cw,
         height: ch,
-        cells: base64::engine::general_purpose::STANDARD.encode(&cells),
+        cells,
+    })
+}
+
+/// The `MAP` line of `grid` (coarsened as [`coarse_grid`] does); `None` while empty.
+pub fn map_line(grid: &OccupancyGrid) -> Option<String> {
+    let c = coarse_grid(grid)?;
+    let message = MapMessage {
+        cell_m: c.cell_m,
+        origin_x_m: c.origin_x_m,
+        origin_y_m: c.origin_y_m,
+        width: c.width,
+        height: c.height,
+        cells: base64::engine::general_purpose::STANDARD.encode(&c.cells),
     };
     serde_json::to_string(&message).ok()
 }
@@ -446,6 +471,7 @@ mod tests {
                     queue_drops: 0,
                     sensors: vec![],
                     web: None,
+                    foxglove: None,
                 }
             }
             fn poses(&self) -> Poses {

@@ -11,9 +11,12 @@
 //!   socket's own [`answer_request`](crate::daemon::socket::answer_request): one protocol,
 //!   two transports.
 //!
-//! The Foxglove bridge of DESIGN.md is not here yet.
+//! - [`foxglove`] (cargo feature `foxglove`, on by default): the same site as a Foxglove
+//!   WebSocket server, for Foxglove and Lichtblick.
 
 pub mod bridge;
+#[cfg(feature = "foxglove")]
+pub mod foxglove;
 pub mod page;
 pub mod server;
 

@@ -58,6 +58,7 @@ impl MemorySite {
                 queue_drops: 0,
                 sensors: vec![entrance, dock],
                 web: None,
+                foxglove: None,
             }),
             poses: Mutex::new(Poses {
                 anchor: "entrance".into(),

@@ -8,6 +8,7 @@ tests/web_page_tracks.rs:
 
 import argparse
 import json
+import time
 import sys
 
 from playwright.sync_api import sync_playwright
@@ -26,10 +27,13 @@ def main():
         page = browser.new_page(viewport={"width": 1200, "height": 800})
         page.goto(args.url)
         selector = ",".join(f'[data-track="{i}"]' for i in want)
-        page.wait_for_function(
-            f"document.querySelectorAll({json.dumps(selector)}).length === {len(want)}",
-            timeout=30000,
-        )
+        # Polled from here: the page's Content-Security-Policy forbids the eval that
+        # wait_for_function would need.
+        deadline = time.monotonic() + 30
+        while page.locator(selector).count() != len(want):
+            if time.monotonic() > deadline:
+                raise SystemExit(f"the page drew {page.locator(selector).count()} of {want}")
+            page.wait_for_timeout(100)
         # The trail needs two positions of each; let a few more TRACKS arrive.
         page.wait_for_timeout(1000)
         drawn = {}
