@@ -15,4 +15,5 @@ pub mod scan;
 pub mod scip;
 pub mod sensor;
 pub mod sim;
+pub mod track;
 pub mod web;
