@@ -104,7 +104,9 @@ pub fn split_wide(
     if w <= max_person_m || person_m <= 0.0 {
         return vec![blob];
     }
-    let parts = ((w / person_m).round() as usize).clamp(2, blob.len() / min_points.max(1));
+    let parts = ((w / person_m).round() as usize)
+        .max(2)
+        .min(blob.len() / min_points.max(1));
     if parts < 2 {
         return vec![blob];
     }

@@ -13,6 +13,8 @@ pub mod assign;
 pub mod background;
 pub mod detect;
 pub mod filter;
+pub mod mot;
+pub mod score;
 pub mod tracker;
 
 pub use tracker::{SensorScan, Tracker};
