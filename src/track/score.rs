@@ -235,8 +235,8 @@ pub fn score_plan(
                     people.len() as f64 * crate::sim::PEOPLE_TRUTH_PERIOD_NS as f64 * 1e-9 / 60.0;
                 let before = (score.mot.misses, score.mot.false_tracks);
                 score.mot.frame(&people, &tracks);
-                if std::env::var_os("SCANFUSE_MOT_DEBUG").is_some() {
-                    eprintln!(
+                if tracing::enabled!(tracing::Level::TRACE) {
+                    tracing::trace!(
                         "t {:.1} truth {} tracks {} miss +{} false +{} live {}",
                         (truth.t_ns - start_ns) as f64 * 1e-9,
                         people.len(),
@@ -251,7 +251,7 @@ pub fn score_plan(
                             .map(|(_, tx, ty)| (tx - x).hypot(ty - y))
                             .fold(f64::INFINITY, f64::min);
                         if d > 0.5 {
-                            eprintln!("   miss {id} at {x:.2},{y:.2} nearest {d:.2}");
+                            tracing::trace!("   miss {id} at {x:.2},{y:.2} nearest {d:.2}");
                         }
                     }
                     for (id, x, y) in &tracks {
@@ -263,7 +263,7 @@ pub fn score_plan(
                                 if b.0 < a.0 { b } else { a }
                             });
                         if d > 0.5 {
-                            eprintln!("   false {id} at {x:.2},{y:.2} nearest {who} {d:.2}");
+                            tracing::trace!("   false {id} at {x:.2},{y:.2} nearest {who} {d:.2}");
                         }
                     }
                 }

@@ -77,6 +77,8 @@ pub struct Tracker {
     next_id: u64,
     /// Time of the last step (ns, the scans' clock).
     last_step_ns: Option<u64>,
+    /// The newest stamp taken since the last step.
+    newest_ns: Option<u64>,
 }
 
 impl Tracker {
@@ -87,6 +89,7 @@ impl Tracker {
             tracks: Vec::new(),
             next_id: 1,
             last_step_ns: None,
+            newest_ns: None,
         }
     }
 
@@ -148,26 +151,27 @@ impl Tracker {
         out
     }
 
-    /// Fuses the step a scan stamped `t_ns` closes, if it closes one.
+    /// Fuses the step a scan stamped `t_ns` closes, if it closes one: at the newest stamp
+    /// taken since the last step (the incoming one's when none was).
     fn close_step(&mut self, t_ns: u64) -> Option<Tracks> {
         let step_ns = (self.params.step_s * 1e9) as u64;
-        match self.last_step_ns {
+        let out = match self.last_step_ns {
             None => {
                 self.last_step_ns = Some(t_ns);
                 None
             }
             Some(last) if t_ns >= last.saturating_add(step_ns) => {
-                let at = self
-                    .sensors
-                    .values()
-                    .flat_map(|s| s.pending.iter().map(|d| d.stamp_ns))
-                    .max()
-                    .unwrap_or(t_ns)
-                    .max(last);
+                let at = match self.newest_ns {
+                    Some(n) if n > last => n,
+                    _ => t_ns,
+                };
+                self.newest_ns = None;
                 Some(self.step(at))
             }
             Some(_) => None,
-        }
+        };
+        self.newest_ns = Some(self.newest_ns.map_or(t_ns, |n| n.max(t_ns)));
+        out
     }
 
     /// Detections of one scan, kept for the next step; the background learns from it.
