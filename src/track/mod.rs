@@ -62,8 +62,10 @@ pub struct TrackParams {
     pub gate_max_m: f64,
     /// A new track's speed uncertainty (m/s).
     pub birth_sigma_v_m_s: f64,
-    /// No track is born within 0.4 m of another.
+    /// No track is born within 0.6 m of another.
     pub birth_clear_m: f64,
+    /// Two confirmed tracks closer than 0.3 m are one person: the younger ends.
+    pub same_track_m: f64,
     /// A track is confirmed (gets its id) at its 5th detection; a tentative one unseen for
     /// 0.2 s is dropped, a confirmed one unseen for 1.5 s ends.
     pub confirm_hits: u32,
@@ -103,7 +105,8 @@ impl Default for TrackParams {
             gate_chi2: 13.8,
             gate_max_m: 1.0,
             birth_sigma_v_m_s: 1.0,
-            birth_clear_m: 0.4,
+            birth_clear_m: 0.6,
+            same_track_m: 0.3,
             confirm_hits: 5,
             tentative_death_s: 0.2,
             death_s: 1.5,

@@ -62,15 +62,31 @@ pub struct SceneScore {
     pub ids: usize,
 }
 
-/// The floor the truth is scored on: inside the walls' bounding box (less `inset_m`), and
-/// within `range_m` of a sensor used. People outside the hall (arriving 1 m outside a door)
-/// and tracks there are not counted.
+/// The floor the truth is scored on: inside the plan's closed walls (its bounding box when it
+/// has none), at least `inset_m` from them, not within `sensor_clear_m` of a sensor used (below
+/// its minimum range, or behind it against the wall), and within `range_m` of one. People
+/// outside the hall (arriving 1 m outside a door, or in a recess behind the scanners) and
+/// tracks there are not counted.
 #[derive(Debug, Clone)]
 struct Floor {
+    outlines: Vec<Vec<[f64; 2]>>,
     min: [f64; 2],
     max: [f64; 2],
+    inset_m: f64,
     sensors: Vec<[f64; 2]>,
+    sensor_clear_m: f64,
     range_m: f64,
+}
+
+fn segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
+    let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+    let len2 = dx * dx + dy * dy;
+    let t = if len2 > 0.0 {
+        (((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / len2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    (p[0] - a[0] - t * dx).hypot(p[1] - a[1] - t * dy)
 }
 
 impl Floor {
@@ -88,20 +104,45 @@ impl Floor {
             }
         }
         Floor {
-            min: [min[0] + inset_m, min[1] + inset_m],
-            max: [max[0] - inset_m, max[1] - inset_m],
+            outlines: plan
+                .walls
+                .iter()
+                .filter(|w| w.closed && w.points.len() >= 3)
+                .map(|w| w.points.clone())
+                .collect(),
+            min,
+            max,
+            inset_m,
             sensors: plan.sensors.iter().map(|s| [s.x, s.y]).collect(),
+            sensor_clear_m: 0.5,
             range_m,
         }
     }
 
     fn contains(&self, x: f64, y: f64) -> bool {
-        (self.min[0]..=self.max[0]).contains(&x)
-            && (self.min[1]..=self.max[1]).contains(&y)
-            && self
-                .sensors
-                .iter()
-                .any(|s| (s[0] - x).hypot(s[1] - y) <= self.range_m)
+        let p = [x, y];
+        let inside = if self.outlines.is_empty() {
+            (self.min[0] + self.inset_m..=self.max[0] - self.inset_m).contains(&x)
+                && (self.min[1] + self.inset_m..=self.max[1] - self.inset_m).contains(&y)
+        } else {
+            self.outlines.iter().any(|o| {
+                let n = o.len();
+                let mut inside = false;
+                for i in 0..n {
+                    let (a, b) = (o[i], o[(i + 1) % n]);
+                    if (a[1] > y) != (b[1] > y)
+                        && x < a[0] + (y - a[1]) * (b[0] - a[0]) / (b[1] - a[1])
+                    {
+                        inside = !inside;
+                    }
+                }
+                inside && (0..n).all(|i| segment_distance(p, o[i], o[(i + 1) % n]) >= self.inset_m)
+            })
+        };
+        let dist = |s: &[f64; 2]| (s[0] - x).hypot(s[1] - y);
+        inside
+            && self.sensors.iter().all(|s| dist(s) >= self.sensor_clear_m)
+            && self.sensors.iter().any(|s| dist(s) <= self.range_m)
     }
 }
 

@@ -290,46 +290,99 @@ impl Tracker {
             t.filter.predict(dt_s, p.accel_psd);
             t.sensors.clear();
         }
-        let (detections, names) = self.merged();
-        let mut taken = vec![false; detections.len()];
-        // Confirmed tracks choose first, then tentative ones from what is left.
-        for confirmed in [true, false] {
-            let rows: Vec<usize> = (0..self.tracks.len())
-                .filter(|&i| (self.tracks[i].id != 0) == confirmed)
-                .collect();
-            let cols: Vec<usize> = (0..detections.len()).filter(|&j| !taken[j]).collect();
-            let tracks = &self.tracks;
-            let chosen = assign(rows.len(), cols.len(), p.gate_chi2, |r, c| {
-                let t = &tracks[rows[r]];
-                let d = &detections[cols[c]];
-                if (t.filter.position() - d.at).norm() > p.gate_max_m {
-                    return None;
-                }
-                t.filter.mahalanobis2(&d.at, p.sigma_meas_m)
-            });
-            for (r, c) in chosen.iter().enumerate() {
-                let Some(c) = c else { continue };
-                let (i, j) = (rows[r], cols[*c]);
-                taken[j] = true;
-                let d = &detections[j];
-                let t = &mut self.tracks[i];
-                // The detection is a little older than the step: carried to its time.
-                let lag_s = t_ns.saturating_sub(d.stamp_ns) as f64 * 1e-9;
-                let z = d.at + t.filter.velocity() * lag_s;
-                t.filter.update(&z, p.sigma_meas_m);
-                t.last_seen_ns = t_ns;
-                t.hits += 1;
-                t.sensors = d
-                    .sensors
-                    .iter()
-                    .filter_map(|k| names.get(*k).cloned())
+        // Each sensor's sightings go to the tracks (confirmed ones choose first), at most one
+        // per track and sensor; a track then takes the mean of what it got, one detection
+        // however many sensors saw the person.
+        let ids: Vec<String> = self
+            .sensors
+            .iter()
+            .filter(|(_, s)| !s.pending.is_empty())
+            .map(|(id, _)| id.clone())
+            .collect();
+        let mut got: Vec<Vec<(Point2<f64>, usize)>> = vec![Vec::new(); self.tracks.len()];
+        for (k, id) in ids.iter().enumerate() {
+            let Some(state) = self.sensors.get_mut(id) else {
+                continue;
+            };
+            let sightings = std::mem::take(&mut state.pending);
+            let mut taken = vec![false; sightings.len()];
+            for confirmed in [true, false] {
+                let rows: Vec<usize> = (0..self.tracks.len())
+                    .filter(|&i| (self.tracks[i].id != 0) == confirmed)
                     .collect();
-                if t.id == 0 && t.hits >= p.confirm_hits {
-                    t.id = self.next_id;
-                    self.next_id += 1;
+                let cols: Vec<usize> = (0..sightings.len()).filter(|&j| !taken[j]).collect();
+                let tracks = &self.tracks;
+                let chosen = assign(rows.len(), cols.len(), p.gate_chi2, |r, c| {
+                    let t = &tracks[rows[r]];
+                    let d = &sightings[cols[c]];
+                    if (t.filter.position() - d.at).norm() > p.gate_max_m {
+                        return None;
+                    }
+                    t.filter.mahalanobis2(&d.at, p.sigma_meas_m)
+                });
+                for (r, c) in chosen.iter().enumerate() {
+                    let Some(c) = c else { continue };
+                    let (i, j) = (rows[r], cols[*c]);
+                    taken[j] = true;
+                    let d = &sightings[j];
+                    // A sighting is a little older than the step: carried to its time.
+                    let lag_s = t_ns.saturating_sub(d.stamp_ns) as f64 * 1e-9;
+                    got[i].push((d.at + self.tracks[i].filter.velocity() * lag_s, k));
+                }
+            }
+            // What no track took is left for births.
+            state.pending = sightings
+                .into_iter()
+                .zip(taken)
+                .filter(|(_, t)| !*t)
+                .map(|(s, _)| s)
+                .collect();
+        }
+        for (t, seen) in self.tracks.iter_mut().zip(&got) {
+            if seen.is_empty() {
+                continue;
+            }
+            let mean = seen
+                .iter()
+                .map(|(q, _)| q.coords)
+                .sum::<nalgebra::Vector2<f64>>()
+                / seen.len() as f64;
+            t.filter.update(&Point2::from(mean), p.sigma_meas_m);
+            t.last_seen_ns = t_ns;
+            t.hits += 1;
+            t.sensors = seen
+                .iter()
+                .filter_map(|(_, k)| ids.get(*k).cloned())
+                .collect();
+            if t.id == 0 && t.hits >= p.confirm_hits {
+                t.id = self.next_id;
+                self.next_id += 1;
+            }
+        }
+        let (detections, _) = self.merged();
+        // Two tracks on one person: the younger goes (the older keeps its id).
+        let mut gone = vec![false; self.tracks.len()];
+        for i in 0..self.tracks.len() {
+            for j in i + 1..self.tracks.len() {
+                let (a, b) = (&self.tracks[i], &self.tracks[j]);
+                if gone[i] || gone[j] || a.id == 0 || b.id == 0 {
+                    continue;
+                }
+                if (a.filter.position() - b.filter.position()).norm() > p.same_track_m {
+                    continue;
+                }
+                if a.born_ns <= b.born_ns {
+                    gone[j] = true;
+                } else {
+                    gone[i] = true;
                 }
             }
         }
+        let mut k = 0;
+        self.tracks.retain(|_| {
+            k += 1;
+            !gone[k - 1]
+        });
         // Deaths.
         let (death_ns, tentative_ns) =
             ((p.death_s * 1e9) as u64, (p.tentative_death_s * 1e9) as u64);
@@ -342,10 +395,7 @@ impl Tracker {
             }
         });
         // Births: detections no track took, not on top of a track.
-        for (j, d) in detections.iter().enumerate() {
-            if taken[j] {
-                continue;
-            }
+        for d in &detections {
             let crowded = self
                 .tracks
                 .iter()
