@@ -136,7 +136,11 @@ mod tests {
         // A box at 3 m on beam 1 from t = 0; a person at 2 m ± 3 cm on beam 2 for 60 s.
         let mut t = 0;
         while t <= 100 * S {
-            let sway = if (t / S) % 2 == 0 { 0.03 } else { -0.03 };
+            let sway = if (t / S).is_multiple_of(2) {
+                0.03
+            } else {
+                -0.03
+            };
             let person = if t <= 60 * S { 2.0 + sway } else { 5.0 };
             bg.update(&[5.0, 3.0, person, 5.0], t, &p);
             if t == 60 * S {
