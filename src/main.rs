@@ -40,6 +40,8 @@ enum Command {
     Replay(cli::replay::Args),
     /// Ask the running daemon how its sensors and poses are (table, --json or --watch).
     Status(cli::status::Args),
+    /// Track people in recordings: one TRACKS line (NDJSON) per fused step.
+    Track(cli::track::Args),
 }
 
 fn main() -> ExitCode {
@@ -56,6 +58,7 @@ fn main() -> ExitCode {
         Command::Status(args) => cli::status::run(args),
         Command::Run(args) => cli::run::run(args),
         Command::Replay(args) => cli::replay::run(args),
+        Command::Track(args) => cli::track::run(args),
     };
     cli::exit_code(result)
 }

@@ -11,6 +11,7 @@ pub mod replay;
 pub mod run;
 pub mod simulate;
 pub mod status;
+pub mod track;
 
 use std::process::ExitCode;
 

@@ -8,6 +8,7 @@
 //!   the scans' own clock (taken in stamp order by [`reorder`]);
 //! - [`local_refine`]: a moved sensor aligned from its old pose before any global search;
 //! - [`pipeline_fuse`]: fused frames, the occupancy grid and the map files;
+//! - [`pipeline_track`]: the people tracker's thread, fed posed scans, publishing `TRACKS`;
 //! - [`returns`]: how much each sensor sees (a covered lens is named, not guessed at);
 //! - [`run`]: the lifecycle (emulators for `replay:`, driver tasks, socket, systemd, signals).
 
@@ -19,6 +20,7 @@ pub mod people_out;
 pub mod pipeline;
 pub mod pipeline_fuse;
 pub mod pipeline_register;
+pub mod pipeline_track;
 pub mod protocol;
 pub mod queue;
 pub mod rate;

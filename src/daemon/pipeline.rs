@@ -202,6 +202,8 @@ pub struct Pipeline {
     stream_ns: AtomicU64,
     /// Where the page is served, or why it is not (`status`' `web`).
     web: Mutex<Option<String>>,
+    /// The tracker's queue, once its task runs: every posed scan goes there too.
+    tracker: std::sync::OnceLock<DropOldestSender<PosedScan>>,
     /// Where the Foxglove server listens, or why it does not (`status`' `foxglove`).
     foxglove: Mutex<Option<String>>,
 }
@@ -267,6 +269,7 @@ impl Pipeline {
             fuser_beat_ns: AtomicU64::new(now_ns()),
             stream_ns: AtomicU64::new(0),
             web: Mutex::new(None),
+            tracker: std::sync::OnceLock::new(),
             foxglove: Mutex::new(None),
         }
     }
@@ -297,6 +300,11 @@ impl Pipeline {
     /// How scans become points (what `watch` frames and the fused cloud use).
     pub fn project_params(&self) -> ProjectParams {
         self.project
+    }
+
+    /// Sends every posed scan to the tracker's queue from now on.
+    pub(super) fn feed_tracker(&self, queue: DropOldestSender<PosedScan>) {
+        let _ = self.tracker.set(queue);
     }
 
     /// What `status` says of the page.
@@ -471,6 +479,7 @@ impl Pipeline {
             }
             DriverEvent::Scan(mut scan) => {
                 let watched = self.publisher.frame_watchers() > 0;
+                let tracked = self.tracker.get().is_some();
                 let (geometry, posed, verdict) = {
                     let mut guard = lock(&self.inner);
                     let inner = &mut *guard;
@@ -493,7 +502,7 @@ impl Pipeline {
                     let verdict = slot.returns.observe(&scan.scan.ranges_m);
                     slot.last_scan = Some(scan.scan.clone());
                     slot.last_scan_at = Some(Instant::now());
-                    let posed = match (watched, pose, index) {
+                    let posed = match (watched || tracked, pose, index) {
                         (true, Some(site_from_sensor), Some(index)) => Some(PosedScan {
                             index: index as u16,
                             id: id.to_string(),
@@ -524,10 +533,16 @@ impl Pipeline {
                 // The fused stream is event-driven: the scan goes to watchers now, outside
                 // the lock; the grid takes it on the fuser's next pass.
                 if let Some(posed) = posed {
-                    self.publisher.frame(Frame {
-                        stamp_ns: posed.scan.stamp_ns,
-                        scans: vec![scan_frame(&posed, &self.project)],
-                    });
+                    if watched {
+                        self.publisher.frame(Frame {
+                            stamp_ns: posed.scan.stamp_ns,
+                            scans: vec![scan_frame(&posed, &self.project)],
+                        });
+                    }
+                    // The tracker's queue drops its oldest scan when full: never a wait here.
+                    if let Some(queue) = self.tracker.get() {
+                        let _ = queue.push(posed);
+                    }
                 }
                 // A full queue drops the oldest scan; a stopped worker only ends registration.
                 let _ = self.queue.push(WorkItem {

@@ -18,6 +18,7 @@ use super::config::{Config, Connect, SensorConfig};
 use super::notify::{Notifier, status_line};
 use super::pipeline::{Pipeline, PoseEntry, Report, SensorSpec};
 use super::pipeline_register::{Command, Consumed, Registrar, run_worker};
+use super::pipeline_track::TrackerTask;
 use super::protocol::{EventKind, Saved};
 use super::queue::drop_oldest;
 use super::signals::{Request, Signals};
@@ -27,6 +28,7 @@ use crate::emulator::{Emulator, EmulatorConfig, EmulatorError, Gated, ReplayGate
 use crate::geometry::{Pose3, pose2};
 use crate::record::{self, RecordError};
 use crate::sensor::{Driver, DriverConfig, QUIT_TIMEOUT};
+use crate::track::TrackParams;
 
 /// Scans a driver may hand over before its forwarding task takes them.
 const DRIVER_CHANNEL: usize = 256;
@@ -64,6 +66,8 @@ pub struct RunOptions {
     pub stop_when_replay_ends: bool,
     /// Events and once-a-second snapshots for a terminal.
     pub tap: Option<std::sync::mpsc::Sender<Report>>,
+    /// Run the people tracker (`TRACKS` on the people stream); on by default.
+    pub track: bool,
 }
 
 impl Default for RunOptions {
@@ -77,6 +81,7 @@ impl Default for RunOptions {
             replay_recorded_time: false,
             stop_when_replay_ends: false,
             tap: None,
+            track: true,
         }
     }
 }
@@ -454,6 +459,13 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
         options.tap.clone(),
     ));
     load_saved_poses(&config, &pipeline);
+    let tracker = if options.track {
+        let (queue, task) = TrackerTask::start(publisher.clone(), TrackParams::default())?;
+        pipeline.feed_tracker(queue);
+        Some(task)
+    } else {
+        None
+    };
     match super::surveys::load(&config.site.state_dir) {
         Ok(surveys) => pipeline.restore_surveys(surveys),
         Err(e) => pipeline.announce(
@@ -677,6 +689,9 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
         let _ = web.await;
     }
     let _ = tokio::task::spawn_blocking(move || fuser_thread.join()).await;
+    if let Some(tracker) = tracker {
+        let _ = tokio::task::spawn_blocking(move || tracker.stop()).await;
+    }
     pipeline.tick();
     Ok(RunSummary { saved })
 }

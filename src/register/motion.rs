@@ -8,6 +8,7 @@
 use super::model::ScanPlane;
 use crate::geometry::{Mount, Pose2, ProjectParams, ScanPoint, beam_angles_rad, project_scan};
 use crate::scan::{Scan, ScanGeometry};
+use crate::track::detect;
 use nalgebra::Point2;
 
 /// One tick both tracks saw walkers at: seconds since the first frame, and each sensor's
@@ -72,6 +73,19 @@ impl Default for MotionParams {
             refute_min: 4,
             refute_ratio: 0.5,
             confirm_after_s: 5.0,
+        }
+    }
+}
+
+impl MotionParams {
+    /// The walker detector's thresholds.
+    pub fn blob(&self) -> detect::BlobParams {
+        detect::BlobParams {
+            moved_m: self.moved_m,
+            margin_frac: self.margin_frac,
+            gap_m: self.gap_m,
+            min_points: self.min_points,
+            max_width_m: self.max_width_m,
         }
     }
 }
@@ -209,17 +223,7 @@ impl MotionTrack {
         let centres = |f: &Frame| -> Vec<Point2<f64>> {
             f.walkers
                 .iter()
-                .filter_map(|w| {
-                    let n = w.len().max(1) as f64;
-                    let c = w.iter().map(|q| q.coords).sum::<nalgebra::Vector2<f64>>() / n;
-                    let width = match (w.first(), w.last()) {
-                        (Some(a), Some(b)) => (a - b).norm(),
-                        _ => 0.0,
-                    };
-                    let push_m = push_of_width * width;
-                    let d = c.norm();
-                    (d > 1e-6).then(|| Point2::from(c * ((d + push_m) / d)))
-                })
+                .filter_map(|w| detect::centre(w, push_of_width))
                 .collect()
         };
         // The other's walkers moved between its scan and this one's: carried forward along the
@@ -320,48 +324,14 @@ impl MotionTrack {
 }
 
 /// Runs of moved returns among a scan's `points` (its horizontal `ranges_m` per beam), each
-/// one walker.
+/// one walker: the shared detector of [`crate::track::detect`].
 fn walkers(
     points: &[ScanPoint],
     ranges_m: &[f32],
     still_m: &[f32],
     p: &MotionParams,
 ) -> Vec<Vec<Point2<f64>>> {
-    let moved = |beam: usize| {
-        let (Some(&r), Some(&s)) = (ranges_m.get(beam), still_m.get(beam)) else {
-            return false;
-        };
-        let r = r as f64;
-        // Nothing still there (open floor beyond range, or floor a tilted unit drops): anything
-        // that returns walked in.
-        r.is_finite() && (s.is_nan() || r < s as f64 - p.moved_m - p.margin_frac * r)
-    };
-    let mut out: Vec<Vec<Point2<f64>>> = Vec::new();
-    let mut run: Vec<(usize, Point2<f64>)> = Vec::new();
-    let mut close = |run: &mut Vec<(usize, Point2<f64>)>| {
-        let width = match (run.first(), run.last()) {
-            (Some(a), Some(b)) => (a.1 - b.1).norm(),
-            _ => 0.0,
-        };
-        if run.len() >= p.min_points && width <= p.max_width_m {
-            out.push(run.iter().map(|(_, q)| *q).collect());
-        }
-        run.clear();
-    };
-    for sp in points {
-        if !moved(sp.beam) {
-            continue;
-        }
-        let joins = run
-            .last()
-            .is_some_and(|(b, q)| sp.beam <= b + 2 && (sp.p - q).norm() <= p.gap_m);
-        if !joins {
-            close(&mut run);
-        }
-        run.push((sp.beam, sp.p));
-    }
-    close(&mut run);
-    out
+    detect::blobs(points, ranges_m, still_m, &p.blob())
 }
 
 /// Walkers each sensor saw, checked in the other's frame at the same tick, under `a_from_b`.

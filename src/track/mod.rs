@@ -1,1 +1,119 @@
+//! People tracking, pure (no I/O, no clock: the scans' stamps are the time).
+//!
+//! - [`detect`]: the one walker detector (foreground against a background, person-sized
+//!   blobs, a blob's centre), shared with registration's `register::motion`.
+//! - [`background`]: one sensor's background, learnt slowly from its scans.
+//! - [`filter`]: the constant-velocity Kalman filter of one track.
+//! - [`assign`]: global assignment of detections to tracks (Hungarian, gated).
+//! - [`tracker`]: all of it together: scans of placed sensors in, confirmed [`Tracks`] out.
+//! - [`zones`]: occupancy of configured zones and crossings of counting lines, from tracks.
+//!
+//! [`Tracks`]: crate::daemon::protocol::Tracks
+
+pub mod assign;
+pub mod background;
+pub mod detect;
+pub mod filter;
+pub mod mot;
+pub mod score;
+pub mod tracker;
 pub mod zones;
+
+pub use tracker::{SensorScan, Tracker};
+
+use crate::geometry::ProjectParams;
+use background::BackgroundParams;
+use detect::BlobParams;
+
+/// Every setting of the tracker, with its default.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrackParams {
+    /// Foreground and blobs: a return 0.2 m (+ 2 % of range) short of the background is
+    /// foreground; returns ≤ 0.2 m apart (one beam may be skipped) form a blob of ≥ 3 returns,
+    /// at most 1.6 m wide (wider: a door or a wall that moved, not people).
+    pub blob: BlobParams,
+    /// The background: what stands still for 90 s (`absorb_s`) becomes background.
+    pub background: BackgroundParams,
+    pub project: ProjectParams,
+    /// A blob's centre lies π/8 of its width behind its returns' centroid (a round body).
+    pub push_of_width: f64,
+    /// A blob wider than 0.75 m is several people side by side, about 0.5 m each.
+    pub max_person_m: f64,
+    pub person_m: f64,
+    /// Two centres one sensor sees closer than 0.3 m are one person.
+    pub same_person_m: f64,
+    /// Units mounted at most 0.4 m high see legs: blobs ≤ 0.3 m wide of ≥ 2 returns, paired
+    /// when ≤ 0.6 m apart.
+    pub leg_height_m: f64,
+    pub leg_max_width_m: f64,
+    pub leg_min_points: usize,
+    pub leg_pair_m: f64,
+    /// Returns farther than 25 m from their sensor make no detection.
+    pub max_range_m: f64,
+    /// Detections of different sensors within 0.45 m are one person.
+    pub merge_m: f64,
+    /// One fused step per 25 ms of scan time (the scanners' 40 Hz).
+    pub step_s: f64,
+    /// A merged detection's position noise, 1σ (m).
+    pub sigma_meas_m: f64,
+    /// The filter's white acceleration (m²/s³).
+    pub accel_psd: f64,
+    /// A detection may go to a track within this squared Mahalanobis distance (13.8: 99.9 %
+    /// for 2 dof) and no further than `gate_max_m` (1 m).
+    pub gate_chi2: f64,
+    pub gate_max_m: f64,
+    /// A new track's speed uncertainty (m/s).
+    pub birth_sigma_v_m_s: f64,
+    /// No track is born within 0.6 m of another.
+    pub birth_clear_m: f64,
+    /// Two confirmed tracks closer than 0.3 m are one person: the younger ends.
+    pub same_track_m: f64,
+    /// A track is confirmed (gets its id) at its 5th detection; a tentative one unseen for
+    /// 0.2 s is dropped, a confirmed one unseen for 1.5 s ends.
+    pub confirm_hits: u32,
+    pub tentative_death_s: f64,
+    pub death_s: f64,
+    /// A sensor whose pose changes by more than 0.1 m or 1° was moved: its background
+    /// starts again.
+    pub repose_m: f64,
+    pub repose_rad: f64,
+}
+
+impl Default for TrackParams {
+    fn default() -> Self {
+        TrackParams {
+            blob: BlobParams {
+                moved_m: 0.2,
+                margin_frac: 0.02,
+                gap_m: 0.2,
+                min_points: 3,
+                max_width_m: 1.6,
+            },
+            background: BackgroundParams::default(),
+            project: ProjectParams::default(),
+            push_of_width: std::f64::consts::PI / 8.0,
+            max_person_m: 0.75,
+            person_m: 0.5,
+            same_person_m: 0.3,
+            leg_height_m: 0.4,
+            leg_max_width_m: 0.3,
+            leg_min_points: 2,
+            leg_pair_m: 0.6,
+            max_range_m: 25.0,
+            merge_m: 0.45,
+            step_s: 0.025,
+            sigma_meas_m: 0.05,
+            accel_psd: 2.0,
+            gate_chi2: 13.8,
+            gate_max_m: 1.0,
+            birth_sigma_v_m_s: 1.0,
+            birth_clear_m: 0.6,
+            same_track_m: 0.3,
+            confirm_hits: 5,
+            tentative_death_s: 0.2,
+            death_s: 1.5,
+            repose_m: 0.1,
+            repose_rad: 1f64.to_radians(),
+        }
+    }
+}

@@ -21,6 +21,7 @@ use std::time::Instant;
 mod real;
 mod sim;
 mod site;
+mod tracking;
 
 use real::{Logs, load_logs, real_cases, real_sites};
 use sim::{SiteDraw, load_plans, sim_cases, sites};
@@ -56,7 +57,14 @@ pub struct Args {
     /// check that both sensors saw the same walkers (0: walls only, as a single scan).
     #[arg(long, default_value_t = 10.0)]
     pub motion_seconds: f64,
-    /// Parts to run: sim, site, real, classes (comma separated; default all).
+    /// Simulated seconds of each tracking scene (`--only tracking`).
+    #[arg(long, default_value_t = 30.0)]
+    pub track_seconds: f64,
+    /// Folder of the crowd plans tracking is scored in (`--only tracking`).
+    #[arg(long, default_value = "fixtures/plans-crowd")]
+    pub track_plans: PathBuf,
+    /// Parts to run: sim, site, real, classes (comma separated; default all), and tracking
+    /// (only when named).
     #[arg(long, value_delimiter = ',')]
     pub only: Vec<String>,
     /// For each pair at ≥ 30 % overlap that was not registered correctly, print which stage lost
@@ -111,6 +119,9 @@ pub fn run(args: Args) -> Result<()> {
             );
             sites(&plans, &args, &params, SiteDraw::Random)?;
         }
+    }
+    if args.only.iter().any(|o| o == "tracking") {
+        tracking::run(&args.track_plans, args.track_seconds, args.seed)?;
     }
     if wants("real") || wants("classes") {
         if args.real_data.is_dir() {

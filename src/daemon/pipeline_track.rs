@@ -1,0 +1,174 @@
+//! The tracker task: posed scans in (a bounded queue that drops the oldest, off the scan
+//! path: a slow tracker never stalls a sensor), `TRACKS` out on the people stream
+//! ([`Publisher::people`]) at the fused rate. The core is [`crate::track`]; this is its thread.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use crossbeam_channel::RecvTimeoutError;
+
+use super::pipeline::PosedScan;
+use super::protocol::Message;
+use super::queue::{DropOldestSender, drop_oldest};
+use super::socket::Publisher;
+use crate::track::{SensorScan, TrackParams, Tracker};
+
+/// Scans queued for the tracker at most: a quarter second of 8 sensors at 40 Hz.
+pub const TRACK_QUEUE_SCANS: usize = 80;
+
+/// The running tracker: stop it with [`TrackerTask::stop`]; dropped, it stops too (within
+/// one queue poll) without being waited for.
+pub struct TrackerTask {
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl Drop for TrackerTask {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+    }
+}
+
+impl TrackerTask {
+    /// Starts the tracker thread; scans pushed into the returned queue are tracked and every
+    /// fused step is published on `publisher`'s people stream.
+    pub fn start(
+        publisher: Publisher,
+        params: TrackParams,
+    ) -> std::io::Result<(DropOldestSender<PosedScan>, TrackerTask)> {
+        let (tx, rx) = drop_oldest::<PosedScan>(TRACK_QUEUE_SCANS);
+        let stop = Arc::new(AtomicBool::new(false));
+        let stopped = Arc::clone(&stop);
+        let thread = std::thread::Builder::new()
+            .name("tracker".into())
+            .spawn(move || {
+                let mut tracker = Tracker::new(params);
+                while !stopped.load(Ordering::Relaxed) {
+                    let posed = match rx.recv_timeout(Duration::from_millis(100)) {
+                        Ok(p) => p,
+                        Err(RecvTimeoutError::Timeout) => continue,
+                        Err(RecvTimeoutError::Disconnected) => break,
+                    };
+                    let step = tracker.push(SensorScan {
+                        id: &posed.id,
+                        scan: &posed.scan,
+                        geometry: posed.geometry.as_ref(),
+                        mount: posed.mount,
+                        site_from_sensor: Some(posed.site_from_sensor.planar()),
+                    });
+                    if let Some(tracks) = step {
+                        publisher.people(Message::Tracks(tracks));
+                    }
+                }
+            })?;
+        Ok((
+            tx,
+            TrackerTask {
+                stop,
+                thread: Some(thread),
+            },
+        ))
+    }
+
+    /// Stops the thread and waits for it (at most one queue poll, 0.1 s).
+    pub fn stop(mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::raycast::{cast, polygon};
+    use crate::geometry::{Mount, Pose3, pose2};
+    use crate::scan::Scan;
+    use nalgebra::{Point2, Vector2};
+
+    /// A 270° scan at 0.5° steps from the origin, facing +x, of a 10 × 8 m room with a 0.4 m
+    /// square person at `(x, y)`.
+    fn scan(x: f64, y: f64, t_ns: u64) -> Scan {
+        let mut walls = polygon(&[(-1.0, -4.0), (9.0, -4.0), (9.0, 4.0), (-1.0, 4.0)]);
+        walls.extend(polygon(&[
+            (x - 0.2, y - 0.2),
+            (x + 0.2, y - 0.2),
+            (x + 0.2, y + 0.2),
+            (x - 0.2, y + 0.2),
+        ]));
+        let (start, step, n) = (-135f64.to_radians(), 0.5f64.to_radians(), 541);
+        let ranges_m = (0..n)
+            .map(|k| {
+                let a = start + step * k as f64;
+                cast(&walls, Point2::origin(), Vector2::new(a.cos(), a.sin()))
+                    .map_or(0.0, |r| r as f32)
+            })
+            .collect();
+        Scan {
+            stamp_ns: t_ns,
+            sensor_stamp_ms: None,
+            start_angle_rad: start,
+            end_angle_rad: start + step * (n - 1) as f64,
+            ranges_m,
+            intensities: vec![],
+        }
+    }
+
+    #[test]
+    fn posed_scans_in_make_tracks_out_on_the_people_stream() {
+        let publisher = Publisher::new(256);
+        let mut people = publisher.subscribe_people();
+        let (queue, task) =
+            TrackerTask::start(publisher.clone(), TrackParams::default()).expect("starts");
+        // The sensor stands at (2, 1) facing +y in the site frame.
+        let site = Pose3::from_planar(&pose2(2.0, 1.0, std::f64::consts::FRAC_PI_2), 1.0, 0.0);
+        for k in 0..60u64 {
+            // First scan: the empty room (the background); then someone walks along +x.
+            let s = if k == 0 {
+                scan(20.0, 20.0, 0)
+            } else {
+                scan(2.0 + 0.03 * k as f64, 0.5, k * 25_000_000)
+            };
+            queue
+                .push(PosedScan {
+                    index: 0,
+                    id: "a".into(),
+                    scan: s,
+                    geometry: None,
+                    mount: Mount::default(),
+                    site_from_sensor: site,
+                })
+                .expect("the tracker takes scans");
+        }
+        // The last walker position in the sensor frame is (3.77, 0.5): site (1.5, 4.77).
+        let mut last = None;
+        let deadline = std::time::Instant::now() + Duration::from_secs(20);
+        while std::time::Instant::now() < deadline {
+            match people.try_recv() {
+                Ok(m) => {
+                    if let Message::Tracks(t) = &*m
+                        && !t.tracks.is_empty()
+                    {
+                        last = Some(t.clone());
+                        if t.t_ns >= 58 * 25_000_000 {
+                            break;
+                        }
+                    }
+                }
+                Err(_) => std::thread::sleep(Duration::from_millis(10)),
+            }
+        }
+        task.stop();
+        let last = last.expect("a TRACKS message with a track");
+        let t = &last.tracks[0];
+        assert_eq!(last.tracks.len(), 1, "{last:?}");
+        assert!(
+            (t.x_m - 1.5).abs() < 0.15 && (t.y_m - 4.7).abs() < 0.2,
+            "{last:?}"
+        );
+        assert_eq!(t.sensors, vec!["a".to_string()]);
+    }
+}

@@ -1,0 +1,230 @@
+//! The one walker detector, shared by registration (`register::motion`) and tracking: returns
+//! short of a sensor's background, grouped into person-sized blobs, and a blob's centre (a
+//! scanner sees a body's near side, so the returns' centroid is pushed back along the beam).
+//! Pure: points and ranges in, blobs and centres out, all in the sensor's own frame.
+
+use nalgebra::{Point2, Vector2};
+
+use crate::geometry::ScanPoint;
+
+/// What makes returns a walker.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BlobParams {
+    /// A return this much (plus `margin_frac` of its range) short of the background is
+    /// something that walked in (m).
+    pub moved_m: f64,
+    pub margin_frac: f64,
+    /// A blob: neighbouring moved returns (at most one beam skipped) no further apart than
+    /// `gap_m`, at least `min_points` of them, no wider than `max_width_m` (m).
+    pub gap_m: f64,
+    pub min_points: usize,
+    pub max_width_m: f64,
+}
+
+/// Whether a return at `r` (m, horizontal) is short of the background `s` (NaN: nothing
+/// there, so anything that returns walked in).
+pub fn is_moved(r: f32, s: f32, p: &BlobParams) -> bool {
+    let r = r as f64;
+    r.is_finite() && (s.is_nan() || r < s as f64 - p.moved_m - p.margin_frac * r)
+}
+
+/// Runs of moved returns among a scan's `points` (its horizontal `ranges_m` per beam, against
+/// the background's `background_m` per beam), each one blob, in beam order.
+pub fn blobs(
+    points: &[ScanPoint],
+    ranges_m: &[f32],
+    background_m: &[f32],
+    p: &BlobParams,
+) -> Vec<Vec<Point2<f64>>> {
+    let moved = |beam: usize| {
+        let (Some(&r), Some(&s)) = (ranges_m.get(beam), background_m.get(beam)) else {
+            return false;
+        };
+        is_moved(r, s, p)
+    };
+    let mut out: Vec<Vec<Point2<f64>>> = Vec::new();
+    let mut run: Vec<(usize, Point2<f64>)> = Vec::new();
+    let mut close = |run: &mut Vec<(usize, Point2<f64>)>| {
+        let width = match (run.first(), run.last()) {
+            (Some(a), Some(b)) => (a.1 - b.1).norm(),
+            _ => 0.0,
+        };
+        if run.len() >= p.min_points && width <= p.max_width_m {
+            out.push(run.iter().map(|(_, q)| *q).collect());
+        }
+        run.clear();
+    };
+    for sp in points {
+        if !moved(sp.beam) {
+            continue;
+        }
+        let joins = run
+            .last()
+            .is_some_and(|(b, q)| sp.beam <= b + 2 && (sp.p - q).norm() <= p.gap_m);
+        if !joins {
+            close(&mut run);
+        }
+        run.push((sp.beam, sp.p));
+    }
+    close(&mut run);
+    out
+}
+
+/// The width of a blob: its first to its last return (m).
+pub fn width_m(blob: &[Point2<f64>]) -> f64 {
+    match (blob.first(), blob.last()) {
+        (Some(a), Some(b)) => (a - b).norm(),
+        _ => 0.0,
+    }
+}
+
+/// The centre of the body a blob is the near side of, sensor frame: the returns' centroid
+/// pushed `push_of_width` × the blob's width away from the sensor along its beam (π/8 for a
+/// round body seen along evenly spaced beams). `None` for an empty blob or one at the origin.
+pub fn centre(blob: &[Point2<f64>], push_of_width: f64) -> Option<Point2<f64>> {
+    if blob.is_empty() {
+        return None;
+    }
+    let c = blob.iter().map(|q| q.coords).sum::<Vector2<f64>>() / blob.len() as f64;
+    let push_m = push_of_width * width_m(blob);
+    let d = c.norm();
+    (d > 1e-6).then(|| Point2::from(c * ((d + push_m) / d)))
+}
+
+/// Splits a blob wider than `max_person_m` into as many equal runs (by count of returns) as
+/// people of `person_m` across would fill it: two people side by side touching are one run
+/// of returns. Blobs no wider stay whole.
+pub fn split_wide(
+    blob: Vec<Point2<f64>>,
+    max_person_m: f64,
+    person_m: f64,
+    min_points: usize,
+) -> Vec<Vec<Point2<f64>>> {
+    let w = width_m(&blob);
+    if w <= max_person_m || person_m <= 0.0 {
+        return vec![blob];
+    }
+    let parts = ((w / person_m).round() as usize)
+        .max(2)
+        .min(blob.len() / min_points.max(1));
+    if parts < 2 {
+        return vec![blob];
+    }
+    let n = blob.len();
+    (0..parts)
+        .map(|k| blob[k * n / parts..(k + 1) * n / parts].to_vec())
+        .collect()
+}
+
+/// Pairs legs: the centres of leg-sized blobs one low sensor sees, merged two by two, closest
+/// pairs first, when no further apart than `pair_m`; a leg with no partner (the other hidden
+/// behind it) stays alone. Returns one centre per person.
+pub fn pair_legs(legs: &[Point2<f64>], pair_m: f64) -> Vec<Point2<f64>> {
+    let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
+    for i in 0..legs.len() {
+        for j in i + 1..legs.len() {
+            let d = (legs[i] - legs[j]).norm();
+            if d <= pair_m {
+                pairs.push((d, i, j));
+            }
+        }
+    }
+    pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut used = vec![false; legs.len()];
+    let mut out = Vec::with_capacity(legs.len());
+    for (_, i, j) in pairs {
+        if used[i] || used[j] {
+            continue;
+        }
+        used[i] = true;
+        used[j] = true;
+        out.push(nalgebra::center(&legs[i], &legs[j]));
+    }
+    out.extend(
+        legs.iter()
+            .zip(&used)
+            .filter(|(_, u)| !**u)
+            .map(|(q, _)| *q),
+    );
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sp(beam: usize, x: f64, y: f64) -> ScanPoint {
+        ScanPoint {
+            p: Point2::new(x, y),
+            beam,
+            z_m: None,
+        }
+    }
+
+    fn params() -> BlobParams {
+        BlobParams {
+            moved_m: 0.3,
+            margin_frac: 0.03,
+            gap_m: 0.3,
+            min_points: 3,
+            max_width_m: 1.2,
+        }
+    }
+
+    #[test]
+    fn returns_short_of_the_background_make_a_blob_and_the_rest_do_not() {
+        // Beams 0..10 along x = 5; beams 3..6 hit something at x = 3.
+        let mut points = Vec::new();
+        let mut ranges = Vec::new();
+        for b in 0..10 {
+            let y = -0.5 + 0.1 * b as f64;
+            let x = if (3..=6).contains(&b) { 3.0 } else { 5.0 };
+            points.push(sp(b, x, y));
+            ranges.push((x * x + y * y).sqrt() as f32);
+        }
+        let background: Vec<f32> = (0..10)
+            .map(|b| {
+                let y = -0.5 + 0.1 * b as f64;
+                (25.0 + y * y).sqrt() as f32
+            })
+            .collect();
+        let found = blobs(&points, &ranges, &background, &params());
+        assert_eq!(found.len(), 1, "{found:?}");
+        assert_eq!(found[0].len(), 4);
+        // Nothing short of the background: no blob.
+        assert!(blobs(&points, &background, &background, &params()).is_empty());
+    }
+
+    #[test]
+    fn the_centre_is_pushed_away_from_the_sensor() {
+        let blob = vec![
+            Point2::new(2.0, -0.2),
+            Point2::new(1.9, 0.0),
+            Point2::new(2.0, 0.2),
+        ];
+        let c = centre(&blob, std::f64::consts::PI / 8.0).expect("a centre");
+        assert!(c.x > 1.96 + 0.1, "{c}");
+        assert!(c.y.abs() < 1e-9);
+    }
+
+    #[test]
+    fn two_people_in_one_run_are_split_and_legs_pair_up() {
+        let blob: Vec<Point2<f64>> = (0..20).map(|k| Point2::new(3.0, k as f64 * 0.05)).collect();
+        let parts = split_wide(blob, 0.7, 0.45, 3);
+        assert_eq!(parts.len(), 2);
+        let legs = [
+            Point2::new(0.0, 0.0),
+            Point2::new(0.25, 0.0),
+            Point2::new(2.0, 0.0),
+            Point2::new(2.2, 0.1),
+            Point2::new(5.0, 0.0),
+        ];
+        let people = pair_legs(&legs, 0.6);
+        assert_eq!(people.len(), 3, "{people:?}");
+        assert!(
+            people
+                .iter()
+                .any(|p| (p - Point2::new(0.125, 0.0)).norm() < 1e-9)
+        );
+    }
+}

@@ -1,0 +1,684 @@
+//! The tracker: scans of placed sensors in, confirmed tracks out, by the scans' own clock.
+//!
+//! Per sensor: foreground against its [`Background`], blobs ([`detect`]), legs paired on low
+//! units, centres to the site frame. Every `step_s` the latest detections of every sensor are
+//! merged (one person seen by three sensors is one detection), assigned to the tracks by the
+//! Hungarian method on a gated Mahalanobis cost ([`assign`]), and the tracks' Kalman filters
+//! ([`Kalman`]) updated; what no track takes starts a tentative track, confirmed after a few
+//! consistent detections; a track unseen for `death_s` ends. Ids are never reused.
+
+use std::collections::BTreeMap;
+
+use nalgebra::Point2;
+
+use super::TrackParams;
+use super::assign::assign;
+use super::background::Background;
+use super::detect;
+use super::filter::Kalman;
+use crate::daemon::protocol::{Track, Tracks};
+use crate::geometry::{Mount, Pose2, pose_error, project_scan};
+use crate::scan::{Scan, ScanGeometry};
+
+/// One sensor's scan as the tracker takes it.
+#[derive(Debug, Clone, Copy)]
+pub struct SensorScan<'a> {
+    pub id: &'a str,
+    pub scan: &'a Scan,
+    pub geometry: Option<&'a ScanGeometry>,
+    pub mount: Mount,
+    /// Where the sensor stands in the site frame; `None` while it is not placed (it then
+    /// learns its background but contributes no detection).
+    pub site_from_sensor: Option<Pose2>,
+}
+
+/// One person as one sensor saw them, site frame.
+#[derive(Debug, Clone, Copy)]
+struct Sighting {
+    at: Point2<f64>,
+    stamp_ns: u64,
+}
+
+#[derive(Debug, Default)]
+struct SensorState {
+    background: Option<Background>,
+    pose: Option<Pose2>,
+    /// Its latest scan's sightings not yet fused.
+    pending: Vec<Sighting>,
+}
+
+/// Detections merged across sensors.
+#[derive(Debug, Clone)]
+struct Detection {
+    at: Point2<f64>,
+    stamp_ns: u64,
+    /// Indices into the step's sensor list.
+    sensors: Vec<usize>,
+}
+
+#[derive(Debug, Clone)]
+struct TrackState {
+    /// 0 while tentative; the public id once confirmed.
+    id: u64,
+    filter: Kalman,
+    born_ns: u64,
+    last_seen_ns: u64,
+    hits: u32,
+    /// Sensors that updated the track in the latest step.
+    sensors: Vec<String>,
+}
+
+/// The people tracker. Pure: feed it scans in stamp order ([`push`](Tracker::push)).
+#[derive(Debug)]
+pub struct Tracker {
+    params: TrackParams,
+    sensors: BTreeMap<String, SensorState>,
+    tracks: Vec<TrackState>,
+    next_id: u64,
+    /// Time of the last step (ns, the scans' clock).
+    last_step_ns: Option<u64>,
+    /// The newest stamp taken since the last step.
+    newest_ns: Option<u64>,
+}
+
+impl Tracker {
+    pub fn new(params: TrackParams) -> Tracker {
+        Tracker {
+            params,
+            sensors: BTreeMap::new(),
+            tracks: Vec::new(),
+            next_id: 1,
+            last_step_ns: None,
+            newest_ns: None,
+        }
+    }
+
+    pub fn params(&self) -> &TrackParams {
+        &self.params
+    }
+
+    /// Starts sensor `id`'s background from a known static view (horizontal ranges per beam,
+    /// NaN for none), e.g. what registration found; otherwise its first scan is the seed.
+    pub fn seed_background(&mut self, id: &str, ranges_m: Vec<f32>) {
+        self.sensors.entry(id.to_string()).or_default().background =
+            Some(Background::seeded(ranges_m));
+    }
+
+    /// Horizontal range per beam of a scan as the tracker sees it (NaN: no return).
+    pub fn horizontal_ranges(
+        scan: &Scan,
+        geometry: Option<&ScanGeometry>,
+        mount: &Mount,
+        params: &TrackParams,
+    ) -> Vec<f32> {
+        let mut ranges = vec![f32::NAN; scan.ranges_m.len()];
+        for sp in project_scan(scan, geometry, mount, &params.project) {
+            if let Some(r) = ranges.get_mut(sp.beam) {
+                *r = sp.p.coords.norm() as f32;
+            }
+        }
+        ranges
+    }
+
+    /// A sensor left (unplugged, removed): its detections no longer count; the tracks go on
+    /// with the others.
+    pub fn forget_sensor(&mut self, id: &str) {
+        self.sensors.remove(id);
+    }
+
+    /// Takes one scan (stamp order across sensors). When the scan's stamp closes a step, the
+    /// step is fused first and its confirmed tracks returned.
+    pub fn push(&mut self, s: SensorScan<'_>) -> Option<Tracks> {
+        let out = self.close_step(s.scan.stamp_ns);
+        self.observe(s);
+        out
+    }
+
+    /// Takes the people one sensor saw at `t_ns`, site frame, as if detected in its scan
+    /// (for tests and benches that start from detections).
+    pub fn push_detections(
+        &mut self,
+        id: &str,
+        t_ns: u64,
+        people: &[Point2<f64>],
+    ) -> Option<Tracks> {
+        let out = self.close_step(t_ns);
+        let state = self.sensors.entry(id.to_string()).or_default();
+        state.pending.clear();
+        state
+            .pending
+            .extend(people.iter().map(|&at| Sighting { at, stamp_ns: t_ns }));
+        out
+    }
+
+    /// Fuses the step a scan stamped `t_ns` closes, if it closes one: at the newest stamp
+    /// taken since the last step (the incoming one's when none was).
+    fn close_step(&mut self, t_ns: u64) -> Option<Tracks> {
+        let step_ns = (self.params.step_s * 1e9) as u64;
+        let out = match self.last_step_ns {
+            None => {
+                self.last_step_ns = Some(t_ns);
+                None
+            }
+            Some(last) if t_ns >= last.saturating_add(step_ns) => {
+                let at = match self.newest_ns {
+                    Some(n) if n > last => n,
+                    _ => t_ns,
+                };
+                self.newest_ns = None;
+                Some(self.step(at))
+            }
+            Some(_) => None,
+        };
+        self.newest_ns = Some(self.newest_ns.map_or(t_ns, |n| n.max(t_ns)));
+        out
+    }
+
+    /// Detections of one scan, kept for the next step; the background learns from it.
+    fn observe(&mut self, s: SensorScan<'_>) {
+        let p = &self.params;
+        let ranges = Tracker::horizontal_ranges(s.scan, s.geometry, &s.mount, p);
+        let state = self.sensors.entry(s.id.to_string()).or_default();
+        // A sensor whose pose jumped was moved: what it learnt is from elsewhere.
+        if let (Some(old), Some(new)) = (state.pose, s.site_from_sensor) {
+            let (m, rad) = pose_error(&new, &old);
+            if m > p.repose_m || rad > p.repose_rad {
+                state.background = None;
+            }
+        }
+        if s.site_from_sensor.is_some() {
+            state.pose = s.site_from_sensor;
+        }
+        let Some(background) = state.background.as_mut() else {
+            state.background = Some(Background::seeded(ranges));
+            state.pending.clear();
+            return;
+        };
+        if background.beams() != ranges.len() {
+            *background = Background::seeded(ranges);
+            state.pending.clear();
+            return;
+        }
+        state.pending.clear();
+        if let Some(pose) = s.site_from_sensor {
+            let points = project_scan(s.scan, s.geometry, &s.mount, &p.project);
+            let legs = s.mount.height_m.is_some_and(|h| h <= p.leg_height_m);
+            let mut blob_p = p.blob;
+            if legs {
+                blob_p.max_width_m = p.leg_max_width_m;
+                blob_p.min_points = p.leg_min_points;
+            }
+            let blobs = detect::blobs(&points, &ranges, background.ranges_m(), &blob_p);
+            let mut centres: Vec<Point2<f64>> = if legs {
+                let legs: Vec<Point2<f64>> = blobs
+                    .iter()
+                    .filter_map(|b| detect::centre(b, p.push_of_width))
+                    .collect();
+                detect::pair_legs(&legs, p.leg_pair_m)
+            } else {
+                let parts = blobs.into_iter().flat_map(|b| {
+                    detect::split_wide(b, p.max_person_m, p.person_m, p.blob.min_points)
+                });
+                let centres: Vec<Point2<f64>> = parts
+                    .filter_map(|b| detect::centre(&b, p.push_of_width))
+                    .collect();
+                // One body seen as two runs (an arm apart from the torso) is one person.
+                detect::pair_legs(&centres, p.same_person_m)
+            };
+            centres.retain(|c| c.coords.norm() <= p.max_range_m);
+            state.pending.extend(centres.into_iter().map(|c| Sighting {
+                at: pose * c,
+                stamp_ns: s.scan.stamp_ns,
+            }));
+        }
+        background.update(&ranges, s.scan.stamp_ns, &p.background);
+    }
+
+    /// Merges the pending sightings across sensors: each joins the nearest detection within
+    /// `merge_m` that holds none of its own sensor's, else starts one.
+    fn merged(&mut self) -> (Vec<Detection>, Vec<String>) {
+        let mut names = Vec::new();
+        let mut sums: Vec<(nalgebra::Vector2<f64>, f64, Detection)> = Vec::new();
+        for (id, state) in &mut self.sensors {
+            if state.pending.is_empty() {
+                continue;
+            }
+            let k = names.len();
+            names.push(id.clone());
+            for s in state.pending.drain(..) {
+                let best = sums
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, (_, _, d))| !d.sensors.contains(&k))
+                    .map(|(i, (_, _, d))| (i, (d.at - s.at).norm()))
+                    .filter(|(_, dist)| *dist <= self.params.merge_m)
+                    .min_by(|a, b| a.1.total_cmp(&b.1))
+                    .map(|(i, _)| i);
+                match best.and_then(|i| sums.get_mut(i)) {
+                    Some((sum, stamp_sum, d)) => {
+                        *sum += s.at.coords;
+                        *stamp_sum += s.stamp_ns as f64;
+                        d.sensors.push(k);
+                        let n = d.sensors.len() as f64;
+                        d.at = Point2::from(*sum / n);
+                        d.stamp_ns = (*stamp_sum / n) as u64;
+                    }
+                    None => sums.push((
+                        s.at.coords,
+                        s.stamp_ns as f64,
+                        Detection {
+                            at: s.at,
+                            stamp_ns: s.stamp_ns,
+                            sensors: vec![k],
+                        },
+                    )),
+                }
+            }
+        }
+        (sums.into_iter().map(|(_, _, d)| d).collect(), names)
+    }
+
+    /// Fuses what was seen since the last step at time `t_ns`: predict, assign, update, birth,
+    /// death. Returns the confirmed tracks.
+    pub fn step(&mut self, t_ns: u64) -> Tracks {
+        let p = self.params.clone();
+        let dt_s = self
+            .last_step_ns
+            .map_or(0.0, |l| t_ns.saturating_sub(l) as f64 * 1e-9);
+        self.last_step_ns = Some(t_ns);
+        for t in &mut self.tracks {
+            t.filter.predict(dt_s, p.accel_psd);
+            t.sensors.clear();
+        }
+        // Each sensor's sightings go to the tracks (confirmed ones choose first), at most one
+        // per track and sensor; a track then takes the mean of what it got, one detection
+        // however many sensors saw the person.
+        let ids: Vec<String> = self
+            .sensors
+            .iter()
+            .filter(|(_, s)| !s.pending.is_empty())
+            .map(|(id, _)| id.clone())
+            .collect();
+        let mut got: Vec<Vec<(Point2<f64>, usize)>> = vec![Vec::new(); self.tracks.len()];
+        for (k, id) in ids.iter().enumerate() {
+            let Some(state) = self.sensors.get_mut(id) else {
+                continue;
+            };
+            let sightings = std::mem::take(&mut state.pending);
+            let mut taken = vec![false; sightings.len()];
+            for confirmed in [true, false] {
+                let rows: Vec<usize> = (0..self.tracks.len())
+                    .filter(|&i| (self.tracks[i].id != 0) == confirmed)
+                    .collect();
+                let cols: Vec<usize> = (0..sightings.len()).filter(|&j| !taken[j]).collect();
+                let tracks = &self.tracks;
+                let chosen = assign(rows.len(), cols.len(), p.gate_chi2, |r, c| {
+                    let t = &tracks[rows[r]];
+                    let d = &sightings[cols[c]];
+                    if (t.filter.position() - d.at).norm() > p.gate_max_m {
+                        return None;
+                    }
+                    t.filter.mahalanobis2(&d.at, p.sigma_meas_m)
+                });
+                for (r, c) in chosen.iter().enumerate() {
+                    let Some(c) = c else { continue };
+                    let (i, j) = (rows[r], cols[*c]);
+                    taken[j] = true;
+                    let d = &sightings[j];
+                    // A sighting is a little older than the step: carried to its time.
+                    let lag_s = t_ns.saturating_sub(d.stamp_ns) as f64 * 1e-9;
+                    got[i].push((d.at + self.tracks[i].filter.velocity() * lag_s, k));
+                }
+            }
+            // What no track took is left for births.
+            state.pending = sightings
+                .into_iter()
+                .zip(taken)
+                .filter(|(_, t)| !*t)
+                .map(|(s, _)| s)
+                .collect();
+        }
+        for (t, seen) in self.tracks.iter_mut().zip(&got) {
+            if seen.is_empty() {
+                continue;
+            }
+            let mean = seen
+                .iter()
+                .map(|(q, _)| q.coords)
+                .sum::<nalgebra::Vector2<f64>>()
+                / seen.len() as f64;
+            t.filter.update(&Point2::from(mean), p.sigma_meas_m);
+            t.last_seen_ns = t_ns;
+            t.hits += 1;
+            t.sensors = seen
+                .iter()
+                .filter_map(|(_, k)| ids.get(*k).cloned())
+                .collect();
+            if t.id == 0 && t.hits >= p.confirm_hits {
+                t.id = self.next_id;
+                self.next_id += 1;
+            }
+        }
+        let (detections, _) = self.merged();
+        // Two tracks on one person: the younger goes (the older keeps its id).
+        let mut gone = vec![false; self.tracks.len()];
+        for i in 0..self.tracks.len() {
+            for j in i + 1..self.tracks.len() {
+                let (a, b) = (&self.tracks[i], &self.tracks[j]);
+                if gone[i] || gone[j] || a.id == 0 || b.id == 0 {
+                    continue;
+                }
+                if (a.filter.position() - b.filter.position()).norm() > p.same_track_m {
+                    continue;
+                }
+                if a.born_ns <= b.born_ns {
+                    gone[j] = true;
+                } else {
+                    gone[i] = true;
+                }
+            }
+        }
+        let mut k = 0;
+        self.tracks.retain(|_| {
+            k += 1;
+            !gone[k - 1]
+        });
+        // Deaths.
+        let (death_ns, tentative_ns) =
+            ((p.death_s * 1e9) as u64, (p.tentative_death_s * 1e9) as u64);
+        self.tracks.retain(|t| {
+            let unseen = t_ns.saturating_sub(t.last_seen_ns);
+            if t.id == 0 {
+                unseen <= tentative_ns
+            } else {
+                unseen <= death_ns
+            }
+        });
+        // Births: detections no track took, not on top of a track.
+        for d in &detections {
+            let crowded = self
+                .tracks
+                .iter()
+                .any(|t| (t.filter.position() - d.at).norm() < p.birth_clear_m);
+            if crowded {
+                continue;
+            }
+            self.tracks.push(TrackState {
+                id: 0,
+                filter: Kalman::new(d.at, p.sigma_meas_m, p.birth_sigma_v_m_s),
+                born_ns: d.stamp_ns,
+                last_seen_ns: t_ns,
+                hits: 1,
+                sensors: Vec::new(),
+            });
+        }
+        self.confirmed(t_ns)
+    }
+
+    /// The confirmed tracks at `t_ns`, ids ascending.
+    pub fn confirmed(&self, t_ns: u64) -> Tracks {
+        let mut tracks: Vec<Track> = self
+            .tracks
+            .iter()
+            .filter(|t| t.id != 0)
+            .map(|t| {
+                let at = t.filter.position();
+                let v = t.filter.velocity();
+                Track {
+                    id: t.id,
+                    x_m: at.x,
+                    y_m: at.y,
+                    vx_m_s: v.x,
+                    vy_m_s: v.y,
+                    sigma_m: t.filter.sigma_m(),
+                    age_s: t_ns.saturating_sub(t.born_ns) as f64 * 1e-9,
+                    sensors: t.sensors.clone(),
+                }
+            })
+            .collect();
+        tracks.sort_by_key(|t| t.id);
+        Tracks { t_ns, tracks }
+    }
+
+    /// How many tracks, confirmed or not, the tracker holds.
+    pub fn live_tracks(&self) -> usize {
+        self.tracks.len()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::pose2;
+    use crate::geometry::raycast::{Wall, cast, polygon};
+    use nalgebra::Vector2;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    const S: u64 = 1_000_000_000;
+    const TICK: u64 = 25_000_000;
+
+    /// Where two people walking at 1.2 m/s are at `t_s`: A along y = 3 from x = 0, B from
+    /// (8, 3.5) back along y = 3.5; they pass each other 0.5 m apart at t ≈ 3.3 s.
+    fn crossing(t_s: f64) -> [Point2<f64>; 2] {
+        [
+            Point2::new(1.2 * t_s, 3.0),
+            Point2::new(8.0 - 1.2 * t_s, 3.5),
+        ]
+    }
+
+    fn noisy(rng: &mut ChaCha8Rng, p: Point2<f64>) -> Point2<f64> {
+        p + Vector2::new(rng.random_range(-0.03..0.03), rng.random_range(-0.03..0.03))
+    }
+
+    /// The confirmed track nearest `at`.
+    fn id_near(tracks: &Tracks, at: Point2<f64>) -> Option<(u64, f64)> {
+        tracks
+            .tracks
+            .iter()
+            .map(|t| (t.id, (Point2::new(t.x_m, t.y_m) - at).norm()))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+    }
+
+    #[test]
+    fn two_people_crossing_keep_their_ids() {
+        let mut tracker = Tracker::new(TrackParams::default());
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let mut start = None;
+        let mut last = None;
+        for k in 0..(7 * S / TICK) {
+            let t_ns = k * TICK;
+            let truth = crossing(t_ns as f64 * 1e-9);
+            // Two sensors, half a tick apart, each seeing both.
+            for (i, sensor) in ["a", "b"].iter().enumerate() {
+                let t = t_ns + i as u64 * TICK / 2;
+                let seen: Vec<Point2<f64>> = truth.iter().map(|p| noisy(&mut rng, *p)).collect();
+                if let Some(out) = tracker.push_detections(sensor, t, &seen) {
+                    let truth = crossing(out.t_ns as f64 * 1e-9);
+                    if out.tracks.len() == 2 {
+                        let ids = truth.map(|p| id_near(&out, p));
+                        if start.is_none() && out.t_ns < 2 * S {
+                            start = Some(ids);
+                        }
+                        last = Some(ids);
+                    }
+                }
+            }
+        }
+        let (Some(start), Some(last)) = (start, last) else {
+            panic!("never two confirmed tracks");
+        };
+        let ids = |v: [Option<(u64, f64)>; 2]| v.map(|x| x.map(|(id, _)| id));
+        assert_eq!(ids(start), ids(last), "{start:?} → {last:?}");
+        assert_ne!(ids(start)[0], ids(start)[1]);
+        for (_, d) in last.iter().flatten() {
+            assert!(*d < 0.05, "{last:?}");
+        }
+    }
+
+    #[test]
+    fn a_sensor_dropping_out_leaves_the_tracks_to_the_other_and_ids_are_never_reused() {
+        let mut tracker = Tracker::new(TrackParams::default());
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let mut ids_seen = Vec::new();
+        let mut at_drop = None;
+        let mut after_drop = None;
+        for k in 0..(12 * S / TICK) {
+            let t_ns = k * TICK;
+            let t_s = t_ns as f64 * 1e-9;
+            // One person walks the whole time; a second is there only for t < 4 s, a third
+            // (elsewhere) from t > 6 s.
+            let mut truth = vec![Point2::new(1.0 + 0.8 * t_s, 2.0)];
+            if t_s < 4.0 {
+                truth.push(Point2::new(5.0, 6.0));
+            }
+            if t_s > 6.0 {
+                truth.push(Point2::new(-3.0, -3.0));
+            }
+            for sensor in ["a", "b"] {
+                // Sensor b is unplugged at 5 s.
+                if sensor == "b" && t_s >= 5.0 {
+                    if k * TICK == 5 * S {
+                        tracker.forget_sensor("b");
+                    }
+                    continue;
+                }
+                let seen: Vec<Point2<f64>> = truth.iter().map(|p| noisy(&mut rng, *p)).collect();
+                if let Some(out) = tracker.push_detections(sensor, t_ns, &seen) {
+                    for t in &out.tracks {
+                        if !ids_seen.contains(&t.id) {
+                            ids_seen.push(t.id);
+                        }
+                    }
+                    let walker = Point2::new(1.0 + 0.8 * out.t_ns as f64 * 1e-9, 2.0);
+                    if (4.9..5.0).contains(&(out.t_ns as f64 * 1e-9)) {
+                        at_drop = id_near(&out, walker);
+                    }
+                    if out.t_ns > 11 * S {
+                        after_drop = id_near(&out, walker);
+                        assert_eq!(out.tracks.len(), 2, "{out:?}");
+                        assert!(out.tracks.iter().all(|t| t.sensors == ["a"]), "{out:?}");
+                    }
+                }
+            }
+        }
+        let (Some(before), Some(after)) = (at_drop, after_drop) else {
+            panic!("no track of the walker");
+        };
+        assert_eq!(before.0, after.0);
+        assert!(after.1 < 0.05, "{after:?}");
+        // Three people, three ids, each new one above the last.
+        assert_eq!(ids_seen, vec![1, 2, 3]);
+    }
+
+    /// A 270° scan at 0.5° steps of `walls` from `site_from_sensor`.
+    fn scan(walls: &[Wall], site_from_sensor: &Pose2, t_ns: u64) -> Scan {
+        let (start, step, n) = (-135f64.to_radians(), 0.5f64.to_radians(), 541);
+        let origin = Point2::from(site_from_sensor.translation.vector);
+        let ranges_m = (0..n)
+            .map(|k| {
+                let a = start + step * k as f64;
+                let dir = site_from_sensor.rotation * Vector2::new(a.cos(), a.sin());
+                cast(walls, origin, dir).map_or(0.0, |r| r as f32)
+            })
+            .collect();
+        Scan {
+            stamp_ns: t_ns,
+            sensor_stamp_ms: None,
+            start_angle_rad: start,
+            end_angle_rad: start + step * (n - 1) as f64,
+            ranges_m,
+            intensities: vec![],
+        }
+    }
+
+    fn square(x: f64, y: f64, half: f64) -> Vec<Wall> {
+        polygon(&[
+            (x - half, y - half),
+            (x + half, y - half),
+            (x + half, y + half),
+            (x - half, y + half),
+        ])
+    }
+
+    #[test]
+    fn one_standing_still_for_a_minute_stays_and_a_box_put_down_fades_into_the_background() {
+        let room = polygon(&[(0.0, 0.0), (10.0, 0.0), (10.0, 8.0), (0.0, 8.0)]);
+        let pose = pose2(0.5, 0.5, 0.6);
+        let mut tracker = Tracker::new(TrackParams::default());
+        let person = Point2::new(4.0, 5.0);
+        let the_box = Point2::new(7.0, 2.0);
+        let mut person_ids = Vec::new();
+        let mut box_tracked_at_s = Vec::new();
+        // 10 Hz is enough here; the person stands from 1 s to 70 s, the box from 1 s on.
+        let tick = 100_000_000;
+        for k in 0..(110 * S / tick) {
+            let t_ns = k * tick;
+            let t_s = t_ns as f64 * 1e-9;
+            let mut seen = room.clone();
+            if t_s >= 1.0 {
+                seen.extend(square(the_box.x, the_box.y, 0.2));
+            }
+            if (1.0..70.0).contains(&t_s) {
+                // Swaying a centimetre or two.
+                let sway = 0.015 * (t_s * 1.3).sin();
+                seen.extend(square(person.x + sway, person.y, 0.18));
+            }
+            let s = scan(&seen, &pose, t_ns);
+            let out = tracker.push(SensorScan {
+                id: "a",
+                scan: &s,
+                geometry: None,
+                mount: Mount::default(),
+                site_from_sensor: Some(pose),
+            });
+            let Some(out) = out else { continue };
+            if let Some((id, d)) = id_near(&out, person)
+                && d < 0.3
+                && (2.0..70.0).contains(&t_s)
+            {
+                if !person_ids.contains(&id) {
+                    person_ids.push(id);
+                }
+            } else if (2.0..70.0).contains(&t_s) {
+                panic!("the person standing still is lost at {t_s:.1} s: {out:?}");
+            }
+            if id_near(&out, the_box).is_some_and(|(_, d)| d < 0.4) {
+                box_tracked_at_s.push(t_s);
+            }
+        }
+        assert_eq!(person_ids.len(), 1, "{person_ids:?}");
+        // The box is something new at first, and background after `absorb_s` (90 s).
+        let first = box_tracked_at_s.first().copied().unwrap_or(f64::NAN);
+        let last = box_tracked_at_s.last().copied().unwrap_or(f64::NAN);
+        assert!(first < 2.0, "{first}");
+        assert!((85.0..95.0).contains(&last), "{last}");
+    }
+
+    #[test]
+    fn a_sensor_not_placed_contributes_nothing() {
+        let room = polygon(&[(0.0, 0.0), (10.0, 0.0), (10.0, 8.0), (0.0, 8.0)]);
+        let pose = pose2(0.5, 0.5, 0.6);
+        for placed in [false, true] {
+            let mut tracker = Tracker::new(TrackParams::default());
+            let mut most = 0;
+            for k in 0..40u64 {
+                let t_ns = k * TICK;
+                let mut seen = room.clone();
+                if k > 0 {
+                    seen.extend(square(3.0 + 0.03 * k as f64, 4.0, 0.2));
+                }
+                let s = scan(&seen, &pose, t_ns);
+                let out = tracker.push(SensorScan {
+                    id: "a",
+                    scan: &s,
+                    geometry: None,
+                    mount: Mount::default(),
+                    site_from_sensor: placed.then_some(pose),
+                });
+                most = most.max(out.map_or(0, |o| o.tracks.len()));
+            }
+            assert_eq!(most, usize::from(placed), "placed: {placed}");
+        }
+    }
+}
