@@ -198,6 +198,9 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
     // People both saw walk propose a pose of their own; where it is decisive, the walls'
     // candidate in its basin leads.
     let walkers = decisive_walkers(a, b, p);
+    if let Some(fit) = &walkers {
+        propose_from_walkers(a, b, fit, &mut distinct, &mut evidence, p);
+    }
     let walkers = match walkers {
         Some(fit) if lead_with_walkers(&fit, &mut distinct, &mut evidence, p) => Some(fit),
         // No wall candidate there, or it failed the walkers' own check: they lead nothing,
@@ -352,7 +355,48 @@ fn nobody_walked(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> Option<f64
 /// The walker fit, when it decides the pose.
 fn decisive_walkers(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> Option<WalkerFit> {
     let (ma, mb) = (a.motion.as_ref()?, b.motion.as_ref()?);
-    fit_walkers(ma, mb, &p.walkers).filter(|f| f.decisive(&p.walkers))
+    fit_walkers(ma, mb, &p.walkers, &p.motion).filter(|f| f.decisive(&p.walkers))
+}
+
+/// Where no wall candidate lies in the walkers' basin (the walls' hypotheses missed it: a
+/// shop's shelving hides the corners both see), the walls are refined from the walkers' pose
+/// and that candidate joins the others, with what the walkers say of it, to face the same
+/// checks. It joins only if the walls keep it in the basin: the walkers choose the place,
+/// the walls still give the pose.
+fn propose_from_walkers(
+    a: &ScanModel,
+    b: &ScanModel,
+    fit: &WalkerFit,
+    distinct: &mut Vec<(Candidate, IcpResult)>,
+    evidence: &mut Vec<MotionEvidence>,
+    p: &RegisterParams,
+) {
+    let (Some(ma), Some(mb)) = (&a.motion, &b.motion) else {
+        return;
+    };
+    if distinct.len() != evidence.len()
+        || distinct
+            .iter()
+            .any(|(c, _)| fit.near(&c.a_from_b, &p.walkers))
+    {
+        return;
+    }
+    let guard = |pose: &Pose2| score(a, b, pose, p).value;
+    let icp = refine_guarded(a, b, &fit.a_from_b, p, p.class_aware, Some(&guard));
+    if !fit.near(&icp.a_from_b, &p.walkers) {
+        return;
+    }
+    let candidate = Candidate {
+        a_from_b: icp.a_from_b,
+        score: score(a, b, &icp.a_from_b, p),
+        covariance: Matrix3::zeros(),
+    };
+    let e = co_motion(ma, mb, &candidate.a_from_b, &p.motion);
+    if e.refutes(&p.motion) {
+        return;
+    }
+    distinct.push((candidate, icp));
+    evidence.push(e);
 }
 
 /// Puts the wall candidate in the walkers' basin first (with its walker evidence): the

@@ -10,7 +10,7 @@ use nalgebra::{Matrix3, Point2, Rotation2, Vector2};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::motion::MotionTrack;
+use super::motion::{MotionParams, MotionTrack, co_motion};
 use crate::geometry::{Pose2, pose_error};
 
 /// Thresholds of the walker fit.
@@ -209,7 +209,12 @@ fn covariance(
 
 /// The pose most simultaneous walkers agree on, `None` without two sensors watching walkers
 /// at the same ticks. Deterministic.
-pub fn fit_walkers(a: &MotionTrack, b: &MotionTrack, p: &WalkerParams) -> Option<WalkerFit> {
+pub fn fit_walkers(
+    a: &MotionTrack,
+    b: &MotionTrack,
+    p: &WalkerParams,
+    motion: &MotionParams,
+) -> Option<WalkerFit> {
     let ticks: Vec<Tick> = a
         .centres_with(b, p.max_skew_s, p.centre_push_of_width)
         .into_iter()
@@ -242,6 +247,21 @@ pub fn fit_walkers(a: &MotionTrack, b: &MotionTrack, p: &WalkerParams) -> Option
         let (dt, dyaw) = pose_error(x, y);
         dt < p.same_m && dyaw < p.same_rad
     };
+    let mut consider = |pose: Pose2| {
+        let count = agree(&scored, &pose, p.inlier_m, false).count;
+        match best.iter_mut().find(|(_, q)| same(q, &pose)) {
+            Some(entry) if entry.0 >= count => {}
+            Some(entry) => *entry = (count, pose),
+            None => best.push((count, pose)),
+        }
+        best.sort_by_key(|x| std::cmp::Reverse(x.0));
+        best.truncate(8);
+    };
+    // In a crowd two random sightings are seldom the same two people in both sensors; a
+    // walker followed for a second or two is. Paths first, then random pairs.
+    for pose in path_hypotheses(&ticks, p) {
+        consider(pose);
+    }
     for _ in 0..p.iterations {
         let (Some(&(_, a1, b1)), Some(&(_, a2, b2))) = (
             candidates.get(rng.random_range(0..candidates.len())),
@@ -253,15 +273,7 @@ pub fn fit_walkers(a: &MotionTrack, b: &MotionTrack, p: &WalkerParams) -> Option
         if da < p.min_apart_m || (da - db).abs() > p.pair_tol_m {
             continue;
         }
-        let pose = from_two(a1, a2, b1, b2);
-        let count = agree(&scored, &pose, p.inlier_m, false).count;
-        match best.iter_mut().find(|(_, q)| same(q, &pose)) {
-            Some(entry) if entry.0 >= count => {}
-            Some(entry) => *entry = (count, pose),
-            None => best.push((count, pose)),
-        }
-        best.sort_by_key(|x| std::cmp::Reverse(x.0));
-        best.truncate(8);
+        consider(from_two(a1, a2, b1, b2));
     }
     // Refine the leaders on every tick; the best refined one is the fit.
     let all: Vec<&Tick> = ticks.iter().collect();
@@ -277,6 +289,10 @@ pub fn fit_walkers(a: &MotionTrack, b: &MotionTrack, p: &WalkerParams) -> Option
             Some((agreement.count, pose, agreement.pairs))
         })
         .collect();
+    // In a crowd a wrong pose that lays one sensor's busy floor over the other's matches
+    // many sightings by chance; it also puts walkers where the other saw through at that
+    // moment. Those are out before any counting decides.
+    refined.retain(|(_, pose, _)| !co_motion(a, b, pose, motion).refutes(motion));
     refined.sort_by_key(|x| std::cmp::Reverse(x.0));
     let (inliers, pose, pairs) = refined.first()?.clone();
     // Leaders that refine to the winner were the same pose seen through noise.
@@ -308,6 +324,111 @@ pub fn fit_walkers(a: &MotionTrack, b: &MotionTrack, p: &WalkerParams) -> Option
         runner_up,
         covariance: covariance(&pose, &pairs, rms_m, p),
     })
+}
+
+/// One walker's centres over consecutive ticks: (tick index, centre).
+type Path = Vec<(usize, Point2<f64>)>;
+
+/// A walker moves at most this far between two ticks 0.1 s apart (m), and ticks further
+/// apart than `PATH_GAP_S` end a path.
+const PATH_STEP_M: f64 = 0.35;
+const PATH_GAP_S: f64 = 0.15;
+/// A path pair proposes a pose over at least this many shared ticks, with residuals under
+/// `PATH_RMS_M`.
+const PATH_MIN_TICKS: usize = 8;
+const PATH_RMS_M: f64 = 0.2;
+
+/// Each sensor's walkers linked into paths: a centre continues the path of the previous
+/// tick's centre when each is the other's nearest within [`PATH_STEP_M`]; anything else
+/// starts a new path (two people passing close break theirs, which is safe).
+fn paths(ticks: &[Tick], side: impl Fn(&Tick) -> &[Point2<f64>]) -> Vec<Path> {
+    let mut done: Vec<Path> = Vec::new();
+    let mut open: Vec<Path> = Vec::new();
+    let nearest = |q: &Point2<f64>, among: &[Point2<f64>]| {
+        among
+            .iter()
+            .enumerate()
+            .map(|(i, c)| (i, (c - q).norm()))
+            .min_by(|x, y| x.1.total_cmp(&y.1))
+            .filter(|(_, d)| *d <= PATH_STEP_M)
+            .map(|(i, _)| i)
+    };
+    for (k, tick) in ticks.iter().enumerate() {
+        let now = side(tick);
+        let previous: Option<&Tick> = k.checked_sub(1).and_then(|j| ticks.get(j));
+        let close = previous.is_some_and(|t| tick.t_s - t.t_s <= PATH_GAP_S);
+        let before: Vec<Point2<f64>> = open.iter().filter_map(|p| p.last().map(|x| x.1)).collect();
+        let mut next: Vec<Path> = Vec::new();
+        let mut taken = vec![false; open.len()];
+        for c in now {
+            let link = close.then(|| nearest(c, &before)).flatten().filter(|&i| {
+                nearest(before.get(i).unwrap_or(c), now) == now.iter().position(|x| x == c)
+            });
+            match link.filter(|&i| !taken.get(i).copied().unwrap_or(true)) {
+                Some(i) => {
+                    taken[i] = true;
+                    let mut path = std::mem::take(&mut open[i]);
+                    path.push((k, *c));
+                    next.push(path);
+                }
+                None => next.push(vec![(k, *c)]),
+            }
+        }
+        done.extend(open.into_iter().filter(|p| p.len() >= PATH_MIN_TICKS));
+        open = next;
+    }
+    done.extend(open.into_iter().filter(|p| p.len() >= PATH_MIN_TICKS));
+    done
+}
+
+/// Poses from pairs of paths, one in each sensor, over the ticks they share: a walker
+/// followed over a metre or more fixes a pose by itself when it is the same person in both.
+fn path_hypotheses(ticks: &[Tick], p: &WalkerParams) -> Vec<Pose2> {
+    let (pa, pb) = (paths(ticks, |t| &t.a), paths(ticks, |t| &t.b));
+    let mut out = Vec::new();
+    for a in &pa {
+        let (Some(a0), Some(a1)) = (a.first(), a.last()) else {
+            continue;
+        };
+        for b in &pb {
+            let (Some(b0), Some(b1)) = (b.first(), b.last()) else {
+                continue;
+            };
+            if a1.0.min(b1.0) < a0.0.max(b0.0) + PATH_MIN_TICKS - 1 {
+                continue;
+            }
+            let mut j = 0;
+            let mut matched: Matched = Vec::new();
+            for &(k, qa) in a {
+                while b.get(j).is_some_and(|x| x.0 < k) {
+                    j += 1;
+                }
+                if let Some(&(kb, qb)) = b.get(j).filter(|x| x.0 == k) {
+                    let t_s = ticks.get(kb).map_or(0.0, |t| t.t_s);
+                    matched.push((qa, qb, t_s));
+                }
+            }
+            if matched.len() < PATH_MIN_TICKS {
+                continue;
+            }
+            let spread_a = spread(matched.iter().map(|m| m.0));
+            let spread_b = spread(matched.iter().map(|m| m.1));
+            if spread_a < p.min_apart_m || (spread_a - spread_b).abs() > p.pair_tol_m {
+                continue;
+            }
+            let Some(pose) = least_squares(&matched) else {
+                continue;
+            };
+            let sq = matched
+                .iter()
+                .map(|(qa, qb, _)| (qa - pose * qb).norm_squared())
+                .sum::<f64>();
+            if (sq / matched.len() as f64).sqrt() <= PATH_RMS_M {
+                out.push(pose);
+            }
+        }
+    }
+    out
 }
 
 /// The largest distance between two of the points (an extreme pair of a bounding box is
@@ -380,6 +501,21 @@ mod tests {
 
     fn track(walls: &[Wall], pose: &Pose2, seconds: f64) -> MotionTrack {
         let p = MotionParams::default();
+        /// A crowd: fourteen people crossing the floor back and forth on lines of their own.
+        fn crowd_at(t_s: f64) -> Vec<[f64; 2]> {
+            (0..14)
+                .map(|i| {
+                    let k = i as f64;
+                    let period_s = 7.0 + (k * 1.7) % 6.0;
+                    let s = ((t_s + k * 0.9) / period_s).fract();
+                    let s = if s < 0.5 { 2.0 * s } else { 2.0 - 2.0 * s };
+                    let (x0, y0) = (1.0 + (k * 3.1) % 12.0, 1.0 + (k * 2.3) % 8.0);
+                    let (x1, y1) = (13.0 - (k * 1.9) % 11.0, 9.0 - (k * 4.1) % 8.0);
+                    [x0 + s * (x1 - x0), y0 + s * (y1 - y0)]
+                })
+                .collect()
+        }
+
         let frames = (seconds * 40.0) as u64;
         let scans: Vec<Scan> = (0..frames)
             .map(|k| {
@@ -399,6 +535,52 @@ mod tests {
         .expect("a track")
     }
 
+    /// A crowd: fourteen people crossing the floor back and forth on lines of their own.
+    fn crowd_at(t_s: f64) -> Vec<[f64; 2]> {
+        (0..14)
+            .map(|i| {
+                let k = i as f64;
+                let period_s = 7.0 + (k * 1.7) % 6.0;
+                let s = ((t_s + k * 0.9) / period_s).fract();
+                let s = if s < 0.5 { 2.0 * s } else { 2.0 - 2.0 * s };
+                let (x0, y0) = (1.0 + (k * 3.1) % 12.0, 1.0 + (k * 2.3) % 8.0);
+                let (x1, y1) = (13.0 - (k * 1.9) % 11.0, 9.0 - (k * 4.1) % 8.0);
+                [x0 + s * (x1 - x0), y0 + s * (y1 - y0)]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn in_a_crowd_a_walker_followed_in_both_sensors_proposes_the_pose() {
+        // Fourteen people at once, listed in no particular order by each sensor: a random
+        // pair of sightings is seldom the same two people in both; one path is.
+        let (pa, pb) = (pose2(0.0, 0.0, 0.6), pose2(14.0, 10.0, -2.4));
+        let ticks: Vec<Tick> = (0..100)
+            .map(|k| {
+                let t_s = k as f64 * 0.1;
+                let site: Vec<Point2<f64>> = crowd_at(t_s)
+                    .iter()
+                    .map(|[x, y]| Point2::new(*x, *y))
+                    .collect();
+                let mut b: Vec<Point2<f64>> = site.iter().map(|q| pb.inverse() * q).collect();
+                b.rotate_left(k % 5);
+                Tick {
+                    t_s,
+                    a: site.iter().map(|q| pa.inverse() * q).collect(),
+                    b,
+                }
+            })
+            .collect();
+        let truth = pa.inverse() * pb;
+        let hypotheses = path_hypotheses(&ticks, &WalkerParams::default());
+        let near = hypotheses.iter().filter(|h| {
+            let (dt, dyaw) = pose_error(h, &truth);
+            dt < 0.05 && dyaw < 0.5f64.to_radians()
+        });
+        // Every person's path pairs with its own in the other sensor.
+        assert!(near.count() >= 14, "{} hypotheses", hypotheses.len());
+    }
+
     #[test]
     fn people_alone_fix_the_pose_of_two_sensors_that_share_no_wall() {
         // Open floor: the only structure is a short post near each sensor, out of the
@@ -410,7 +592,7 @@ mod tests {
         let (pa, pb) = (pose2(0.0, 0.0, 0.6), pose2(14.0, 10.0, -2.4));
         let (ta, tb) = (track(&walls, &pa, 20.0), track(&walls, &pb, 20.0));
         let p = WalkerParams::default();
-        let fit = fit_walkers(&ta, &tb, &p).expect("a fit");
+        let fit = fit_walkers(&ta, &tb, &p, &MotionParams::default()).expect("a fit");
         let truth = pa.inverse() * pb;
         let (dt, dyaw) = pose_error(&fit.a_from_b, &truth);
         assert!(
@@ -430,7 +612,7 @@ mod tests {
         let (pa, pb) = (pose2(1.0, 1.0, 0.3), pose2(7.9, 4.9, 0.8));
         let (ta, tb) = (track(&walls, &pa, 5.0), track(&walls, &pb, 5.0));
         let p = WalkerParams::default();
-        let fit = fit_walkers(&ta, &tb, &p);
+        let fit = fit_walkers(&ta, &tb, &p, &MotionParams::default());
         assert!(fit.as_ref().is_none_or(|f| !f.decisive(&p)), "{fit:?}");
     }
 }
