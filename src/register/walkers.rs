@@ -501,21 +501,6 @@ mod tests {
 
     fn track(walls: &[Wall], pose: &Pose2, seconds: f64) -> MotionTrack {
         let p = MotionParams::default();
-        /// A crowd: fourteen people crossing the floor back and forth on lines of their own.
-        fn crowd_at(t_s: f64) -> Vec<[f64; 2]> {
-            (0..14)
-                .map(|i| {
-                    let k = i as f64;
-                    let period_s = 7.0 + (k * 1.7) % 6.0;
-                    let s = ((t_s + k * 0.9) / period_s).fract();
-                    let s = if s < 0.5 { 2.0 * s } else { 2.0 - 2.0 * s };
-                    let (x0, y0) = (1.0 + (k * 3.1) % 12.0, 1.0 + (k * 2.3) % 8.0);
-                    let (x1, y1) = (13.0 - (k * 1.9) % 11.0, 9.0 - (k * 4.1) % 8.0);
-                    [x0 + s * (x1 - x0), y0 + s * (y1 - y0)]
-                })
-                .collect()
-        }
-
         let frames = (seconds * 40.0) as u64;
         let scans: Vec<Scan> = (0..frames)
             .map(|k| {
