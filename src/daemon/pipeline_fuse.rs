@@ -171,6 +171,11 @@ pub fn save_files(
                 .iter()
                 .map(|(pose, source, updated)| SavedPose::from_pose(pose, *source, *updated))
                 .collect(),
+            // An alignment to the drawing (`scanfuse align --save`) is kept across saves.
+            building_from_site: PosesFile::load(dir)
+                .ok()
+                .flatten()
+                .and_then(|f| f.building_from_site),
         };
         file.save(dir)?;
         files.push(POSES_FILE.to_string());

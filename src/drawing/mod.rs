@@ -49,6 +49,54 @@ pub struct Drawing {
     pub layers: Vec<String>,
 }
 
+/// `building_from_site` as files, the socket and `align --json` carry it: where the site
+/// frame (the anchor's) lies in the drawing's, kept beside the poses, never folded into them.
+/// `p_building = scale · R(yaw) · p_site + (x, y)`. When `aligned` is false the numbers are
+/// the identity and `reason` says why.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BuildingFromSite {
+    pub x_m: f64,
+    pub y_m: f64,
+    pub yaw_deg: f64,
+    pub scale: f64,
+    pub aligned: bool,
+    /// How it was found: `automatic+lines`, `pairs+lines`, `pairs`, `automatic`.
+    pub method: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reason: Option<String>,
+}
+
+impl BuildingFromSite {
+    pub fn from_alignment(a: &align::Alignment) -> BuildingFromSite {
+        let t = a.building_from_site.unwrap_or(align::Similarity {
+            x_m: 0.0,
+            y_m: 0.0,
+            yaw_rad: 0.0,
+            scale: 1.0,
+        });
+        BuildingFromSite {
+            x_m: t.x_m,
+            y_m: t.y_m,
+            yaw_deg: t.yaw_rad.to_degrees(),
+            scale: t.scale,
+            aligned: a.building_from_site.is_some(),
+            method: a.method.clone(),
+            reason: a.reason.clone(),
+        }
+    }
+
+    /// The transform, when aligned.
+    pub fn similarity(&self) -> Option<align::Similarity> {
+        self.aligned.then_some(align::Similarity {
+            x_m: self.x_m,
+            y_m: self.y_m,
+            yaw_rad: self.yaw_deg.to_radians(),
+            scale: self.scale,
+        })
+    }
+}
+
 /// The formats read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Format {
