@@ -146,19 +146,31 @@ pub fn run(args: Args) -> Result<()> {
     );
     let mut register = to_output(&anchor_id, &prepared, &site, 0);
     if let Some(t) = alignment.building_from_site {
-        let sigma = alignment.refined.as_ref().map_or((0.0, 0.0, 0.0), |r| r.sigma);
+        let sigma = alignment
+            .refined
+            .as_ref()
+            .map_or((0.0, 0.0, 0.0), |r| r.sigma);
         for s in &mut register.sensors {
             to_building(s, &t, sigma);
         }
     }
     if let Some(dir) = &args.save {
-        save(dir, &anchor_id, &to_output(&anchor_id, &prepared, &site, 0), &alignment)?;
+        save(
+            dir,
+            &anchor_id,
+            &to_output(&anchor_id, &prepared, &site, 0),
+            &alignment,
+        )?;
     }
     register.elapsed_ms = started.elapsed().as_millis() as u64;
     let out = AlignOut {
         register,
         building_from_site: BuildingFromSite::from_alignment(&alignment),
-        rms_m: alignment.refined.as_ref().map(|r| r.rms_m).filter(|v| v.is_finite()),
+        rms_m: alignment
+            .refined
+            .as_ref()
+            .map(|r| r.rms_m)
+            .filter(|v| v.is_finite()),
         residuals: residuals(&alignment, &pairs),
     };
     if args.json {
@@ -190,10 +202,7 @@ fn to_building(s: &mut SensorPose, t: &drawing::align::Similarity, sigma: (f64, 
     }
 }
 
-fn residuals(
-    a: &Alignment,
-    pairs: &[(nalgebra::Point2<f64>, nalgebra::Point2<f64>)],
-) -> Vec<ResidualOut> {
+fn residuals(a: &Alignment, pairs: &[scanfuse::drawing::align::PointPair]) -> Vec<ResidualOut> {
     let mut out: Vec<ResidualOut> = pairs
         .iter()
         .zip(&a.pair_residuals_m)

@@ -69,8 +69,12 @@ pub(super) type Prepared = Vec<(SensorInfo, Option<SensorInput>)>;
 
 pub fn run(args: Args) -> Result<()> {
     let started = Instant::now();
-    let (anchor_id, prepared, site) =
-        register_files(&args.files, args.anchor.as_deref(), args.walls_only, !args.json)?;
+    let (anchor_id, prepared, site) = register_files(
+        &args.files,
+        args.anchor.as_deref(),
+        args.walls_only,
+        !args.json,
+    )?;
     let output = to_output(
         &anchor_id,
         &prepared,

@@ -79,7 +79,7 @@ pub struct PairFit {
 }
 
 /// Parses `"sx,sy=dx,dy;sx,sy=dx,dy"` (site point = drawing point, metres).
-pub fn parse_pairs(text: &str) -> Result<Vec<(Point2<f64>, Point2<f64>)>, AlignError> {
+pub fn parse_pairs(text: &str) -> Result<Vec<PointPair>, AlignError> {
     let bad = || AlignError::BadPairs(text.to_string());
     text.split(';')
         .map(str::trim)
@@ -101,12 +101,12 @@ pub fn parse_pairs(text: &str) -> Result<Vec<(Point2<f64>, Point2<f64>)>, AlignE
         .collect()
 }
 
+/// A point pair: a site point and the drawing point it lies at (m).
+pub type PointPair = (Point2<f64>, Point2<f64>);
+
 /// Least-squares rigid (or, with `similarity`, similarity) fit of `pairs` (site, drawing):
 /// Umeyama's closed form in 2D.
-pub fn fit_pairs(
-    pairs: &[(Point2<f64>, Point2<f64>)],
-    similarity: bool,
-) -> Result<PairFit, AlignError> {
+pub fn fit_pairs(pairs: &[PointPair], similarity: bool) -> Result<PairFit, AlignError> {
     if pairs.len() < 2 {
         return Err(AlignError::TooFewPairs(pairs.len()));
     }
@@ -316,8 +316,7 @@ pub fn refine(map: &[MapPoint], index: &LineIndex<'_>, init: &Similarity, gate_m
             .get(iter)
             .copied()
             .unwrap_or(0.2)
-            .min(MAX_GATE_M)
-            .max(0.15);
+            .clamp(0.15, MAX_GATE_M);
         let r = Rotation2::new(t.yaw_rad);
         let (mut hh, mut g) = (Matrix3::zeros(), Vector3::zeros());
         for m in map {
@@ -471,7 +470,7 @@ pub fn drawing_model(drawing: &Drawing, p: &RegisterParams) -> ScanModel {
     let score_sample = spread(2 * p.score_points.max(1000));
     let icp_sample = spread(p.icp_points);
     let classes = vec![PointClass::Wall; points.len()];
-    let groups = vec![0..points.len()];
+    let groups = std::iter::once(0..points.len()).collect();
     ScanModel {
         features: Features {
             points,
@@ -648,7 +647,7 @@ pub struct Alignment {
 pub fn align(
     drawing: &Drawing,
     sensors: &[AlignSensor<'_>],
-    pairs: &[(Point2<f64>, Point2<f64>)],
+    pairs: &[PointPair],
     similarity: bool,
     p: &RegisterParams,
 ) -> Alignment {
@@ -717,4 +716,169 @@ pub fn align(
 pub fn angle_diff(a: f64, b: f64) -> f64 {
     let d = (a - b).rem_euclid(2.0 * PI);
     if d > PI { d - 2.0 * PI } else { d }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    type Line = ((f64, f64), (f64, f64));
+
+    fn drawing(segs: &[Line]) -> Drawing {
+        let segments: Vec<WallSegment> = segs
+            .iter()
+            .map(|&((ax, ay), (bx, by))| WallSegment {
+                a: Point2::new(ax, ay),
+                b: Point2::new(bx, by),
+                layer: "A-WALL".into(),
+            })
+            .collect();
+        let mut lo = Point2::new(f64::INFINITY, f64::INFINITY);
+        let mut hi = -lo;
+        for s in &segments {
+            lo = lo.inf(&s.a).inf(&s.b);
+            hi = hi.sup(&s.a).sup(&s.b);
+        }
+        Drawing {
+            source: "t".into(),
+            segments,
+            units: "m".into(),
+            bounds: (lo, hi),
+            layers: vec!["A-WALL".into()],
+        }
+    }
+
+    /// Wall points every 2 cm along `segs` (building frame), seen in the site frame through
+    /// `building_from_site`, with normals.
+    fn map_of(segs: &[Line], t: &Similarity) -> Vec<MapPoint> {
+        let inv = t.pose().inverse();
+        let mut out = Vec::new();
+        for &((ax, ay), (bx, by)) in segs {
+            let (a, b) = (Point2::new(ax, ay), Point2::new(bx, by));
+            let u = (b - a).normalize();
+            let n = Vector2::new(-u.y, u.x);
+            let steps = ((b - a).norm() / 0.02) as usize;
+            for i in 0..=steps {
+                let p = a + (b - a) * (i as f64 / steps as f64);
+                out.push(MapPoint {
+                    p: inv * p,
+                    n: inv.rotation * n,
+                });
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn pairs_fit_rigid_and_similarity_with_residuals() {
+        let t = Similarity {
+            x_m: 10.0,
+            y_m: -4.0,
+            yaw_rad: 0.4,
+            scale: 1.0,
+        };
+        let site = [
+            Point2::new(0.0, 0.0),
+            Point2::new(5.0, 1.0),
+            Point2::new(2.0, 7.0),
+        ];
+        let pairs: Vec<_> = site.iter().map(|p| (*p, t.apply(p))).collect();
+        let fit = fit_pairs(&pairs, false).unwrap();
+        assert!(
+            (fit.transform.x_m - 10.0).abs() < 1e-9 && (fit.transform.yaw_rad - 0.4).abs() < 1e-9
+        );
+        assert!(fit.residuals_m.iter().all(|r| *r < 1e-9));
+        // A drawing at 1:2 needs the similarity; the rigid fit shows it in the residuals.
+        let scaled: Vec<_> = pairs
+            .iter()
+            .map(|(s, d)| (*s, Point2::from(d.coords * 2.0)))
+            .collect();
+        let sim = fit_pairs(&scaled, true).unwrap();
+        assert!((sim.transform.scale - 2.0).abs() < 1e-9, "{sim:?}");
+        assert!(
+            fit_pairs(&scaled, false)
+                .unwrap()
+                .residuals_m
+                .iter()
+                .any(|r| *r > 1.0)
+        );
+        // One pair off by 20 cm shows in its residual.
+        let mut off = pairs.clone();
+        off[1].1.x += 0.2;
+        let fit = fit_pairs(&off, false).unwrap();
+        assert!(fit.residuals_m[1] > 0.1, "{fit:?}");
+        assert_eq!(
+            fit_pairs(&pairs[..1], false),
+            Err(AlignError::TooFewPairs(1))
+        );
+        assert_eq!(
+            fit_pairs(&[(site[0], site[0]), (site[0], site[1])], false),
+            Err(AlignError::CoincidentPairs)
+        );
+    }
+
+    #[test]
+    fn pairs_parse_and_bad_text_is_named() {
+        let p = parse_pairs("0,0=1.5,2; 3,-1=4,5").unwrap();
+        assert_eq!(p.len(), 2);
+        assert_eq!(p[1].0, Point2::new(3.0, -1.0));
+        assert!(
+            parse_pairs("0,0=1")
+                .unwrap_err()
+                .to_string()
+                .contains("0,0=1")
+        );
+        assert!(parse_pairs("a,b=1,2").is_err());
+    }
+
+    #[test]
+    fn refinement_recovers_the_alignment_and_names_the_moved_wall() {
+        // A 12 × 8 room with an inner partition; the map sees the partition 20 cm east.
+        let drawn = [
+            ((0.0, 0.0), (12.0, 0.0)),
+            ((12.0, 0.0), (12.0, 8.0)),
+            ((12.0, 8.0), (0.0, 8.0)),
+            ((0.0, 8.0), (0.0, 0.0)),
+            ((6.0, 0.0), (6.0, 5.0)),
+        ];
+        let mut seen = drawn;
+        seen[4] = ((6.2, 0.0), (6.2, 5.0));
+        let truth = Similarity {
+            x_m: 3.0,
+            y_m: 1.0,
+            yaw_rad: 0.3,
+            scale: 1.0,
+        };
+        let d = drawing(&drawn);
+        let index = LineIndex::new(&d);
+        let map = map_of(&seen, &truth);
+        // Start 15 cm and 1° off, as two clicked points would leave it.
+        let init = Similarity {
+            x_m: 3.12,
+            y_m: 0.9,
+            yaw_rad: 0.3 + 1f64.to_radians(),
+            scale: 1.0,
+        };
+        let r = refine(&map, &index, &init, 0.5);
+        let (dt, dr) = pose_error(&r.transform.pose(), &truth.pose());
+        assert!(
+            dt < 0.01 && dr < 0.05f64.to_radians(),
+            "{dt} {dr} {:?}",
+            r.transform
+        );
+        let moved: Vec<_> = r.lines.iter().filter(|l| l.moved).collect();
+        assert_eq!(moved.len(), 1, "{:?}", r.lines);
+        assert_eq!(moved[0].a, Point2::new(6.0, 0.0));
+        assert!(
+            (moved[0].offset_m.abs() - 0.2).abs() < 0.01,
+            "{:?}",
+            moved[0]
+        );
+        assert!(
+            r.lines
+                .iter()
+                .filter(|l| !l.moved)
+                .all(|l| l.offset_m.abs() < 0.01)
+        );
+    }
 }
