@@ -275,3 +275,66 @@ fn a_bad_drawing_is_a_clear_error_naming_the_file() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("broken.dxf"), "{err}");
 }
+
+/// `register --drawing` with a raster plan (PGM, 2 cm per pixel, 1-pixel walls drawn from the
+/// fixture plan): the poses come out in the raster's frame (origin at its bottom-left corner).
+#[test]
+fn register_with_a_raster_drawing_gives_poses_in_its_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let plan = scanfuse::sim::plan::Plan::load(&repo().join("fixtures/plans/lab.toml")).unwrap();
+    let (res, x0, y0, w, h) = (0.02, -1.0, -1.0, 1100usize, 700usize);
+    let mut px = vec![255u8; w * h];
+    let mut ink = |x: f64, y: f64| {
+        let (c, r) = (
+            ((x - x0) / res) as i64,
+            h as i64 - 1 - ((y - y0) / res) as i64,
+        );
+        if c >= 0 && r >= 0 && (c as usize) < w && (r as usize) < h {
+            px[r as usize * w + c as usize] = 0;
+        }
+    };
+    for wall in &plan.walls {
+        for (a, b) in wall.segments() {
+            let steps = ((b[0] - a[0]).hypot(b[1] - a[1]) / (res / 4.0)) as usize;
+            for k in 0..=steps {
+                let t = k as f64 / steps.max(1) as f64;
+                ink(a[0] + (b[0] - a[0]) * t, a[1] + (b[1] - a[1]) * t);
+            }
+        }
+    }
+    let mut pgm = format!("P5\n{w} {h}\n255\n").into_bytes();
+    pgm.extend(px);
+    let drawing = dir.path().join("lab.pgm");
+    std::fs::write(&drawing, pgm).unwrap();
+    let rec_path = repo().join("fixtures/lab.mcap");
+    let out = succeeded(
+        scanfuse()
+            .arg("register")
+            .arg(&rec_path)
+            .args(["--walls-only", "--json", "--scale", "0.02", "--drawing"])
+            .arg(&drawing),
+    );
+    let out: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(out["building_from_site"]["aligned"], true, "{out}");
+    let rec = scanfuse::record::read(&rec_path).unwrap();
+    for info in &rec.sensors {
+        let truth = info.truth.unwrap();
+        let s = out["sensors"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|s| s["id"] == info.id.as_str())
+            .unwrap();
+        let dx = s["x_m"].as_f64().unwrap() - (truth.x_m - x0);
+        let dy = s["y_m"].as_f64().unwrap() - (truth.y_m - y0);
+        let dyaw =
+            (s["yaw_deg"].as_f64().unwrap() - truth.yaw_deg + 540.0).rem_euclid(360.0) - 180.0;
+        assert!(
+            dx.hypot(dy) < MAX_ERR_M && dyaw.abs() < 0.5,
+            "{}: {:.3} m / {:.2}° ({s})",
+            info.id,
+            dx.hypot(dy),
+            dyaw
+        );
+    }
+}

@@ -82,6 +82,11 @@ struct AlignOut {
     #[serde(flatten)]
     register: Output,
     building_from_site: BuildingFromSite,
+    /// Time the alignment itself took (drawing model, hypotheses, refinement), ms; the
+    /// registration before it is in `elapsed_ms`.
+    align_ms: f64,
+    /// Drawing segments aligned to (after the layer choice).
+    drawing_segments: usize,
     #[serde(skip_serializing_if = "Option::is_none")]
     rms_m: Option<f64>,
     residuals: Vec<ResidualOut>,
@@ -94,7 +99,9 @@ pub fn run(args: Args) -> Result<()> {
         scale_m_per_unit: args.scale,
         ..ReadOptions::default()
     };
+    let read_started = Instant::now();
     let drawing = drawing::read(&args.drawing, &opts).map_err(|e| BadInput(e.to_string()))?;
+    let read_ms = read_started.elapsed().as_secs_f64() * 1e3;
     let pairs = match &args.pairs {
         Some(text) => parse_pairs(text).map_err(|e| BadInput(e.to_string()))?,
         None => Vec::new(),
@@ -108,7 +115,7 @@ pub fn run(args: Args) -> Result<()> {
     }
     if !args.json {
         eprintln!(
-            "drawing {}: {} segments in {} ({} layers)",
+            "drawing {}: {} segments in {} ({} layers), read in {read_ms:.0} ms",
             args.drawing.display(),
             drawing.segments.len(),
             drawing.units,
@@ -137,6 +144,7 @@ pub fn run(args: Args) -> Result<()> {
     if !args.json {
         eprintln!("aligning {} placed sensors to the drawing…", sensors.len());
     }
+    let align_started = Instant::now();
     let alignment = align(
         &drawing,
         &sensors,
@@ -144,6 +152,7 @@ pub fn run(args: Args) -> Result<()> {
         args.similarity,
         &RegisterParams::default(),
     );
+    let align_ms = align_started.elapsed().as_secs_f64() * 1e3;
     let mut register = to_output(&anchor_id, &prepared, &site, 0);
     if let Some(t) = alignment.building_from_site {
         let sigma = alignment
@@ -166,6 +175,8 @@ pub fn run(args: Args) -> Result<()> {
     let out = AlignOut {
         register,
         building_from_site: BuildingFromSite::from_alignment(&alignment),
+        align_ms,
+        drawing_segments: drawing.segments.len(),
         rms_m: alignment
             .refined
             .as_ref()
@@ -255,11 +266,16 @@ fn print_human(o: &AlignOut) {
                 .map(|r| format!(", walls fit the drawing to {:.1} cm RMS", r * 100.0))
                 .unwrap_or_default()
         );
-        println!("poses below are in the building's (drawing's) frame\n");
+        println!(
+            "aligned to {} drawing segments in {:.0} ms; poses below are in the building's (drawing's) frame\n",
+            o.drawing_segments, o.align_ms
+        );
     } else {
         println!(
-            "not aligned ({}): {}",
+            "not aligned ({}, {} drawing segments, {:.0} ms): {}",
             b.method,
+            o.drawing_segments,
+            o.align_ms,
             b.reason.as_deref().unwrap_or("")
         );
         println!("poses below are in the anchor's frame\n");

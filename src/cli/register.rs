@@ -41,6 +41,16 @@ pub struct Args {
     /// made on machines whose clocks were not synchronised: walkers are compared by time).
     #[arg(long)]
     pub walls_only: bool,
+    /// Align the site to this building drawing (.dxf, .svg, .png, .pgm) and give the poses in
+    /// its frame: the same as `scanfuse align FILE… --drawing FILE`.
+    #[arg(long)]
+    pub drawing: Option<PathBuf>,
+    /// With --drawing: the layers that hold walls, comma-separated.
+    #[arg(long, value_delimiter = ',', requires = "drawing")]
+    pub layers: Option<Vec<String>>,
+    /// With --drawing: metres per drawing unit (SVG, rasters, a DXF without $INSUNITS).
+    #[arg(long, requires = "drawing")]
+    pub scale: Option<f64>,
 }
 
 #[derive(Serialize)]
@@ -68,6 +78,20 @@ pub(super) struct Output {
 pub(super) type Prepared = Vec<(SensorInfo, Option<SensorInput>)>;
 
 pub fn run(args: Args) -> Result<()> {
+    if let Some(drawing) = args.drawing {
+        return super::align::run(super::align::Args {
+            files: args.files,
+            drawing,
+            layers: args.layers,
+            pairs: None,
+            similarity: false,
+            scale: args.scale,
+            anchor: args.anchor,
+            walls_only: args.walls_only,
+            save: None,
+            json: args.json,
+        });
+    }
     let started = Instant::now();
     let (anchor_id, prepared, site) = register_files(
         &args.files,

@@ -308,10 +308,20 @@ const ROBUST_M: f64 = 0.04;
 /// Fits the map's wall points to the nearest drawing lines, from `init` (scale kept): Gauss-
 /// Newton on point-to-line distances with Cauchy weights, the gate narrowing from `gate_m`.
 pub fn refine(map: &[MapPoint], index: &LineIndex<'_>, init: &Similarity, gate_m: f64) -> Refined {
+    refine_n(map, index, init, gate_m, 40)
+}
+
+fn refine_n(
+    map: &[MapPoint],
+    index: &LineIndex<'_>,
+    init: &Similarity,
+    gate_m: f64,
+    max_iter: usize,
+) -> Refined {
     let mut t = *init;
     let gates = [gate_m, gate_m, 0.75 * gate_m, 0.5 * gate_m, 0.3, 0.25, 0.2];
     let mut h = Matrix3::zeros();
-    for iter in 0..40 {
+    for iter in 0..max_iter {
         let gate = gates
             .get(iter)
             .copied()
@@ -446,7 +456,10 @@ pub fn drawing_model(drawing: &Drawing, p: &RegisterParams) -> ScanModel {
             [(s.a, u), (s.b, u)]
         })
         .collect();
-    let grid = NearestGrid::new(&points, p.grid_res_m, p.grid_radius_m);
+    // Scoring looks no further than the coarse hit distance (0.24 m): a smaller reach than the
+    // scans' keeps a large drawing's grid quick to build.
+    let reach_m = (p.hit_m + p.coarse_slack_m + 0.01).min(p.grid_radius_m);
+    let grid = NearestGrid::new(&points, p.grid_res_m, reach_m);
     if ends.len() <= 20_000 {
         for (i, (e, u)) in ends.iter().enumerate() {
             let corner = ends[i + 1..]
@@ -573,12 +586,13 @@ pub fn automatic(
             .iter()
             .flat_map(|s| map_points(s.model, &s.site_from_sensor))
             .collect(),
-        6000,
+        2500,
     );
     let mut candidates: Vec<AutoCandidate> = pooled
         .par_iter()
         .map(|h| {
-            let refined = refine(&map, index, &Similarity::rigid(h), 0.5);
+            // A short refinement to rank by; the winner is refined fully on every point.
+            let refined = refine_n(&map, index, &Similarity::rigid(h), 0.5, 12);
             let pose = refined.transform.pose();
             let score = sensors
                 .iter()

@@ -2,7 +2,7 @@
 carry it, written by an independent codebase (ezdxf for DXF; SVG as plain text), for
 tests/drawing_align.rs.
 
-    plan_to_drawing.py PLAN.toml OUT.dxf OUT.svg [--move-wall I:J:DM]
+    plan_to_drawing.py PLAN.toml OUT.dxf OUT.svg [--move-wall I:J:DM] [--clutter N]
 
 DXF: millimetres ($INSUNITS = 4). The outer wall (the first [[wall]]) as one closed
 LWPOLYLINE on A-WALL; other walls as LINEs on A-WALL, one of them through a block (its
@@ -11,7 +11,8 @@ one level); pillars (boxes up to 1 m) as a nested, rotated, unevenly scaled bloc
 circles as CIRCLEs; furniture (larger boxes, which scanners see but a drawing of the building
 does not hold as walls) on FURNITURE; text on A-TEXT; a dimension on A-DIMS; door swings as
 ARCs on A-DOOR. `--move-wall I:J:DM` draws segment J of wall I shifted DM metres along its
-left normal: a wall moved since the drawing was made. SVG: the same walls and pillars, 1 unit
+left normal: a wall moved since the drawing was made. `--clutter N` adds N more entities
+(desks, chairs as circles, labels) on FURNITURE and A-TEXT, for timing a drawing of N entities. SVG: the same walls and pillars, 1 unit
 = 1 cm, y down (so the reader's y flip gives the plan back), layers as <g id=…>.
 """
 
@@ -40,9 +41,17 @@ def moved(seg, dm):
 def main():
     plan_path, dxf_path, svg_path = sys.argv[1:4]
     move = None
-    if len(sys.argv) > 5 and sys.argv[4] == "--move-wall":
-        i, j, dm = sys.argv[5].split(":")
-        move = (int(i), int(j), float(dm))
+    clutter = 0
+    rest = sys.argv[4:]
+    while rest:
+        flag, value, rest = rest[0], rest[1], rest[2:]
+        if flag == "--move-wall":
+            i, j, dm = value.split(":")
+            move = (int(i), int(j), float(dm))
+        elif flag == "--clutter":
+            clutter = int(value)
+        else:
+            sys.exit(f"unknown option {flag}")
     with open(plan_path, "rb") as f:
         plan = tomllib.load(f)
     walls = plan.get("wall", [])
@@ -126,6 +135,19 @@ def main():
         dxfattribs={"layer": "A-DIMS"},
     )
     dim.render()
+    # Clutter inside the outline's bounding box: a third each desks, chairs, labels.
+    xs = [x for x, _ in walls[0]["points"]]
+    ys = [y for _, y in walls[0]["points"]]
+    for k in range(clutter):
+        x = min(xs) + (max(xs) - min(xs)) * ((k * 0.618034) % 1.0)
+        y = min(ys) + (max(ys) - min(ys)) * ((k * 0.414214) % 1.0)
+        if k % 3 == 0:
+            pts = [(x, y), (x + 1.2, y), (x + 1.2, y + 0.6), (x, y + 0.6)]
+            msp.add_lwpolyline([(a * mm, b * mm) for a, b in pts], close=True, dxfattribs={"layer": "FURNITURE"})
+        elif k % 3 == 1:
+            msp.add_circle((x * mm, y * mm), 250, dxfattribs={"layer": "FURNITURE"})
+        else:
+            msp.add_text(f"D{k}", dxfattribs={"layer": "A-TEXT", "height": 200}).set_placement((x * mm, y * mm))
     doc.saveas(dxf_path)
 
     # SVG: 1 unit = 1 cm, y down.
