@@ -16,6 +16,9 @@ use std::io::Cursor;
 const MAX_DEPTH: usize = 16;
 /// An arrayed INSERT of more copies than this is refused.
 const MAX_ARRAY: usize = 10_000;
+/// Entities visited through inserts, at most: nested arrays of empty blocks emit no segment,
+/// yet could take forever.
+const MAX_VISITS: usize = 2_000_000;
 
 /// Metres per drawing unit of `$INSUNITS`, or `None` when unitless.
 pub fn metres_per_unit(units: Units) -> Option<(f64, &'static str)> {
@@ -80,7 +83,25 @@ pub(crate) fn segments(file: &str, data: &[u8], opts: &ReadOptions) -> Result<Ra
         .blocks()
         .map(|b| (b.name.to_ascii_uppercase(), b))
         .collect();
+    // Refuse what would expand past the budget before walking it (nested arrays of blocks
+    // multiply; the walk's own count is a second guard).
+    let mut memo = HashMap::new();
+    let expanded = drawing
+        .entities()
+        .filter(|e| !e.common.is_in_paper_space)
+        .fold(0u64, |sum, e| {
+            sum.saturating_add(expansion(e, &blocks, &mut memo, 0))
+        });
+    if expanded > MAX_VISITS as u64 {
+        return Err(DrawingError::Dxf {
+            file: file.to_string(),
+            message: format!(
+                "its blocks expand to over {MAX_VISITS} entities (nested arrays?); not a floor plan"
+            ),
+        });
+    }
     let mut w = Walker {
+        visits: 0,
         blocks: &blocks,
         out: Vec::new(),
         layers: Vec::new(),
@@ -103,7 +124,39 @@ pub(crate) fn segments(file: &str, data: &[u8], opts: &ReadOptions) -> Result<Ra
     })
 }
 
+/// How many entities `e` stands for once its inserts are expanded (saturating). Blocks
+/// nested too deep count as nothing here: the walk reports them.
+fn expansion(
+    e: &Entity,
+    blocks: &HashMap<String, &dxf::Block>,
+    memo: &mut HashMap<String, u64>,
+    depth: usize,
+) -> u64 {
+    let EntityType::Insert(ins) = &e.specific else {
+        return 1;
+    };
+    if depth >= MAX_DEPTH {
+        return 1;
+    }
+    let key = ins.name.to_ascii_uppercase();
+    let inner = match memo.get(&key) {
+        Some(&n) => n,
+        None => {
+            let n = blocks.get(&key).map_or(0, |b| {
+                b.entities.iter().fold(0u64, |sum, be| {
+                    sum.saturating_add(expansion(be, blocks, memo, depth + 1))
+                })
+            });
+            memo.insert(key, n);
+            n
+        }
+    };
+    let copies = (ins.column_count.max(1) as u64).saturating_mul(ins.row_count.max(1) as u64);
+    copies.saturating_mul(inner.max(1)).saturating_add(1)
+}
+
 struct Walker<'a> {
+    visits: usize,
     blocks: &'a HashMap<String, &'a dxf::Block>,
     out: Vec<WallSegment>,
     layers: Vec<String>,
@@ -163,6 +216,20 @@ fn polyline_points(v: &[(f64, f64, f64)], closed: bool) -> Vec<Point2<f64>> {
 }
 
 impl Walker<'_> {
+    /// Counts one entity or block copy visited; too many is an error.
+    fn tick(&mut self) -> Result<(), DrawingError> {
+        self.visits += 1;
+        if self.visits > MAX_VISITS {
+            return Err(DrawingError::Dxf {
+                file: self.file.to_string(),
+                message: format!(
+                    "its blocks expand to over {MAX_VISITS} entities (nested arrays?); not a floor plan"
+                ),
+            });
+        }
+        Ok(())
+    }
+
     fn chain(
         &mut self,
         pts: &[Point2<f64>],
@@ -192,6 +259,7 @@ impl Walker<'_> {
         insert_layer: Option<&str>,
         depth: usize,
     ) -> Result<(), DrawingError> {
+        self.tick()?;
         let own = e.common.layer.as_str();
         let layer = match insert_layer {
             Some(l) if own == "0" || own.is_empty() => l.to_string(),
@@ -299,6 +367,7 @@ impl Walker<'_> {
                 ));
                 for row in 0..rows {
                     for col in 0..cols {
+                        self.tick()?;
                         // Array offsets run along the insert's rotated axes, unscaled.
                         let off = Vector2::new(
                             col as f64 * ins.column_spacing,
@@ -486,6 +555,34 @@ mod tests {
             let msg = r.unwrap_err().to_string();
             assert!(msg.contains("g.dxf"), "{msg}");
         }
+    }
+
+    #[test]
+    fn nested_arrays_of_empty_blocks_end_with_an_error_not_a_hang() {
+        let mut d = base(dxf::enums::Units::Meters);
+        // L0 arrays 100 × 1 copies of L1, … L9 is empty: 100^9 visits unchecked.
+        for level in 0..10 {
+            let mut b = Block {
+                name: format!("L{level}"),
+                ..Default::default()
+            };
+            if level < 9 {
+                b.entities.push(Entity::new(EntityType::Insert(Insert {
+                    name: format!("L{}", level + 1),
+                    column_count: 100,
+                    column_spacing: 1.0,
+                    ..Default::default()
+                })));
+            }
+            d.add_block(b);
+        }
+        d.add_entity(line(0.0, 0.0, 10.0, 0.0, "A-WALL"));
+        d.add_entity(Entity::new(EntityType::Insert(Insert {
+            name: "L0".into(),
+            ..Default::default()
+        })));
+        let err = parse("n.dxf", &bytes(&d), Format::Dxf, &ReadOptions::default()).unwrap_err();
+        assert!(err.to_string().contains("expand"), "{err}");
     }
 
     #[test]
