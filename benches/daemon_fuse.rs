@@ -80,6 +80,7 @@ fn main() -> Result<(), Error> {
     PosesFile {
         anchor: ANCHOR.into(),
         sensors: saved,
+        building_from_site: None,
     }
     .save(&state)?;
     let config = Config::load(&config_path)?;

@@ -4,6 +4,7 @@
 //! Every stage is usable alone; see `DESIGN.md` in the repository for the data flow.
 
 pub mod daemon;
+pub mod drawing;
 pub mod emulator;
 pub mod features;
 pub mod fuse;

@@ -30,6 +30,8 @@ enum Command {
     Simulate(cli::simulate::Args),
     /// Work out every sensor's pose from the scans in the given recordings.
     Register(cli::register::Args),
+    /// Align the registered site to a building drawing (DXF, SVG, PNG/PGM): building_from_site.
+    Align(cli::align::Args),
     /// Measure registration: success per overlap bin, errors, time, baselines, real data.
     Eval(cli::eval::Args),
     /// Validate a site config without starting anything (exit 2 on a bad config).
@@ -54,6 +56,7 @@ fn main() -> ExitCode {
         Command::Simulate(args) => cli::simulate::run(args),
         Command::Eval(args) => cli::eval::run(args),
         Command::Register(args) => cli::register::run(args),
+        Command::Align(args) => cli::align::run(args),
         Command::Check(args) => cli::check::run(args),
         Command::Status(args) => cli::status::run(args),
         Command::Run(args) => cli::run::run(args),

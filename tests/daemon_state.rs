@@ -29,6 +29,7 @@ fn poses(yaw_deg: f64) -> PosesFile {
             SavedPose::from_pose(&a, PoseSource::Registered, t),
             SavedPose::from_pose(&b, PoseSource::Surveyed, t),
         ],
+        building_from_site: None,
     }
 }
 

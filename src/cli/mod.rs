@@ -1,6 +1,7 @@
 //! Subcommand implementations. Errors reach `main` as `anyhow` errors; an error that wraps
 //! [`BadInput`] means the user gave something unusable and exits 2.
 
+pub mod align;
 pub mod check;
 pub mod emulate;
 pub mod eval;

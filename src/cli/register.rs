@@ -41,10 +41,20 @@ pub struct Args {
     /// made on machines whose clocks were not synchronised: walkers are compared by time).
     #[arg(long)]
     pub walls_only: bool,
+    /// Align the site to this building drawing (.dxf, .svg, .png, .pgm) and give the poses in
+    /// its frame: the same as `scanfuse align FILE… --drawing FILE`.
+    #[arg(long)]
+    pub drawing: Option<PathBuf>,
+    /// With --drawing: the layers that hold walls, comma-separated.
+    #[arg(long, value_delimiter = ',', requires = "drawing")]
+    pub layers: Option<Vec<String>>,
+    /// With --drawing: metres per drawing unit (SVG, rasters, a DXF without $INSUNITS).
+    #[arg(long, requires = "drawing")]
+    pub scale: Option<f64>,
 }
 
 #[derive(Serialize)]
-struct PairOut {
+pub(super) struct PairOut {
     a: String,
     b: String,
     #[serde(rename = "match")]
@@ -57,18 +67,63 @@ struct PairOut {
 }
 
 #[derive(Serialize)]
-struct Output {
-    anchor: String,
-    elapsed_ms: u64,
-    sensors: Vec<SensorPose>,
-    pairs: Vec<PairOut>,
+pub(super) struct Output {
+    pub anchor: String,
+    pub elapsed_ms: u64,
+    pub sensors: Vec<SensorPose>,
+    pub pairs: Vec<PairOut>,
 }
 
+/// Each sensor found, with its registration input when it had scans.
+pub(super) type Prepared = Vec<(SensorInfo, Option<SensorInput>)>;
+
 pub fn run(args: Args) -> Result<()> {
+    if let Some(drawing) = args.drawing {
+        return super::align::run(super::align::Args {
+            files: args.files,
+            drawing,
+            layers: args.layers,
+            pairs: None,
+            similarity: false,
+            scale: args.scale,
+            anchor: args.anchor,
+            walls_only: args.walls_only,
+            save: None,
+            json: args.json,
+        });
+    }
     let started = Instant::now();
+    let (anchor_id, prepared, site) = register_files(
+        &args.files,
+        args.anchor.as_deref(),
+        args.walls_only,
+        !args.json,
+    )?;
+    let output = to_output(
+        &anchor_id,
+        &prepared,
+        &site,
+        started.elapsed().as_millis() as u64,
+    );
+    if args.json {
+        println!("{}", serde_json::to_string(&output)?);
+    } else {
+        print_table(&output);
+    }
+    Ok(())
+}
+
+/// The sensors found in `files`, prepared and registered: what `register` prints and what
+/// `align` aligns to a drawing.
+pub(super) fn register_files(
+    files: &[PathBuf],
+    anchor: Option<&str>,
+    walls_only: bool,
+    progress: bool,
+) -> Result<(String, Prepared, SiteResult)> {
     // (sensor, its scans, the file it came from)
     let mut found: Vec<(SensorInfo, Vec<Scan>, PathBuf)> = Vec::new();
-    for path in &args.files {
+    for path in files {
         let mut recording = record::read(path)?;
         if recording.sensors.is_empty() {
             return Err(BadInput(format!(
@@ -91,8 +146,8 @@ pub fn run(args: Args) -> Result<()> {
             found.push((sensor, scans, path.clone()));
         }
     }
-    let anchor_id = match &args.anchor {
-        Some(id) => id.clone(),
+    let anchor_id = match anchor {
+        Some(id) => id.to_string(),
         None => found
             .first()
             .map(|(s, _, _)| s.id.clone())
@@ -108,7 +163,6 @@ pub fn run(args: Args) -> Result<()> {
     }
 
     let params = RegisterParams::default();
-    let progress = !args.json;
     if progress {
         eprintln!("preparing {} sensors…", found.len());
     }
@@ -123,7 +177,7 @@ pub fn run(args: Args) -> Result<()> {
                 };
                 let geometry = info.geometry.as_ref();
                 let mut model = ScanModel::from_scan(&view, geometry, &mount, &params);
-                if !args.walls_only {
+                if !walls_only {
                     model = model.with_motion(&scans, &view, geometry, &mount, &params);
                 }
                 SensorInput {
@@ -149,21 +203,10 @@ pub fn run(args: Args) -> Result<()> {
         eprintln!("registering {} pairs…", n * n.saturating_sub(1) / 2);
     }
     let site = register_site(&inputs, anchor, &params, &SiteParams::default());
-    let output = to_output(
-        &anchor_id,
-        &prepared,
-        &site,
-        started.elapsed().as_millis() as u64,
-    );
-    if args.json {
-        println!("{}", serde_json::to_string(&output)?);
-    } else {
-        print_table(&output);
-    }
-    Ok(())
+    Ok((anchor_id, prepared, site))
 }
 
-fn to_output(
+pub(super) fn to_output(
     anchor_id: &str,
     prepared: &[(SensorInfo, Option<SensorInput>)],
     site: &SiteResult,
@@ -225,7 +268,7 @@ fn to_output(
     }
 }
 
-fn print_table(o: &Output) {
+pub(super) fn print_table(o: &Output) {
     println!("site frame: sensor {:?}   ({} ms)", o.anchor, o.elapsed_ms);
     println!(
         "{:<12} {:>9} {:>9} {:>8} {:>6} {:>7} {:>8} {:>8} {:>8}  note",

@@ -174,6 +174,13 @@ pub fn save_files(
         path: dir.to_path_buf(),
         source,
     })?;
+    // Set by `scanfuse align --save`: the map files are then in the building's frame.
+    let building = PosesFile::load(dir)
+        .ok()
+        .flatten()
+        .filter(|f| f.anchor == anchor)
+        .and_then(|f| f.building_from_site);
+    let to_building = building.as_ref().and_then(|b| b.similarity());
     if poses.iter().any(|(p, _, _)| p.id == anchor) {
         let file = PosesFile {
             anchor: anchor.to_string(),
@@ -181,6 +188,8 @@ pub fn save_files(
                 .iter()
                 .map(|(pose, source, updated)| SavedPose::from_pose(pose, *source, *updated))
                 .collect(),
+            // An alignment to the drawing (`scanfuse align --save`) is kept across saves.
+            building_from_site: building.clone(),
         };
         file.save(dir)?;
         files.push(POSES_FILE.to_string());
@@ -188,12 +197,32 @@ pub fn save_files(
     let (w, h) = grid.size();
     if w > 0 && h > 0 {
         write_atomic(&dir.join(MAP_PGM), &pgm(grid))?;
-        write_atomic(&dir.join(MAP_YAML), map_yaml(grid, MAP_PGM).as_bytes())?;
+        let yaml = match &to_building {
+            Some(t) => crate::fuse::export::map_yaml_in_building(grid, MAP_PGM, t),
+            None => map_yaml(grid, MAP_PGM),
+        };
+        write_atomic(&dir.join(MAP_YAML), yaml.as_bytes())?;
         files.push(MAP_PGM.into());
         files.push(MAP_YAML.into());
     }
     if !points.is_empty() {
-        write_atomic(&dir.join(MAP_PLY), &ply(points))?;
+        let bytes = match &to_building {
+            Some(t) => {
+                let moved: Vec<TaggedPoint> = points
+                    .iter()
+                    .map(|p| {
+                        let b = t.apply(&nalgebra::Point2::new(p.site.x, p.site.y));
+                        TaggedPoint {
+                            site: Point3::new(b.x, b.y, p.site.z),
+                            ..*p
+                        }
+                    })
+                    .collect();
+                crate::fuse::export::ply_framed(&moved, "building frame")
+            }
+            None => ply(points),
+        };
+        write_atomic(&dir.join(MAP_PLY), &bytes)?;
         files.push(MAP_PLY.into());
     }
     Ok(files)
@@ -350,6 +379,7 @@ mod tests {
         pose.x_m = Some(0.0);
         pose.y_m = Some(0.0);
         pose.yaw_deg = Some(0.0);
+        let pose_b = pose.clone();
         let files = save_files(
             dir.path(),
             "a",
@@ -361,6 +391,60 @@ mod tests {
         assert_eq!(files, ["poses.toml", "map.pgm", "map.yaml", "map.ply"]);
         let loaded = PosesFile::load(dir.path()).unwrap().unwrap();
         assert_eq!(loaded.anchor, "a");
+        let site_yaml = std::fs::read_to_string(dir.path().join(MAP_YAML)).unwrap();
+        assert!(!site_yaml.contains("building"), "{site_yaml}");
+
+        // Once aligned to a drawing (`scanfuse align --save`), the next save keeps the
+        // alignment and writes the map files in the building's frame.
+        let mut aligned = loaded.clone();
+        aligned.building_from_site = Some(crate::drawing::BuildingFromSite {
+            x_m: 100.0,
+            y_m: 50.0,
+            yaw_deg: 90.0,
+            scale: 1.0,
+            aligned: true,
+            method: "pairs+lines".into(),
+            reason: None,
+        });
+        aligned.save(dir.path()).unwrap();
+        save_files(
+            dir.path(),
+            "a",
+            &[(pose_b, PoseSource::Registered, SystemTime::now())],
+            &fuser.grid(),
+            &fuser.points(),
+        )
+        .unwrap();
+        let kept = PosesFile::load(dir.path()).unwrap().unwrap();
+        assert_eq!(kept.building_from_site, aligned.building_from_site);
+        assert_eq!(
+            kept.sensors[0].x_m,
+            Some(0.0),
+            "poses stay in the site frame"
+        );
+        let yaml = std::fs::read_to_string(dir.path().join(MAP_YAML)).unwrap();
+        let o = fuser.grid().origin();
+        // (x, y) turned 90° and moved: (100 − y, 50 + x).
+        let want = format!(
+            "origin: [{}, {}, {}]",
+            100.0 - o.y,
+            50.0 + o.x,
+            90f64.to_radians()
+        );
+        assert!(
+            yaml.contains("frame: building") && yaml.contains(&want),
+            "{yaml}\nwant {want}"
+        );
+        let ply = std::fs::read(dir.path().join(MAP_PLY)).unwrap();
+        let header_end = ply.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+        assert!(String::from_utf8_lossy(&ply[..header_end]).contains("building frame"));
+        let x = f32::from_le_bytes(ply[header_end..header_end + 4].try_into().unwrap()) as f64;
+        let site_x = fuser.points()[0].site.x;
+        let site_y = fuser.points()[0].site.y;
+        assert!(
+            (x - (100.0 - site_y)).abs() < 1e-3,
+            "{x} vs site ({site_x}, {site_y})"
+        );
         assert!(
             std::fs::read(dir.path().join(MAP_PGM))
                 .unwrap()

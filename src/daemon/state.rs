@@ -93,6 +93,10 @@ pub struct PosesFile {
     pub anchor: String,
     #[serde(rename = "sensor", default)]
     pub sensors: Vec<SavedPose>,
+    /// Where the site frame lies in the building drawing's, when aligned (`scanfuse align
+    /// --save`); kept beside the poses, never folded into them. Absent in older files.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub building_from_site: Option<crate::drawing::BuildingFromSite>,
 }
 
 pose_vocabulary! {
@@ -324,6 +328,7 @@ mod tests {
                     t,
                 ),
             ],
+            building_from_site: None,
         }
     }
 
@@ -341,6 +346,33 @@ mod tests {
         assert_eq!(pose.source, Some(PoseSource::Saved));
         assert_eq!(pose.age_s, Some(10.0));
         assert_eq!(pose.yaw_deg, Some(92.5));
+    }
+
+    #[test]
+    fn building_from_site_is_kept_beside_the_poses_and_old_files_still_load() {
+        // A file written before drawings has no `[building_from_site]`: it loads as None and
+        // writes back without one.
+        let old = example().to_toml().unwrap();
+        assert!(!old.contains("building_from_site"), "{old}");
+        let back = PosesFile::parse(&old, Path::new("poses.toml")).unwrap();
+        assert_eq!(back.building_from_site, None);
+        let mut file = example();
+        file.building_from_site = Some(crate::drawing::BuildingFromSite {
+            x_m: 12.5,
+            y_m: -3.0,
+            yaw_deg: 23.0,
+            scale: 1.0,
+            aligned: true,
+            method: "automatic+lines".into(),
+            reason: None,
+        });
+        let text = file.to_toml().unwrap();
+        assert!(text.contains("[building_from_site]"), "{text}");
+        assert!(text.contains("yaw_deg = 23.0"), "{text}");
+        let back = PosesFile::parse(&text, Path::new("poses.toml")).unwrap();
+        assert_eq!(back, file);
+        // The poses themselves stay in the anchor's frame.
+        assert_eq!(back.sensors[1].x_m, Some(3.25));
     }
 
     #[test]

@@ -48,6 +48,33 @@ pub fn map_yaml(grid: &OccupancyGrid, image_file: &str) -> String {
     s
 }
 
+/// `map.yaml` with the map placed in the building's frame: the grid is the site's, so its
+/// origin (lower-left cell) is moved and turned by `building_from_site` (x, y, yaw; scale
+/// multiplies the resolution, for a drawing not in metres).
+pub fn map_yaml_in_building(
+    grid: &OccupancyGrid,
+    image_file: &str,
+    building_from_site: &crate::drawing::align::Similarity,
+) -> String {
+    let p = grid.params();
+    let o = grid.origin();
+    let b = building_from_site.apply(&nalgebra::Point2::new(o.x, o.y));
+    let mut s = String::new();
+    let _ = writeln!(s, "# frame: building (building_from_site from poses.toml)");
+    let _ = writeln!(s, "image: {image_file}");
+    let _ = writeln!(s, "mode: trinary");
+    let _ = writeln!(s, "resolution: {}", p.cell_m * building_from_site.scale);
+    let _ = writeln!(
+        s,
+        "origin: [{}, {}, {}]",
+        b.x, b.y, building_from_site.yaw_rad
+    );
+    let _ = writeln!(s, "negate: 0");
+    let _ = writeln!(s, "occupied_thresh: {}", p.occupied_above);
+    let _ = writeln!(s, "free_thresh: {}", p.free_below);
+    s
+}
+
 /// One point of the fused cloud: where, and which sensor saw it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TaggedPoint {
@@ -59,8 +86,13 @@ pub struct TaggedPoint {
 /// Binary little-endian PLY with float x, y, z, a colour per sensor (so every viewer shows
 /// who saw what) and the sensor index as a `ushort` property.
 pub fn ply(points: &[TaggedPoint]) -> Vec<u8> {
+    ply_framed(points, "site frame")
+}
+
+/// [`ply`] with the frame the points are in named in the header comment.
+pub fn ply_framed(points: &[TaggedPoint], frame: &str) -> Vec<u8> {
     let mut out = format!(
-        "ply\nformat binary_little_endian 1.0\ncomment scanfuse fused scan, site frame, metres\n\
+        "ply\nformat binary_little_endian 1.0\ncomment scanfuse fused scan, {frame}, metres\n\
          element vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
          property uchar red\nproperty uchar green\nproperty uchar blue\nproperty ushort sensor\n\
          end_header\n",

@@ -118,6 +118,7 @@ impl StatusSource for MemorySite {
                     )
                 })
                 .collect(),
+            building_from_site: None,
         };
         file.save(&self.state_dir)
             .map_err(|e| Refused(e.to_string()))?;

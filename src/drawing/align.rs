@@ -1,0 +1,898 @@
+//! `building_from_site`: where the site frame (the anchor sensor's) lies in the drawing's.
+//! Pure: segments and scan models in, a transform and its residuals out. Three ways, each
+//! with residuals:
+//!
+//! 1. [`fit_pairs`]: two or more point pairs (site ↔ drawing), least squares, rigid or
+//!    similarity, with each pair's residual;
+//! 2. [`refine`]: the map's wall points fitted to the nearest drawing lines (seed 003's line
+//!    fit, robust and iterated), with each line's offset, so a wall moved since the drawing
+//!    was made shows by name;
+//! 3. [`automatic`]: each sensor's scan registered against the drawing with the sensors' own
+//!    hypothesis and free-space scoring (`register::hypotheses`, `register::score`: the
+//!    drawing is one more map of walls), the candidates of all sensors pooled into site-wide
+//!    alignments, each refined and scored against every sensor; a runner-up that fits nearly
+//!    as well (a symmetric hall) means abstaining, with the reason.
+
+use super::{Drawing, WallSegment};
+use crate::features::{EdgeKind, EdgePoint, Features, PointClass, Segment};
+use crate::geometry::{Pose2, pose_error, pose2};
+use crate::register::model::{NearestGrid, PolarRanges};
+use crate::register::score::{score, score_coarse};
+use crate::register::{RegisterParams, ScanModel, hypotheses::hypotheses};
+use nalgebra::{Matrix3, Point2, Rotation2, Vector2, Vector3};
+use rayon::prelude::*;
+use std::f64::consts::PI;
+
+/// A similarity transform `p_b = scale · R(yaw) · p_s + t` (scale 1: rigid).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Similarity {
+    pub x_m: f64,
+    pub y_m: f64,
+    pub yaw_rad: f64,
+    pub scale: f64,
+}
+
+impl Similarity {
+    pub fn rigid(p: &Pose2) -> Similarity {
+        Similarity {
+            x_m: p.translation.x,
+            y_m: p.translation.y,
+            yaw_rad: p.rotation.angle(),
+            scale: 1.0,
+        }
+    }
+
+    pub fn apply(&self, p: &Point2<f64>) -> Point2<f64> {
+        let r = Rotation2::new(self.yaw_rad);
+        Point2::from(r * p.coords * self.scale + Vector2::new(self.x_m, self.y_m))
+    }
+
+    /// The rigid part (as a pose; the scale left out).
+    pub fn pose(&self) -> Pose2 {
+        pose2(self.x_m, self.y_m, self.yaw_rad)
+    }
+
+    /// Where a sensor at `site_from_sensor` stands in the building: position mapped, heading
+    /// turned.
+    pub fn sensor(&self, site_from_sensor: &Pose2) -> Pose2 {
+        let p = self.apply(&Point2::from(site_from_sensor.translation.vector));
+        pose2(p.x, p.y, self.yaw_rad + site_from_sensor.rotation.angle())
+    }
+}
+
+/// Why an alignment could not be made.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum AlignError {
+    #[error("need at least two point pairs, got {0}")]
+    TooFewPairs(usize),
+    #[error("the site points of the pairs coincide; pick points at least a metre apart")]
+    CoincidentPairs,
+    #[error("bad point pairs {0:?}: use \"sx,sy=dx,dy;sx,sy=dx,dy\"")]
+    BadPairs(String),
+}
+
+/// A pair fit: the transform and each pair's residual (m, in the drawing).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PairFit {
+    pub transform: Similarity,
+    pub residuals_m: Vec<f64>,
+}
+
+/// Parses `"sx,sy=dx,dy;sx,sy=dx,dy"` (site point = drawing point, metres).
+pub fn parse_pairs(text: &str) -> Result<Vec<PointPair>, AlignError> {
+    let bad = || AlignError::BadPairs(text.to_string());
+    text.split(';')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(|pair| {
+            let (s, d) = pair.split_once('=').ok_or_else(bad)?;
+            let point = |t: &str| -> Result<Point2<f64>, AlignError> {
+                let (x, y) = t.split_once(',').ok_or_else(bad)?;
+                let x: f64 = x.trim().parse().map_err(|_| bad())?;
+                let y: f64 = y.trim().parse().map_err(|_| bad())?;
+                if x.is_finite() && y.is_finite() {
+                    Ok(Point2::new(x, y))
+                } else {
+                    Err(bad())
+                }
+            };
+            Ok((point(s)?, point(d)?))
+        })
+        .collect()
+}
+
+/// A point pair: a site point and the drawing point it lies at (m).
+pub type PointPair = (Point2<f64>, Point2<f64>);
+
+/// Least-squares rigid (or, with `similarity`, similarity) fit of `pairs` (site, drawing):
+/// Umeyama's closed form in 2D.
+pub fn fit_pairs(pairs: &[PointPair], similarity: bool) -> Result<PairFit, AlignError> {
+    if pairs.len() < 2 {
+        return Err(AlignError::TooFewPairs(pairs.len()));
+    }
+    let n = pairs.len() as f64;
+    let cs = pairs
+        .iter()
+        .fold(Vector2::zeros(), |s, (a, _)| s + a.coords)
+        / n;
+    let cd = pairs
+        .iter()
+        .fold(Vector2::zeros(), |s, (_, b)| s + b.coords)
+        / n;
+    let (mut dot, mut cross, mut var_s) = (0.0, 0.0, 0.0);
+    for (s, d) in pairs {
+        let (u, v) = (s.coords - cs, d.coords - cd);
+        dot += u.dot(&v);
+        cross += u.perp(&v);
+        var_s += u.norm_squared();
+    }
+    if var_s < 1e-6 {
+        return Err(AlignError::CoincidentPairs);
+    }
+    let yaw_rad = cross.atan2(dot);
+    let scale = if similarity {
+        (dot * dot + cross * cross).sqrt() / var_s
+    } else {
+        1.0
+    };
+    let t = cd - Rotation2::new(yaw_rad) * cs * scale;
+    let transform = Similarity {
+        x_m: t.x,
+        y_m: t.y,
+        yaw_rad,
+        scale,
+    };
+    let residuals_m = pairs
+        .iter()
+        .map(|(s, d)| (transform.apply(s) - d).norm())
+        .collect();
+    Ok(PairFit {
+        transform,
+        residuals_m,
+    })
+}
+
+/// A wall point of the fused map, in the site frame, with its normal.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MapPoint {
+    pub p: Point2<f64>,
+    pub n: Vector2<f64>,
+}
+
+/// The wall points of a sensor's scan model in the site frame.
+pub fn map_points(model: &ScanModel, site_from_sensor: &Pose2) -> Vec<MapPoint> {
+    let pts = model.points();
+    model
+        .features
+        .segments
+        .iter()
+        .flat_map(|s| s.points.iter())
+        .filter_map(|&i| {
+            let p = pts.get(i)?;
+            let n = model.normals.get(i)?;
+            Some(MapPoint {
+                p: site_from_sensor * p,
+                n: site_from_sensor.rotation * n,
+            })
+        })
+        .collect()
+}
+
+/// Drawing segments bucketed by cell, for nearest-line queries within a gate.
+pub struct LineIndex<'a> {
+    lines: &'a [WallSegment],
+    min: Point2<f64>,
+    cell_m: f64,
+    width: usize,
+    height: usize,
+    cells: Vec<Vec<u32>>,
+}
+
+/// Nearest-line queries reach this far at most (m).
+const MAX_GATE_M: f64 = 0.6;
+
+impl<'a> LineIndex<'a> {
+    pub fn new(drawing: &'a Drawing) -> Self {
+        let cell_m = 1.0;
+        let (lo, hi) = drawing.bounds;
+        let min = lo - Vector2::repeat(MAX_GATE_M + cell_m);
+        let width = ((hi.x - min.x + MAX_GATE_M) / cell_m).ceil() as usize + 2;
+        let height = ((hi.y - min.y + MAX_GATE_M) / cell_m).ceil() as usize + 2;
+        let mut cells = vec![Vec::new(); width * height];
+        for (k, s) in drawing.segments.iter().enumerate() {
+            let steps = (s.length_m() / (0.5 * cell_m)).ceil().max(1.0) as usize;
+            for i in 0..=steps {
+                let q = s.a + (s.b - s.a) * (i as f64 / steps as f64);
+                let (cx, cy) = (
+                    ((q.x - min.x) / cell_m) as i64,
+                    ((q.y - min.y) / cell_m) as i64,
+                );
+                for y in cy - 1..=cy + 1 {
+                    for x in cx - 1..=cx + 1 {
+                        if x < 0 || y < 0 || x as usize >= width || y as usize >= height {
+                            continue;
+                        }
+                        let c = y as usize * width + x as usize;
+                        if cells[c].last() != Some(&(k as u32)) {
+                            cells[c].push(k as u32);
+                        }
+                    }
+                }
+            }
+        }
+        LineIndex {
+            lines: &drawing.segments,
+            min,
+            cell_m,
+            width,
+            height,
+            cells,
+        }
+    }
+
+    /// The nearest line to `q` within `gate_m` roughly parallel to a surface of normal `n`
+    /// (|cos| ≥ 0.8): its index and the signed distance along its normal.
+    fn nearest(
+        &self,
+        q: &Point2<f64>,
+        n: &Vector2<f64>,
+        gate_m: f64,
+    ) -> Option<(usize, f64, Vector2<f64>)> {
+        let x = ((q.x - self.min.x) / self.cell_m).floor();
+        let y = ((q.y - self.min.y) / self.cell_m).floor();
+        if x < 0.0 || y < 0.0 || x >= self.width as f64 || y >= self.height as f64 {
+            return None;
+        }
+        let cell = self.cells.get(y as usize * self.width + x as usize)?;
+        let mut best: Option<(usize, f64, Vector2<f64>, f64)> = None;
+        for &k in cell {
+            let s = &self.lines[k as usize];
+            let d = s.b - s.a;
+            let len = d.norm();
+            if len < 1e-9 {
+                continue;
+            }
+            let u = d / len;
+            let normal = Vector2::new(-u.y, u.x);
+            if normal.dot(n).abs() < 0.8 {
+                continue;
+            }
+            let along = u.dot(&(q - s.a));
+            let outside = (-along).max(along - len).max(0.0);
+            let signed = normal.dot(&(q - s.a));
+            let dist = (signed * signed + outside * outside).sqrt();
+            if dist <= gate_m && best.is_none_or(|b| dist < b.3) {
+                best = Some((k as usize, signed, normal, dist));
+            }
+        }
+        best.map(|(k, s, n, _)| (k, s, n))
+    }
+}
+
+/// One drawing line the map's walls were fitted to.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LineResidual {
+    pub a: Point2<f64>,
+    pub b: Point2<f64>,
+    pub layer: String,
+    /// Median signed distance of the map's wall points from the line (m; + along its left
+    /// normal).
+    pub offset_m: f64,
+    pub points: usize,
+    /// The map's wall stands this far off the drawing's: moved since the drawing was made,
+    /// or drawn wrong.
+    pub moved: bool,
+}
+
+/// A refined alignment with its residuals.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Refined {
+    pub transform: Similarity,
+    /// RMS of the inlier residuals (m).
+    pub rms_m: f64,
+    /// Map points within 5 cm of a drawing line / map points.
+    pub inlier_share: f64,
+    /// σ of x, y (m) and yaw (rad) of the alignment.
+    pub sigma: (f64, f64, f64),
+    /// Lines with enough support, the moved ones first, then by offset.
+    pub lines: Vec<LineResidual>,
+}
+
+/// A wall this far (m) off its drawing line is reported moved.
+pub const MOVED_M: f64 = 0.08;
+/// Points on a line before its offset is reported.
+const MIN_LINE_POINTS: usize = 15;
+/// Robust scale of the fit (Cauchy weights): walls 20 cm off barely pull.
+const ROBUST_M: f64 = 0.04;
+
+/// Fits the map's wall points to the nearest drawing lines, from `init` (scale kept): Gauss-
+/// Newton on point-to-line distances with Cauchy weights, the gate narrowing from `gate_m`.
+pub fn refine(map: &[MapPoint], index: &LineIndex<'_>, init: &Similarity, gate_m: f64) -> Refined {
+    refine_n(map, index, init, gate_m, 40)
+}
+
+fn refine_n(
+    map: &[MapPoint],
+    index: &LineIndex<'_>,
+    init: &Similarity,
+    gate_m: f64,
+    max_iter: usize,
+) -> Refined {
+    let mut t = *init;
+    let gates = [gate_m, gate_m, 0.75 * gate_m, 0.5 * gate_m, 0.3, 0.25, 0.2];
+    let mut h = Matrix3::zeros();
+    for iter in 0..max_iter {
+        let gate = gates
+            .get(iter)
+            .copied()
+            .unwrap_or(0.2)
+            .clamp(0.15, MAX_GATE_M);
+        let r = Rotation2::new(t.yaw_rad);
+        let (mut hh, mut g) = (Matrix3::zeros(), Vector3::zeros());
+        for m in map {
+            let q = t.apply(&m.p);
+            let n = r * m.n;
+            let Some((_, res, ln)) = index.nearest(&q, &n, gate) else {
+                continue;
+            };
+            let w = 1.0 / (1.0 + (res / ROBUST_M).powi(2));
+            let j = Vector3::new(ln.x, ln.y, ln.dot(&Vector2::new(-q.y, q.x)));
+            hh += j * j.transpose() * w;
+            g += j * (w * res);
+        }
+        h = hh;
+        let Some(inv) = (hh + Matrix3::identity() * 1e-9).try_inverse() else {
+            break;
+        };
+        let d = -(inv * g);
+        // Left-multiply the increment: q' = R(dθ) q + dt.
+        let dr = Rotation2::new(d.z);
+        let tv = dr * Vector2::new(t.x_m, t.y_m) + Vector2::new(d.x, d.y);
+        t = Similarity {
+            x_m: tv.x,
+            y_m: tv.y,
+            yaw_rad: t.yaw_rad + d.z,
+            scale: t.scale,
+        };
+        if iter >= gates.len() && d.xy().norm() < 1e-5 && d.z.abs() < 1e-6 {
+            break;
+        }
+    }
+    residuals(map, index, t, h)
+}
+
+fn residuals(map: &[MapPoint], index: &LineIndex<'_>, t: Similarity, h: Matrix3<f64>) -> Refined {
+    let r = Rotation2::new(t.yaw_rad);
+    let mut per_line: Vec<Vec<f64>> = vec![Vec::new(); index.lines.len()];
+    let (mut sq, mut inliers) = (0.0, 0usize);
+    for m in map {
+        let q = t.apply(&m.p);
+        if let Some((k, res, _)) = index.nearest(&q, &(r * m.n), 0.5) {
+            per_line[k].push(res);
+            if res.abs() <= 0.05 {
+                sq += res * res;
+                inliers += 1;
+            }
+        }
+    }
+    let rms_m = if inliers > 0 {
+        (sq / inliers as f64).sqrt()
+    } else {
+        f64::INFINITY
+    };
+    let mut lines: Vec<LineResidual> = per_line
+        .into_iter()
+        .enumerate()
+        .filter(|(_, v)| v.len() >= MIN_LINE_POINTS)
+        .map(|(k, mut v)| {
+            v.sort_by(f64::total_cmp);
+            let offset_m = v[v.len() / 2];
+            let s = &index.lines[k];
+            LineResidual {
+                a: s.a,
+                b: s.b,
+                layer: s.layer.clone(),
+                offset_m,
+                points: v.len(),
+                moved: offset_m.abs() > MOVED_M,
+            }
+        })
+        .collect();
+    lines.sort_by(|x, y| {
+        y.moved
+            .cmp(&x.moved)
+            .then(y.offset_m.abs().total_cmp(&x.offset_m.abs()))
+    });
+    // σ: residual variance over the normal matrix, inflated for correlated neighbours.
+    let var = rms_m.min(0.05).powi(2) * 16.0;
+    let cov = h
+        .try_inverse()
+        .map(|c| c * var)
+        .unwrap_or(Matrix3::identity());
+    Refined {
+        transform: t,
+        rms_m,
+        inlier_share: inliers as f64 / map.len().max(1) as f64,
+        sigma: (cov[(0, 0)].sqrt(), cov[(1, 1)].sqrt(), cov[(2, 2)].sqrt()),
+        lines,
+    }
+}
+
+/// The drawing as a scan model for `register::hypotheses` and `register::score`: its lines
+/// sampled every 4 cm, each point and segment twice with opposite normals (a drawn wall is
+/// seen from either side), corners of both kinds, and no free space of its own (a drawing was
+/// not seen from anywhere; the sensors' free space still tests it).
+pub fn drawing_model(drawing: &Drawing, p: &RegisterParams) -> ScanModel {
+    let mut points = Vec::new();
+    let mut normals = Vec::new();
+    let mut segments = Vec::new();
+    for s in &drawing.segments {
+        let len = s.length_m();
+        let u = (s.b - s.a) / len;
+        let n = Vector2::new(-u.y, u.x);
+        let steps = (len / 0.04).ceil().max(1.0) as usize;
+        for sign in [1.0, -1.0] {
+            let first = points.len();
+            for i in 0..=steps {
+                points.push(s.a + (s.b - s.a) * (i as f64 / steps as f64));
+                normals.push(n * sign);
+            }
+            segments.push(Segment {
+                a: s.a,
+                b: s.b,
+                normal: n * sign,
+                points: (first..points.len()).collect(),
+            });
+        }
+    }
+    segments.sort_by(|a, b| b.length_m().total_cmp(&a.length_m()));
+    // Corners: where two non-parallel lines meet end to end.
+    let mut edges = Vec::new();
+    let ends: Vec<(Point2<f64>, Vector2<f64>)> = drawing
+        .segments
+        .iter()
+        .flat_map(|s| {
+            let u = (s.b - s.a).normalize();
+            [(s.a, u), (s.b, u)]
+        })
+        .collect();
+    // Scoring looks no further than the coarse hit distance (0.24 m): a smaller reach than the
+    // scans' keeps a large drawing's grid quick to build.
+    let reach_m = (p.hit_m + p.coarse_slack_m + 0.01).min(p.grid_radius_m);
+    let grid = NearestGrid::new(&points, p.grid_res_m, reach_m);
+    if ends.len() <= 20_000 {
+        for (i, (e, u)) in ends.iter().enumerate() {
+            let corner = ends[i + 1..]
+                .iter()
+                .any(|(f, v)| (f - e).norm() < 0.02 && u.perp(v).abs() > 0.5);
+            if corner && let Some(k) = grid.nearest(e) {
+                for kind in [EdgeKind::Convex, EdgeKind::Concave] {
+                    edges.push(EdgePoint {
+                        index: k,
+                        p: *e,
+                        kind,
+                    });
+                }
+            }
+        }
+    }
+    let spread = |count: usize| -> Vec<usize> {
+        let step = (points.len() / count.max(1)).max(1);
+        (0..points.len()).step_by(step).collect()
+    };
+    let score_sample = spread(2 * p.score_points.max(1000));
+    let icp_sample = spread(p.icp_points);
+    let classes = vec![PointClass::Wall; points.len()];
+    let groups = std::iter::once(0..points.len()).collect();
+    ScanModel {
+        features: Features {
+            points,
+            groups,
+            segments,
+            edges,
+            classes,
+        },
+        normals,
+        score_sample,
+        icp_sample,
+        grid,
+        polar: PolarRanges::new(&[], 1f64.to_radians()),
+        plane: None,
+        motion: None,
+    }
+}
+
+/// A sensor taking part in the automatic alignment: its scan model and where it stands in
+/// the site.
+pub struct AlignSensor<'a> {
+    pub id: &'a str,
+    pub model: &'a ScanModel,
+    pub site_from_sensor: Pose2,
+}
+
+/// A site-wide candidate and how well it fits.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AutoCandidate {
+    pub refined: Refined,
+    /// Mean of the sensors' free-space scores against the drawing.
+    pub score: f64,
+}
+
+/// The automatic alignment: the best candidate, or why none is trusted, with the candidates.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AutoResult {
+    pub verdict: Result<(), String>,
+    pub candidates: Vec<AutoCandidate>,
+}
+
+/// Mean per-sensor score below which the map does not fit the drawing anywhere.
+const MIN_AUTO_SCORE: f64 = 0.15;
+/// A clearly different candidate scoring this share of the best makes the answer ambiguous.
+const MAX_AUTO_AMBIGUITY: f64 = 0.9;
+
+/// Registers the sensors' scans against the drawing (see the module doc).
+pub fn automatic(
+    dmodel: &ScanModel,
+    index: &LineIndex<'_>,
+    sensors: &[AlignSensor<'_>],
+    p: &RegisterParams,
+) -> AutoResult {
+    if sensors.is_empty() {
+        return AutoResult {
+            verdict: Err("no placed sensor to align".into()),
+            candidates: Vec::new(),
+        };
+    }
+    // More translation peaks per heading than between two scans: a drawing has many more
+    // places that look alike locally.
+    let pp = RegisterParams {
+        peaks_per_rotation: 24,
+        ..p.clone()
+    };
+    let per_sensor: Vec<Vec<Pose2>> = sensors
+        .par_iter()
+        .map(|s| {
+            let mut coarse: Vec<(f64, Pose2)> = hypotheses(dmodel, s.model, &pp)
+                .into_iter()
+                .map(|(_, h)| (score_coarse(dmodel, s.model, &h, &pp).value, h))
+                .collect();
+            coarse.sort_by(|x, y| y.0.total_cmp(&x.0));
+            let mut seeds: Vec<Pose2> = Vec::new();
+            for (_, h) in coarse {
+                if seeds.len() >= 6 {
+                    break;
+                }
+                if seeds.iter().all(|x| {
+                    let (dt, dr) = pose_error(x, &h);
+                    dt > 0.5 || dr > 5f64.to_radians()
+                }) {
+                    seeds.push(h * s.site_from_sensor.inverse());
+                }
+            }
+            seeds
+        })
+        .collect();
+    let mut pooled: Vec<Pose2> = Vec::new();
+    for h in per_sensor.into_iter().flatten() {
+        if pooled.iter().all(|x| {
+            let (dt, dr) = pose_error(x, &h);
+            dt > 0.3 || dr > 3f64.to_radians()
+        }) {
+            pooled.push(h);
+        }
+    }
+    let map: Vec<MapPoint> = thin(
+        sensors
+            .iter()
+            .flat_map(|s| map_points(s.model, &s.site_from_sensor))
+            .collect(),
+        2500,
+    );
+    let mut candidates: Vec<AutoCandidate> = pooled
+        .par_iter()
+        .map(|h| {
+            // A short refinement to rank by; the winner is refined fully on every point.
+            let refined = refine_n(&map, index, &Similarity::rigid(h), 0.5, 12);
+            let pose = refined.transform.pose();
+            let score = sensors
+                .iter()
+                .map(|s| score(dmodel, s.model, &(pose * s.site_from_sensor), p).value)
+                .sum::<f64>()
+                / sensors.len() as f64;
+            AutoCandidate { refined, score }
+        })
+        .collect();
+    candidates.sort_by(|x, y| y.score.total_cmp(&x.score));
+    // Refined candidates that converged to the same place are one.
+    let mut distinct: Vec<AutoCandidate> = Vec::new();
+    for c in candidates {
+        if distinct.iter().all(|d| {
+            let (dt, dr) = pose_error(&d.refined.transform.pose(), &c.refined.transform.pose());
+            dt > 0.5 || dr > 5f64.to_radians()
+        }) {
+            distinct.push(c);
+        }
+    }
+    distinct.truncate(8);
+    let verdict = match distinct.as_slice() {
+        [] => Err("no hypothesis: too few walls in the map or the drawing".to_string()),
+        [best, ..] if best.score < MIN_AUTO_SCORE => Err(format!(
+            "the map fits the drawing nowhere well (best score {:.2}); check the layers and the scale, or give two point pairs (--pairs)",
+            best.score
+        )),
+        [best, second, ..] if second.score > MAX_AUTO_AMBIGUITY * best.score => {
+            let rel = best.refined.transform.pose().inverse() * second.refined.transform.pose();
+            Err(format!(
+                "ambiguous: an alignment {:.2} m / {:.0}° away fits {:.0} % as well (a symmetric building?); ask for two points: give two point pairs with --pairs",
+                rel.translation.vector.norm(),
+                rel.rotation.angle().to_degrees().abs(),
+                100.0 * second.score / best.score
+            ))
+        }
+        _ => Ok(()),
+    };
+    AutoResult {
+        verdict,
+        candidates: distinct,
+    }
+}
+
+/// Every k-th point, so at most `max` remain.
+fn thin(points: Vec<MapPoint>, max: usize) -> Vec<MapPoint> {
+    let step = points.len().div_ceil(max.max(1)).max(1);
+    points.into_iter().step_by(step).collect()
+}
+
+/// The whole alignment.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Alignment {
+    /// `None` when no alignment was found (see `reason`).
+    pub building_from_site: Option<Similarity>,
+    /// "pairs+lines", "automatic+lines".
+    pub method: String,
+    pub reason: Option<String>,
+    /// Residual of each given point pair under the final transform (m).
+    pub pair_residuals_m: Vec<f64>,
+    pub refined: Option<Refined>,
+}
+
+/// Aligns the site to the drawing: from `pairs` when given (then refined on the lines),
+/// else automatically.
+pub fn align(
+    drawing: &Drawing,
+    sensors: &[AlignSensor<'_>],
+    pairs: &[PointPair],
+    similarity: bool,
+    p: &RegisterParams,
+) -> Alignment {
+    let index = LineIndex::new(drawing);
+    let map: Vec<MapPoint> = thin(
+        sensors
+            .iter()
+            .flat_map(|s| map_points(s.model, &s.site_from_sensor))
+            .collect(),
+        20_000,
+    );
+    if !pairs.is_empty() {
+        return match fit_pairs(pairs, similarity) {
+            Ok(fit) => {
+                let refined = refine(&map, &index, &fit.transform, 0.5);
+                let ok = refined.inlier_share > 0.2;
+                let t = if ok { refined.transform } else { fit.transform };
+                Alignment {
+                    building_from_site: Some(t),
+                    method: if ok { "pairs+lines" } else { "pairs" }.into(),
+                    reason: (!ok).then(|| {
+                        format!(
+                            "the walls fit the drawing's lines poorly near the pairs' alignment ({:.0} % within 5 cm); kept the pairs' fit",
+                            refined.inlier_share * 100.0
+                        )
+                    }),
+                    pair_residuals_m: pairs.iter().map(|(s, d)| (t.apply(s) - d).norm()).collect(),
+                    refined: Some(refined),
+                }
+            }
+            Err(e) => Alignment {
+                building_from_site: None,
+                method: "pairs".into(),
+                reason: Some(e.to_string()),
+                pair_residuals_m: Vec::new(),
+                refined: None,
+            },
+        };
+    }
+    let dmodel = drawing_model(drawing, p);
+    let auto = automatic(&dmodel, &index, sensors, p);
+    let best = auto.candidates.first().cloned();
+    match (auto.verdict, best) {
+        (Ok(()), Some(best)) => {
+            // The final fit uses every wall point, not the thinned set.
+            let refined = refine(&map, &index, &best.refined.transform, 0.2);
+            Alignment {
+                building_from_site: Some(refined.transform),
+                method: "automatic+lines".into(),
+                reason: None,
+                pair_residuals_m: Vec::new(),
+                refined: Some(refined),
+            }
+        }
+        (verdict, _) => Alignment {
+            building_from_site: None,
+            method: "automatic".into(),
+            reason: Some(verdict.err().unwrap_or_else(|| "no candidate".into())),
+            pair_residuals_m: Vec::new(),
+            refined: None,
+        },
+    }
+}
+
+/// Angle difference wrapped to (−π, π].
+pub fn angle_diff(a: f64, b: f64) -> f64 {
+    let d = (a - b).rem_euclid(2.0 * PI);
+    if d > PI { d - 2.0 * PI } else { d }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    type Line = ((f64, f64), (f64, f64));
+
+    fn drawing(segs: &[Line]) -> Drawing {
+        let segments: Vec<WallSegment> = segs
+            .iter()
+            .map(|&((ax, ay), (bx, by))| WallSegment {
+                a: Point2::new(ax, ay),
+                b: Point2::new(bx, by),
+                layer: "A-WALL".into(),
+            })
+            .collect();
+        let mut lo = Point2::new(f64::INFINITY, f64::INFINITY);
+        let mut hi = -lo;
+        for s in &segments {
+            lo = lo.inf(&s.a).inf(&s.b);
+            hi = hi.sup(&s.a).sup(&s.b);
+        }
+        Drawing {
+            source: "t".into(),
+            segments,
+            units: "m".into(),
+            bounds: (lo, hi),
+            layers: vec!["A-WALL".into()],
+        }
+    }
+
+    /// Wall points every 2 cm along `segs` (building frame), seen in the site frame through
+    /// `building_from_site`, with normals.
+    fn map_of(segs: &[Line], t: &Similarity) -> Vec<MapPoint> {
+        let inv = t.pose().inverse();
+        let mut out = Vec::new();
+        for &((ax, ay), (bx, by)) in segs {
+            let (a, b) = (Point2::new(ax, ay), Point2::new(bx, by));
+            let u = (b - a).normalize();
+            let n = Vector2::new(-u.y, u.x);
+            let steps = ((b - a).norm() / 0.02) as usize;
+            for i in 0..=steps {
+                let p = a + (b - a) * (i as f64 / steps as f64);
+                out.push(MapPoint {
+                    p: inv * p,
+                    n: inv.rotation * n,
+                });
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn pairs_fit_rigid_and_similarity_with_residuals() {
+        let t = Similarity {
+            x_m: 10.0,
+            y_m: -4.0,
+            yaw_rad: 0.4,
+            scale: 1.0,
+        };
+        let site = [
+            Point2::new(0.0, 0.0),
+            Point2::new(5.0, 1.0),
+            Point2::new(2.0, 7.0),
+        ];
+        let pairs: Vec<_> = site.iter().map(|p| (*p, t.apply(p))).collect();
+        let fit = fit_pairs(&pairs, false).unwrap();
+        assert!(
+            (fit.transform.x_m - 10.0).abs() < 1e-9 && (fit.transform.yaw_rad - 0.4).abs() < 1e-9
+        );
+        assert!(fit.residuals_m.iter().all(|r| *r < 1e-9));
+        // A drawing at 1:2 needs the similarity; the rigid fit shows it in the residuals.
+        let scaled: Vec<_> = pairs
+            .iter()
+            .map(|(s, d)| (*s, Point2::from(d.coords * 2.0)))
+            .collect();
+        let sim = fit_pairs(&scaled, true).unwrap();
+        assert!((sim.transform.scale - 2.0).abs() < 1e-9, "{sim:?}");
+        assert!(
+            fit_pairs(&scaled, false)
+                .unwrap()
+                .residuals_m
+                .iter()
+                .any(|r| *r > 1.0)
+        );
+        // One pair off by 20 cm shows in its residual.
+        let mut off = pairs.clone();
+        off[1].1.x += 0.2;
+        let fit = fit_pairs(&off, false).unwrap();
+        assert!(fit.residuals_m[1] > 0.1, "{fit:?}");
+        assert_eq!(
+            fit_pairs(&pairs[..1], false),
+            Err(AlignError::TooFewPairs(1))
+        );
+        assert_eq!(
+            fit_pairs(&[(site[0], site[0]), (site[0], site[1])], false),
+            Err(AlignError::CoincidentPairs)
+        );
+    }
+
+    #[test]
+    fn pairs_parse_and_bad_text_is_named() {
+        let p = parse_pairs("0,0=1.5,2; 3,-1=4,5").unwrap();
+        assert_eq!(p.len(), 2);
+        assert_eq!(p[1].0, Point2::new(3.0, -1.0));
+        assert!(
+            parse_pairs("0,0=1")
+                .unwrap_err()
+                .to_string()
+                .contains("0,0=1")
+        );
+        assert!(parse_pairs("a,b=1,2").is_err());
+    }
+
+    #[test]
+    fn refinement_recovers_the_alignment_and_names_the_moved_wall() {
+        // A 12 × 8 room with an inner partition; the map sees the partition 20 cm east.
+        let drawn = [
+            ((0.0, 0.0), (12.0, 0.0)),
+            ((12.0, 0.0), (12.0, 8.0)),
+            ((12.0, 8.0), (0.0, 8.0)),
+            ((0.0, 8.0), (0.0, 0.0)),
+            ((6.0, 0.0), (6.0, 5.0)),
+        ];
+        let mut seen = drawn;
+        seen[4] = ((6.2, 0.0), (6.2, 5.0));
+        let truth = Similarity {
+            x_m: 3.0,
+            y_m: 1.0,
+            yaw_rad: 0.3,
+            scale: 1.0,
+        };
+        let d = drawing(&drawn);
+        let index = LineIndex::new(&d);
+        let map = map_of(&seen, &truth);
+        // Start 15 cm and 1° off, as two clicked points would leave it.
+        let init = Similarity {
+            x_m: 3.12,
+            y_m: 0.9,
+            yaw_rad: 0.3 + 1f64.to_radians(),
+            scale: 1.0,
+        };
+        let r = refine(&map, &index, &init, 0.5);
+        let (dt, dr) = pose_error(&r.transform.pose(), &truth.pose());
+        assert!(
+            dt < 0.01 && dr < 0.05f64.to_radians(),
+            "{dt} {dr} {:?}",
+            r.transform
+        );
+        let moved: Vec<_> = r.lines.iter().filter(|l| l.moved).collect();
+        assert_eq!(moved.len(), 1, "{:?}", r.lines);
+        assert_eq!(moved[0].a, Point2::new(6.0, 0.0));
+        assert!(
+            (moved[0].offset_m.abs() - 0.2).abs() < 0.01,
+            "{:?}",
+            moved[0]
+        );
+        assert!(
+            r.lines
+                .iter()
+                .filter(|l| !l.moved)
+                .all(|l| l.offset_m.abs() < 0.01)
+        );
+    }
+}
