@@ -84,10 +84,9 @@ impl TrackerTask {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::raycast::{cast, polygon};
-    use crate::geometry::{Mount, Pose3, pose2};
+    use crate::geometry::raycast::{polygon, scan_270};
+    use crate::geometry::{Mount, Pose2, Pose3, pose2};
     use crate::scan::Scan;
-    use nalgebra::{Point2, Vector2};
 
     /// A 270° scan at 0.5° steps from the origin, facing +x, of a 10 × 8 m room with a 0.4 m
     /// square person at `(x, y)`.
@@ -99,22 +98,7 @@ mod tests {
             (x + 0.2, y + 0.2),
             (x - 0.2, y + 0.2),
         ]));
-        let (start, step, n) = (-135f64.to_radians(), 0.5f64.to_radians(), 541);
-        let ranges_m = (0..n)
-            .map(|k| {
-                let a = start + step * k as f64;
-                cast(&walls, Point2::origin(), Vector2::new(a.cos(), a.sin()))
-                    .map_or(0.0, |r| r as f32)
-            })
-            .collect();
-        Scan {
-            stamp_ns: t_ns,
-            sensor_stamp_ms: None,
-            start_angle_rad: start,
-            end_angle_rad: start + step * (n - 1) as f64,
-            ranges_m,
-            intensities: vec![],
-        }
+        scan_270(&walls, &Pose2::identity(), 0.5, t_ns)
     }
 
     #[test]

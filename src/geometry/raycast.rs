@@ -71,6 +71,28 @@ pub fn scan_ranges(
         .collect()
 }
 
+/// A 270° scan of `walls` from `site_from_sensor` at `step_deg` steps, stamped `t_ns`, every
+/// range returned: what the unit tests of motion, walkers and tracking look at.
+#[cfg(test)]
+pub(crate) fn scan_270(
+    walls: &[Wall],
+    site_from_sensor: &Pose2,
+    step_deg: f64,
+    t_ns: u64,
+) -> crate::scan::Scan {
+    let (start, step) = (-135f64.to_radians(), step_deg.to_radians());
+    let n = (270.0 / step_deg).round() as usize + 1;
+    let angles: Vec<f64> = (0..n).map(|k| start + step * k as f64).collect();
+    crate::scan::Scan {
+        stamp_ns: t_ns,
+        sensor_stamp_ms: None,
+        start_angle_rad: start,
+        end_angle_rad: start + step * (n - 1) as f64,
+        ranges_m: scan_ranges(walls, site_from_sensor, &angles, f64::INFINITY),
+        intensities: vec![],
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -384,28 +384,11 @@ fn tally(
 mod tests {
     use super::*;
     use crate::geometry::pose2;
-    use crate::geometry::raycast::{Wall, cast, polygon};
-    use nalgebra::Vector2;
+    use crate::geometry::raycast::{Wall, polygon, scan_270};
 
     /// A 270° scan at 0.5° steps of `walls` from `site_from_sensor`, stamped `t_ns`.
     fn scan(walls: &[Wall], site_from_sensor: &Pose2, t_ns: u64) -> Scan {
-        let (start, step, n) = (-135f64.to_radians(), 0.5f64.to_radians(), 541);
-        let origin = Point2::from(site_from_sensor.translation.vector);
-        let ranges_m = (0..n)
-            .map(|k| {
-                let a = start + step * k as f64;
-                let dir = site_from_sensor.rotation * Vector2::new(a.cos(), a.sin());
-                cast(walls, origin, dir).map_or(0.0, |r| r as f32)
-            })
-            .collect();
-        Scan {
-            stamp_ns: t_ns,
-            sensor_stamp_ms: None,
-            start_angle_rad: start,
-            end_angle_rad: start + step * (n - 1) as f64,
-            ranges_m,
-            intensities: vec![],
-        }
+        scan_270(walls, site_from_sensor, 0.5, t_ns)
     }
 
     /// Each sensor's track over 3 s at 40 Hz while a 0.4 m person walks from `from` to `to`.

@@ -448,7 +448,7 @@ fn spread(points: impl Iterator<Item = Point2<f64>>) -> f64 {
 mod tests {
     use super::*;
     use crate::geometry::pose2;
-    use crate::geometry::raycast::{Wall, cast, polygon};
+    use crate::geometry::raycast::{Wall, polygon, scan_270};
     use crate::geometry::{Mount, ProjectParams};
     use crate::register::motion::MotionParams;
     use crate::scan::Scan;
@@ -456,8 +456,6 @@ mod tests {
     /// A 270° scan at 0.25° steps of `walls` plus `people` (0.2 m radius discs, as squares)
     /// from `site_from_sensor`.
     fn scan(walls: &[Wall], people: &[[f64; 2]], site_from_sensor: &Pose2, t_ns: u64) -> Scan {
-        let (start, step, n) = (-135f64.to_radians(), 0.25f64.to_radians(), 1081);
-        let origin = Point2::from(site_from_sensor.translation.vector);
         let mut seen = walls.to_vec();
         for [x, y] in people {
             let r = 0.2;
@@ -468,21 +466,7 @@ mod tests {
                 (x - r, y + r),
             ]));
         }
-        let ranges_m = (0..n)
-            .map(|k| {
-                let a = start + step * k as f64;
-                let dir = site_from_sensor.rotation * Vector2::new(a.cos(), a.sin());
-                cast(&seen, origin, dir).map_or(0.0, |r| r as f32)
-            })
-            .collect();
-        Scan {
-            stamp_ns: t_ns,
-            sensor_stamp_ms: None,
-            start_angle_rad: start,
-            end_angle_rad: start + step * (n - 1) as f64,
-            ranges_m,
-            intensities: vec![],
-        }
+        scan_270(&seen, site_from_sensor, 0.25, t_ns)
     }
 
     /// People walking straight lines back and forth across an open floor for `seconds`.
