@@ -11,6 +11,7 @@ use scanfuse::daemon::protocol::SensorPose;
 use scanfuse::features::crowd_proof_view;
 use scanfuse::geometry::Mount;
 use scanfuse::record;
+use scanfuse::register::clocks::{Clock, MAX_CLOCK_OFFSET_S, align_clocks};
 use scanfuse::register::site::{SensorInput, SiteParams, SiteResult, register_site};
 use scanfuse::register::{RegisterParams, ScanModel};
 use scanfuse::scan::{Scan, SensorInfo};
@@ -166,6 +167,16 @@ pub(super) fn register_files(
     if progress {
         eprintln!("preparing {} sensors…", found.len());
     }
+    // Which recording each sensor came from: their clocks may differ.
+    let mut files: Vec<PathBuf> = Vec::new();
+    let mut source_of: std::collections::HashMap<String, usize> = Default::default();
+    for (info, _, path) in &found {
+        let k = files.iter().position(|f| f == path).unwrap_or_else(|| {
+            files.push(path.clone());
+            files.len() - 1
+        });
+        source_of.insert(info.id.clone(), k);
+    }
     // Sensors with no usable scan cannot take part; they are reported, not fatal.
     let prepared: Vec<(SensorInfo, Option<SensorInput>)> = found
         .into_par_iter()
@@ -190,7 +201,7 @@ pub(super) fn register_files(
             (info, input)
         })
         .collect();
-    let inputs: Vec<SensorInput> = prepared.iter().filter_map(|(_, s)| s.clone()).collect();
+    let mut inputs: Vec<SensorInput> = prepared.iter().filter_map(|(_, s)| s.clone()).collect();
     let anchor = inputs.iter().position(|s| s.id == anchor_id);
     let Some(anchor) = anchor else {
         return Err(BadInput(format!(
@@ -198,6 +209,37 @@ pub(super) fn register_files(
         ))
         .into());
     };
+    if !walls_only && files.len() > 1 {
+        let sources: Vec<usize> = inputs
+            .iter()
+            .map(|s| source_of.get(&s.id).copied().unwrap_or(0))
+            .collect();
+        let reference = sources.get(anchor).copied().unwrap_or(0);
+        let name = |k: usize| {
+            files
+                .get(k)
+                .map_or(String::new(), |f| f.display().to_string())
+        };
+        for (k, clock) in align_clocks(&mut inputs, &sources, reference, &params) {
+            // Said whatever the output format: it changes what the walkers may tell.
+            match clock {
+                Clock::Aligned {
+                    offset_s,
+                    reference_unit,
+                    unit,
+                } => eprintln!(
+                    "clock of {} reads {offset_s:+.3} s against {} (walkers both {reference_unit} and {unit} saw); taken out",
+                    name(k),
+                    name(reference)
+                ),
+                Clock::Unknown => eprintln!(
+                    "clock of {}: no offset within ±{MAX_CLOCK_OFFSET_S:.0} s against {} aligns walkers its units and the others saw; its units register from walls alone (synchronise the machines' clocks, or walk through views they share)",
+                    name(k),
+                    name(reference)
+                ),
+            }
+        }
+    }
     if progress {
         let n = inputs.len();
         eprintln!("registering {} pairs…", n * n.saturating_sub(1) / 2);

@@ -2,6 +2,7 @@
 //! search, free-space check, refinement, verdict); `site` solves all sensors jointly; `motion`
 //! checks poses against people both sensors saw walk; `walkers` proposes poses from them.
 
+pub mod clocks;
 pub mod hypotheses;
 pub mod icp;
 pub mod matching;

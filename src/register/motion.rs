@@ -194,6 +194,27 @@ impl MotionTrack {
         })
     }
 
+    /// The same track read on another clock: every stamp moved by `dt_s`, frames given the
+    /// tick of their new stamp (one per tick; a frame landing on a tick already taken goes).
+    pub fn shifted(&self, dt_s: f64, p: &MotionParams) -> MotionTrack {
+        let tick_ns = (p.tick_s * 1e9).max(1.0);
+        let mut out = self.clone();
+        out.frames.clear();
+        for f in &self.frames {
+            let t_ns = (f.t_ns as f64 + dt_s * 1e9).max(0.0);
+            let tick = (t_ns / tick_ns).round() as i64;
+            if out.frames.last().is_some_and(|g| g.tick >= tick) {
+                continue;
+            }
+            out.frames.push(Frame {
+                tick,
+                t_ns: t_ns as u64,
+                ..f.clone()
+            });
+        }
+        out
+    }
+
     /// Walkers seen over the whole track.
     pub fn walkers(&self) -> usize {
         self.frames.iter().map(|f| f.walkers.len()).sum()

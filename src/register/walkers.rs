@@ -9,6 +9,7 @@
 use nalgebra::{Matrix3, Point2, Rotation2, Vector2};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 
 use super::motion::{MotionParams, MotionTrack, co_motion};
 use crate::geometry::{Pose2, pose_error};
@@ -326,6 +327,75 @@ pub fn fit_walkers(
     })
 }
 
+/// How far one sensor's clock reads from another's, found from their walkers.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ClockOffset {
+    /// B's stamp minus A's for one moment (s).
+    pub offset_s: f64,
+    /// The walker fit at that offset.
+    pub fit: WalkerFit,
+}
+
+/// Offsets tried first (s apart), and around the best of them.
+const CLOCK_COARSE_S: f64 = 0.05;
+const CLOCK_FINE_S: f64 = 0.01;
+
+/// The offset of B's clock against A's, within ±`max_s`, that best aligns the walkers both
+/// saw: walkers moving every which way put a skew into the fit that no rigid pose absorbs.
+/// First the offset whose decisive fit agrees with the most sightings, then, around it, the
+/// one with the smallest residual, interpolated. `None` when no offset gives a decisive fit
+/// (then B's walkers cannot be compared with A's, and must not be).
+pub fn clock_offset(
+    a: &MotionTrack,
+    b: &MotionTrack,
+    p: &WalkerParams,
+    motion: &MotionParams,
+    max_s: f64,
+) -> Option<ClockOffset> {
+    // B's stamps read `offset` more than A's: its frames go back by that much.
+    let fit_at = |offset_s: f64| {
+        fit_walkers(a, &b.shifted(-offset_s, motion), p, motion)
+            .filter(|f| f.decisive(p))
+            .map(|fit| (offset_s, fit))
+    };
+    let steps = (max_s / CLOCK_COARSE_S).ceil() as i64;
+    let coarse: Vec<(f64, WalkerFit)> = (-steps..=steps)
+        .collect::<Vec<i64>>()
+        .into_par_iter()
+        .filter_map(|k| fit_at(k as f64 * CLOCK_COARSE_S))
+        .collect();
+    let (centre, _) = coarse.iter().max_by_key(|(_, f)| f.inliers)?;
+    let span = (CLOCK_COARSE_S / CLOCK_FINE_S).round() as i64;
+    let mut fine: Vec<(f64, WalkerFit)> = (-span..=span)
+        .collect::<Vec<i64>>()
+        .into_par_iter()
+        .filter_map(|k| fit_at(centre + k as f64 * CLOCK_FINE_S))
+        .collect();
+    fine.sort_by(|x, y| x.0.total_cmp(&y.0));
+    let most = fine.iter().map(|(_, f)| f.inliers).max()?;
+    let k = fine
+        .iter()
+        .enumerate()
+        .filter(|(_, (_, f))| f.inliers as f64 >= 0.8 * most as f64)
+        .min_by(|x, y| x.1.1.rms_m.total_cmp(&y.1.1.rms_m))
+        .map(|(k, _)| k)?;
+    let (offset_s, fit) = fine.get(k)?.clone();
+    // A parabola through the residuals of the neighbours places the minimum between steps.
+    let offset_s = match (k.checked_sub(1).and_then(|j| fine.get(j)), fine.get(k + 1)) {
+        (Some((o0, f0)), Some((o2, f2))) if (o2 - o0 - 2.0 * CLOCK_FINE_S).abs() < 1e-9 => {
+            let (r0, r1, r2) = (f0.rms_m, fit.rms_m, f2.rms_m);
+            let curve = r0 - 2.0 * r1 + r2;
+            if curve > 1e-12 {
+                offset_s + 0.5 * CLOCK_FINE_S * (r0 - r2) / curve
+            } else {
+                offset_s
+            }
+        }
+        _ => offset_s,
+    };
+    Some(ClockOffset { offset_s, fit })
+}
+
 /// One walker's centres over consecutive ticks: (tick index, centre).
 type Path = Vec<(usize, Point2<f64>)>;
 
@@ -484,12 +554,17 @@ mod tests {
     }
 
     fn track(walls: &[Wall], pose: &Pose2, seconds: f64) -> MotionTrack {
+        track_on_clock(walls, pose, seconds, 0)
+    }
+
+    /// As [`track`], its scans stamped by a clock that reads `ahead_ns` more than the other's.
+    fn track_on_clock(walls: &[Wall], pose: &Pose2, seconds: f64, ahead_ns: u64) -> MotionTrack {
         let p = MotionParams::default();
         let frames = (seconds * 40.0) as u64;
         let scans: Vec<Scan> = (0..frames)
             .map(|k| {
                 let t_s = k as f64 / 40.0;
-                scan(walls, &people_at(t_s), pose, k * 25_000_000)
+                scan(walls, &people_at(t_s), pose, ahead_ns + k * 25_000_000)
             })
             .collect();
         let still = scan(walls, &[], pose, 0);
@@ -548,6 +623,33 @@ mod tests {
         });
         // Every person's path pairs with its own in the other sensor.
         assert!(near.count() >= 14, "{} hypotheses", hypotheses.len());
+    }
+
+    #[test]
+    fn a_skewed_clock_is_found_from_the_walkers_within_20_ms() {
+        let walls = polygon(&[(-1.0, -1.0), (-0.8, -1.0), (-0.8, -0.8), (-1.0, -0.8)]);
+        let (pa, pb) = (pose2(0.0, 0.0, 0.6), pose2(14.0, 10.0, -2.4));
+        let p = (WalkerParams::default(), MotionParams::default());
+        let ta = track_on_clock(&walls, &pa, 10.0, 1_000_000_000);
+        let tb = track_on_clock(&walls, &pb, 10.0, 1_230_000_000);
+        // B reads 230 ms ahead of A, so A reads 230 ms behind B.
+        for (x, y, ahead_s, truth) in [
+            (&ta, &tb, 0.23, pa.inverse() * pb),
+            (&tb, &ta, -0.23, pb.inverse() * pa),
+        ] {
+            let found = clock_offset(x, y, &p.0, &p.1, 0.5).expect("an offset");
+            let error_s = (found.offset_s - ahead_s).abs();
+            assert!(
+                error_s <= 0.02,
+                "{ahead_s} s: found {:.3} s",
+                found.offset_s
+            );
+            let (dt, _) = pose_error(&found.fit.a_from_b, &truth);
+            assert!(dt < 0.1, "{dt} m");
+        }
+        // Walkers nobody else saw give no offset.
+        let alone = track_on_clock(&walls, &pose2(40.0, 40.0, 0.0), 10.0, 0);
+        assert!(clock_offset(&ta, &alone, &p.0, &p.1, 0.5).is_none());
     }
 
     #[test]
