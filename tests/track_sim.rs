@@ -6,7 +6,7 @@ use std::process::Command;
 
 use scanfuse::sim::Plan;
 use scanfuse::track::TrackParams;
-use scanfuse::track::score::{ScoreOptions, score_plan, variant};
+use scanfuse::track::score::{ScoreOptions, counting_layout, score_plan, variant};
 
 /// A 12 × 8 m room, three scanners round it, a crowd of 6 coming and going.
 const PLAN: &str = r#"
@@ -201,4 +201,32 @@ fn scanfuse_track_writes_tracks_lines_on_the_recordings_clock() {
         with_tracks * 2 >= lines,
         "{with_tracks} of {lines} lines hold tracks"
     );
+}
+
+#[test]
+fn door_crossings_and_zone_occupancy_from_the_tracks_match_the_truth() {
+    let plan = plan();
+    let (lines, zones) = counting_layout(&plan);
+    assert_eq!(lines.len(), 1, "one door: {lines:?}");
+    let o = ScoreOptions {
+        lines,
+        zones,
+        ..options(20.0)
+    };
+    let s = score_plan(&plan, &TrackParams::default(), &o).expect("runs");
+    let line = &s.lines[0];
+    eprintln!(
+        "door line: truth in/out {:?}, counted {:?}; zones MAE {:.3} (mean truth {:.2}): {:?}",
+        line.truth,
+        line.counted,
+        s.zone_mae(),
+        s.zone_mean_truth(),
+        s.zones
+    );
+    assert!(line.truth_total() >= 4, "people came and went: {line:?}");
+    assert!(line.wrong() <= 1, "{line:?}");
+    assert_eq!(s.zones.len(), 2);
+    assert!(s.zones.iter().all(|z| z.frames >= 150), "{:?}", s.zones);
+    assert!(s.zone_mean_truth() > 0.0, "someone was in a zone");
+    assert!(s.zone_mae() <= 0.1, "MAE {:.3}", s.zone_mae());
 }
