@@ -206,6 +206,8 @@ pub struct Pipeline {
     tracker: std::sync::OnceLock<DropOldestSender<PosedScan>>,
     /// Where the Foxglove server listens, or why it does not (`status`' `foxglove`).
     foxglove: Mutex<Option<String>>,
+    /// Where the site frame lies in the building drawing's (from `poses.toml`), for `poses`.
+    building_from_site: Mutex<Option<crate::drawing::BuildingFromSite>>,
 }
 
 /// A sensor's latest scan, placed or not, for outputs that draw scans in the sensor's own
@@ -271,7 +273,13 @@ impl Pipeline {
             web: Mutex::new(None),
             tracker: std::sync::OnceLock::new(),
             foxglove: Mutex::new(None),
+            building_from_site: Mutex::new(None),
         }
+    }
+
+    /// The site's alignment to the building drawing, shown in `poses` replies.
+    pub(super) fn set_building_from_site(&self, b: Option<crate::drawing::BuildingFromSite>) {
+        *lock(&self.building_from_site) = b;
     }
 
     /// What `status` says of the Foxglove server.
@@ -776,6 +784,7 @@ impl StatusSource for Pipeline {
         Poses {
             anchor: self.anchor.clone(),
             sensors,
+            building_from_site: lock(&self.building_from_site).clone(),
         }
     }
 

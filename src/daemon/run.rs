@@ -331,6 +331,7 @@ async fn start_sensor(
 fn load_saved_poses(config: &Config, pipeline: &Pipeline) {
     match PosesFile::load_matching(config) {
         Ok(Some(file)) => {
+            pipeline.set_building_from_site(file.building_from_site.clone());
             for s in file.sensors.iter().filter(|s| s.registered) {
                 let (Some(x_m), Some(y_m), Some(yaw_deg), Some(source)) =
                     (s.x_m, s.y_m, s.yaw_deg, s.source)
@@ -783,5 +784,74 @@ async fn reload(
     Config {
         sensors: new.sensors,
         ..config
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::daemon::protocol::{Message, PoseSource, SensorPose};
+    use crate::daemon::state::SavedPose;
+    use crate::drawing::BuildingFromSite;
+
+    /// A site aligned to its drawing (`scanfuse align --save`, `replay --drawing`) says so in
+    /// every `poses` reply after a restart; one that is not leaves the field out.
+    #[test]
+    fn saved_building_from_site_is_in_the_poses_reply() {
+        let dir = tempfile::tempdir().unwrap();
+        let text = format!(
+            "[site]\nname = \"s\"\nanchor = \"a\"\nstate_dir = \"{}\"\n[[sensor]]\nid = \"a\"\nconnect = \"tcp://127.0.0.1:1\"\n",
+            dir.path().display()
+        );
+        let config = Config::parse(&text, std::path::Path::new("/c/site.toml")).unwrap();
+        let pipeline = || {
+            let (queue, _worker) = drop_oldest(16);
+            let (commands, _rx) = crossbeam_channel::unbounded();
+            let p = Pipeline::new(&config, queue, commands, Publisher::new(4), None);
+            for s in &config.sensors {
+                p.add_sensor(
+                    SensorSpec::from_config(s),
+                    Arc::default(),
+                    watch::channel(false).0,
+                );
+            }
+            load_saved_poses(&config, &p);
+            p
+        };
+        let mut anchor = SensorPose::unregistered("a", "");
+        anchor.registered = true;
+        anchor.reason = None;
+        (anchor.x_m, anchor.y_m, anchor.yaw_deg) = (Some(0.0), Some(0.0), Some(0.0));
+        let mut file = PosesFile {
+            anchor: "a".into(),
+            sensors: vec![SavedPose::from_pose(
+                &anchor,
+                PoseSource::Registered,
+                std::time::SystemTime::now(),
+            )],
+            building_from_site: None,
+        };
+        file.save(dir.path()).unwrap();
+        let line = Message::Poses(pipeline().poses()).to_line();
+        assert!(!line.contains("building_from_site"), "{line}");
+
+        let b = BuildingFromSite {
+            x_m: 31.5,
+            y_m: 7.25,
+            yaw_deg: -23.0,
+            scale: 1.0,
+            aligned: true,
+            method: "automatic+lines".into(),
+            reason: None,
+        };
+        file.building_from_site = Some(b.clone());
+        file.save(dir.path()).unwrap();
+        let poses = pipeline().poses();
+        assert_eq!(poses.building_from_site, Some(b));
+        let line = Message::Poses(poses).to_line();
+        assert!(
+            line.contains(r#""building_from_site":{"x_m":31.5,"y_m":7.25,"yaw_deg":-23.0,"scale":1.0,"aligned":true,"method":"automatic+lines"}"#),
+            "{line}"
+        );
     }
 }

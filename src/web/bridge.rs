@@ -478,6 +478,7 @@ mod tests {
                 Poses {
                     anchor: "a".into(),
                     sensors: vec![],
+                    building_from_site: None,
                 }
             }
             fn reregister(&self, _: &str) -> Result<String, Refused> {
