@@ -68,6 +68,25 @@ pub struct RunOptions {
     pub tap: Option<std::sync::mpsc::Sender<Report>>,
     /// Run the people tracker (`TRACKS` on the people stream); on by default.
     pub track: bool,
+    /// `scanfuse replay --drawing`: align the final poses to a building drawing before the
+    /// final save, so that `poses.toml` carries `building_from_site` and the map files are in
+    /// building coordinates.
+    pub align_at_end: Option<AlignAtEnd>,
+}
+
+/// Finds `building_from_site` for the final poses (in the site frame); `None` keeps what
+/// the state directory already holds.
+#[derive(Clone)]
+pub struct AlignAtEnd(pub Arc<AlignFn>);
+
+/// What [`AlignAtEnd`] calls.
+pub type AlignFn =
+    dyn Fn(&super::protocol::Poses) -> Option<crate::drawing::BuildingFromSite> + Send + Sync;
+
+impl std::fmt::Debug for AlignAtEnd {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("AlignAtEnd(..)")
+    }
 }
 
 impl Default for RunOptions {
@@ -82,6 +101,7 @@ impl Default for RunOptions {
             stop_when_replay_ends: false,
             tap: None,
             track: true,
+            align_at_end: None,
         }
     }
 }
@@ -670,6 +690,24 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
         if tokio::time::timeout_at(drivers_done, driver).await.is_err() {
             tracing::warn!("a driver did not stop its laser in time; leaving it");
             break;
+        }
+    }
+    if let Some(AlignAtEnd(align)) = options.align_at_end.clone() {
+        let p = Arc::clone(&pipeline);
+        match tokio::task::spawn_blocking(move || {
+            let found = align(&p.poses())?;
+            p.set_building_from_site(Some(found.clone()));
+            Some(super::state::keep_building_from_site(
+                p.state_dir(),
+                p.anchor(),
+                found,
+            ))
+        })
+        .await
+        {
+            Ok(Some(Err(e))) => pipeline.announce(EventKind::Error, None, e.to_string()),
+            Ok(_) => {}
+            Err(e) => tracing::warn!("alignment to the drawing failed: {e}"),
         }
     }
     let p = Arc::clone(&pipeline);
