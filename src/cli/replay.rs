@@ -150,6 +150,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             socket_mode: config::DEFAULT_SOCKET_MODE,
             anchor,
             max_clients: config::DEFAULT_MAX_CLIENTS,
+            // The page draws it under the map once the site is aligned to it.
+            drawing: args.drawing.clone().map(|path| config::DrawingConfig {
+                path,
+                layers: args.layers.clone(),
+                scale_m_per_unit: args.scale,
+            }),
         },
         sensors,
         registration: RegistrationConfig::default(),

@@ -347,6 +347,26 @@ async fn start_sensor(
     Ok(())
 }
 
+/// Reads `[site] drawing` for the page's underlay. A drawing that cannot be read is an error
+/// on the log, the socket and the terminal, and the daemon goes on without it.
+async fn load_drawing(d: super::config::DrawingConfig, pipeline: &Pipeline) {
+    let opts = crate::drawing::ReadOptions {
+        layers: d.layers.clone(),
+        scale_m_per_unit: d.scale_m_per_unit,
+        ..crate::drawing::ReadOptions::default()
+    };
+    let path = d.path.clone();
+    match tokio::task::spawn_blocking(move || crate::drawing::read(&path, &opts)).await {
+        Ok(Ok(drawing)) => pipeline.set_drawing(Arc::new(drawing)),
+        Ok(Err(e)) => pipeline.announce(
+            EventKind::Error,
+            None,
+            format!("the drawing is not drawn on the page: {e}"),
+        ),
+        Err(e) => tracing::warn!("reading the drawing {} failed: {e}", d.path.display()),
+    }
+}
+
 /// Loads `poses.toml` when it fits the config; says why not otherwise.
 fn load_saved_poses(config: &Config, pipeline: &Pipeline) {
     match PosesFile::load_matching(config) {
@@ -480,6 +500,9 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
         options.tap.clone(),
     ));
     load_saved_poses(&config, &pipeline);
+    if let Some(d) = config.site.drawing.clone() {
+        load_drawing(d, &pipeline).await;
+    }
     let tracker = if options.track {
         let (queue, task) = TrackerTask::start(publisher.clone(), TrackParams::default())?;
         pipeline.feed_tracker(queue);
@@ -891,5 +914,90 @@ mod tests {
             line.contains(r#""building_from_site":{"x_m":31.5,"y_m":7.25,"yaw_deg":-23.0,"scale":1.0,"aligned":true,"method":"automatic+lines"}"#),
             "{line}"
         );
+    }
+
+    /// `[site] drawing` is read at start and reaches the page (its `DRAWING` line) once the
+    /// site is aligned to it; a drawing that cannot be read leaves the daemon running without.
+    #[tokio::test]
+    async fn a_configured_drawing_is_on_the_page_once_the_site_is_aligned() {
+        let dir = tempfile::tempdir().unwrap();
+        // A 40 × 40 px raster with a dark bar 20 px long: its faces are wall segments.
+        let (w, h) = (40usize, 40usize);
+        let mut px = vec![255u8; w * h];
+        for r in 18..22 {
+            for c in 10..30 {
+                px[r * w + c] = 0;
+            }
+        }
+        let mut pgm = format!("P5\n{w} {h}\n255\n").into_bytes();
+        pgm.extend(px);
+        std::fs::write(dir.path().join("plan.pgm"), pgm).unwrap();
+        let config_for = |drawing: &str| {
+            let text = format!(
+                "[site]\nname = \"s\"\nanchor = \"a\"\nstate_dir = \"{}\"\ndrawing = \"{drawing}\"\ndrawing_scale = 0.1\n[[sensor]]\nid = \"a\"\nconnect = \"tcp://127.0.0.1:1\"\n",
+                dir.path().display()
+            );
+            Config::parse(&text, &dir.path().join("site.toml")).unwrap()
+        };
+        let start = |config: &Config| {
+            let (queue, _worker) = drop_oldest(16);
+            let (commands, _rx) = crossbeam_channel::unbounded();
+            let p = Pipeline::new(config, queue, commands, Publisher::new(4), None);
+            for s in &config.sensors {
+                p.add_sensor(
+                    SensorSpec::from_config(s),
+                    Arc::default(),
+                    watch::channel(false).0,
+                );
+            }
+            load_saved_poses(config, &p);
+            p
+        };
+        let mut anchor = SensorPose::unregistered("a", "");
+        anchor.registered = true;
+        anchor.reason = None;
+        (anchor.x_m, anchor.y_m, anchor.yaw_deg) = (Some(0.0), Some(0.0), Some(0.0));
+        let mut file = PosesFile {
+            anchor: "a".into(),
+            sensors: vec![SavedPose::from_pose(
+                &anchor,
+                PoseSource::Registered,
+                std::time::SystemTime::now(),
+            )],
+            building_from_site: Some(BuildingFromSite {
+                x_m: 0.0,
+                y_m: 0.0,
+                yaw_deg: 0.0,
+                scale: 1.0,
+                aligned: false,
+                method: "automatic".into(),
+                reason: Some("symmetric".into()),
+            }),
+        };
+        file.save(dir.path()).unwrap();
+        let config = config_for("plan.pgm");
+        let p = start(&config);
+        load_drawing(config.site.drawing.clone().unwrap(), &p).await;
+        assert_eq!(p.drawing_line(), None, "not aligned: nothing to draw");
+
+        file.building_from_site = Some(BuildingFromSite {
+            aligned: true,
+            method: "pairs".into(),
+            reason: None,
+            ..file.building_from_site.clone().unwrap()
+        });
+        file.save(dir.path()).unwrap();
+        let p = start(&config);
+        load_drawing(config.site.drawing.clone().unwrap(), &p).await;
+        let line = p.drawing_line().expect("a DRAWING line");
+        let v: serde_json::Value = serde_json::from_str(&line).unwrap();
+        assert_eq!(v["class"], "DRAWING");
+        let n = v["segments_m"].as_array().unwrap().len();
+        assert!(n >= 8 && n.is_multiple_of(4), "{line}");
+
+        let config = config_for("missing.pgm");
+        let p = start(&config);
+        load_drawing(config.site.drawing.clone().unwrap(), &p).await;
+        assert_eq!(p.drawing_line(), None);
     }
 }
