@@ -79,6 +79,7 @@ fn site() -> FixedSite {
         poses: Poses {
             anchor: ids[0].clone(),
             sensors: poses,
+            building_from_site: None,
         },
     }
 }

@@ -276,13 +276,16 @@ fn a_bad_drawing_is_a_clear_error_naming_the_file() {
     assert!(err.contains("broken.dxf"), "{err}");
 }
 
-/// `register --drawing` with a raster plan (PGM, 2 cm per pixel, 1-pixel walls drawn from the
-/// fixture plan): the poses come out in the raster's frame (origin at its bottom-left corner).
-#[test]
-fn register_with_a_raster_drawing_gives_poses_in_its_frame() {
-    let dir = tempfile::tempdir().unwrap();
+/// The lab fixture plan as a raster drawing (PGM, 2 cm per pixel, 1-pixel walls), written to
+/// `dir/lab.pgm`; the raster's frame has its origin at the bottom-left corner, which is
+/// (X0_M, Y0_M) in the plan's.
+const RASTER_M_PER_PX: f64 = 0.02;
+const X0_M: f64 = -1.0;
+const Y0_M: f64 = -1.0;
+
+fn lab_raster(dir: &Path) -> std::path::PathBuf {
     let plan = scanfuse::sim::plan::Plan::load(&repo().join("fixtures/plans/lab.toml")).unwrap();
-    let (res, x0, y0, w, h) = (0.02, -1.0, -1.0, 1100usize, 700usize);
+    let (res, x0, y0, w, h) = (RASTER_M_PER_PX, X0_M, Y0_M, 1100usize, 700usize);
     let mut px = vec![255u8; w * h];
     let mut ink = |x: f64, y: f64| {
         let (c, r) = (
@@ -304,8 +307,18 @@ fn register_with_a_raster_drawing_gives_poses_in_its_frame() {
     }
     let mut pgm = format!("P5\n{w} {h}\n255\n").into_bytes();
     pgm.extend(px);
-    let drawing = dir.path().join("lab.pgm");
+    let drawing = dir.join("lab.pgm");
     std::fs::write(&drawing, pgm).unwrap();
+    drawing
+}
+
+/// `register --drawing` with a raster plan (PGM, 2 cm per pixel, 1-pixel walls drawn from the
+/// fixture plan): the poses come out in the raster's frame (origin at its bottom-left corner).
+#[test]
+fn register_with_a_raster_drawing_gives_poses_in_its_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let (x0, y0) = (X0_M, Y0_M);
+    let drawing = lab_raster(dir.path());
     let rec_path = repo().join("fixtures/lab.mcap");
     let out = succeeded(
         scanfuse()
@@ -337,4 +350,64 @@ fn register_with_a_raster_drawing_gives_poses_in_its_frame() {
             dyaw
         );
     }
+}
+
+/// `replay --drawing`: the daemon's final poses are aligned to the raster drawing, poses.toml
+/// carries `building_from_site` beside the (site-frame) poses, and the map files are written
+/// in building coordinates.
+#[test]
+fn replay_with_a_drawing_saves_building_from_site_and_building_map_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let drawing = lab_raster(dir.path());
+    let out_dir = dir.path().join("out");
+    let rec_path = repo().join("fixtures/lab.mcap");
+    let out = succeeded(
+        scanfuse()
+            .arg("replay")
+            .arg(&rec_path)
+            .args(["--max", "--scale", "0.02", "--out"])
+            .arg(&out_dir)
+            .arg("--drawing")
+            .arg(&drawing),
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("building_from_site:"), "{stdout}");
+    let file = scanfuse::daemon::state::PosesFile::load(&out_dir)
+        .unwrap()
+        .expect("poses.toml");
+    let b = file
+        .building_from_site
+        .clone()
+        .expect("building_from_site in poses.toml");
+    assert!(b.aligned, "{b:?}");
+    let t = b.similarity().unwrap();
+    let rec = scanfuse::record::read(&rec_path).unwrap();
+    for info in &rec.sensors {
+        let truth = info.truth.unwrap();
+        let s = file.sensors.iter().find(|s| s.id == info.id).unwrap();
+        assert!(s.registered, "{s:?}");
+        let site = scanfuse::geometry::pose2(
+            s.x_m.unwrap(),
+            s.y_m.unwrap(),
+            s.yaw_deg.unwrap().to_radians(),
+        );
+        let building = t.sensor(&site);
+        let dx = building.translation.x - (truth.x_m - X0_M);
+        let dy = building.translation.y - (truth.y_m - Y0_M);
+        let dyaw = (building.rotation.angle().to_degrees() - truth.yaw_deg + 540.0)
+            .rem_euclid(360.0)
+            - 180.0;
+        assert!(
+            dx.hypot(dy) < MAX_ERR_M && dyaw.abs() < 0.5,
+            "{}: {:.3} m / {:.2}° from truth",
+            info.id,
+            dx.hypot(dy),
+            dyaw
+        );
+    }
+    let yaml = std::fs::read_to_string(out_dir.join("map.yaml")).unwrap();
+    assert!(yaml.contains("# frame: building"), "{yaml}");
+    let ply = std::fs::read(out_dir.join("map.ply")).unwrap();
+    let header = String::from_utf8_lossy(&ply[..ply.len().min(512)]);
+    assert!(header.contains("building frame"), "{header}");
 }

@@ -39,6 +39,7 @@ impl StatusSource for Site {
         Poses {
             anchor: "a".into(),
             sensors: vec![],
+            building_from_site: None,
         }
     }
     fn reregister(&self, _: &str) -> Result<String, Refused> {

@@ -122,6 +122,47 @@ pub(super) fn register_files(
     walls_only: bool,
     progress: bool,
 ) -> Result<(String, Prepared, SiteResult)> {
+    let prepared = prepare_files(files, walls_only, progress)?;
+    let anchor_id = match anchor {
+        Some(id) => id.to_string(),
+        None => prepared
+            .first()
+            .map(|(s, _)| s.id.clone())
+            .unwrap_or_default(),
+    };
+    if !prepared.iter().any(|(s, _)| s.id == anchor_id) {
+        let known: Vec<&str> = prepared.iter().map(|(s, _)| s.id.as_str()).collect();
+        return Err(BadInput(format!(
+            "anchor {anchor_id:?} is not among the sensors found: {}",
+            known.join(", ")
+        ))
+        .into());
+    }
+    let params = RegisterParams::default();
+    let inputs: Vec<SensorInput> = prepared.iter().filter_map(|(_, s)| s.clone()).collect();
+    let anchor = inputs.iter().position(|s| s.id == anchor_id);
+    let Some(anchor) = anchor else {
+        return Err(BadInput(format!(
+            "anchor {anchor_id:?} has no scans to register with"
+        ))
+        .into());
+    };
+    if progress {
+        let n = inputs.len();
+        eprintln!("registering {} pairs…", n * n.saturating_sub(1) / 2);
+    }
+    let site = register_site(&inputs, anchor, &params, &SiteParams::default());
+    Ok((anchor_id, prepared, site))
+}
+
+/// The sensors found in `files`, each with its registration input (its static view's model)
+/// when it had usable scans: what `register_files` registers and what `replay --drawing`
+/// aligns to a drawing at the daemon's final poses.
+pub(super) fn prepare_files(
+    files: &[PathBuf],
+    walls_only: bool,
+    progress: bool,
+) -> Result<Prepared> {
     // (sensor, its scans, the file it came from)
     let mut found: Vec<(SensorInfo, Vec<Scan>, PathBuf)> = Vec::new();
     for path in files {
@@ -147,22 +188,6 @@ pub(super) fn register_files(
             found.push((sensor, scans, path.clone()));
         }
     }
-    let anchor_id = match anchor {
-        Some(id) => id.to_string(),
-        None => found
-            .first()
-            .map(|(s, _, _)| s.id.clone())
-            .unwrap_or_default(),
-    };
-    if !found.iter().any(|(s, _, _)| s.id == anchor_id) {
-        let known: Vec<&str> = found.iter().map(|(s, _, _)| s.id.as_str()).collect();
-        return Err(BadInput(format!(
-            "anchor {anchor_id:?} is not among the sensors found: {}",
-            known.join(", ")
-        ))
-        .into());
-    }
-
     let params = RegisterParams::default();
     if progress {
         eprintln!("preparing {} sensors…", found.len());
@@ -201,20 +226,15 @@ pub(super) fn register_files(
             (info, input)
         })
         .collect();
-    let mut inputs: Vec<SensorInput> = prepared.iter().filter_map(|(_, s)| s.clone()).collect();
-    let anchor = inputs.iter().position(|s| s.id == anchor_id);
-    let Some(anchor) = anchor else {
-        return Err(BadInput(format!(
-            "anchor {anchor_id:?} has no scans to register with"
-        ))
-        .into());
-    };
+    let mut prepared = prepared;
     if !walls_only && files.len() > 1 {
+        let mut inputs: Vec<SensorInput> = prepared.iter().filter_map(|(_, s)| s.clone()).collect();
         let sources: Vec<usize> = inputs
             .iter()
             .map(|s| source_of.get(&s.id).copied().unwrap_or(0))
             .collect();
-        let reference = sources.get(anchor).copied().unwrap_or(0);
+        // Every clock is read against the first recording's: the offsets need only agree.
+        let reference = 0;
         let name = |k: usize| {
             files
                 .get(k)
@@ -239,13 +259,12 @@ pub(super) fn register_files(
                 ),
             }
         }
+        let slots = prepared.iter_mut().filter_map(|(_, s)| s.as_mut());
+        for (slot, input) in slots.zip(inputs) {
+            *slot = input;
+        }
     }
-    if progress {
-        let n = inputs.len();
-        eprintln!("registering {} pairs…", n * n.saturating_sub(1) / 2);
-    }
-    let site = register_site(&inputs, anchor, &params, &SiteParams::default());
-    Ok((anchor_id, prepared, site))
+    Ok(prepared)
 }
 
 pub(super) fn to_output(

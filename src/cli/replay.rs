@@ -1,7 +1,10 @@
 //! `scanfuse replay FILE.mcap… [--speed N | --max] [--out DIR] [--socket PATH]`: what the
 //! daemon would have done with these recordings. The sensors come from the recordings'
 //! metadata; each is served by an in-process emulator, so the real driver path runs. Progress
-//! on the terminal, poses and map files to DIR; ends when the recordings do.
+//! on the terminal, poses and map files to DIR; ends when the recordings do. With
+//! `--drawing FILE [--layers a,b] [--scale M]` the final poses are aligned to the building
+//! drawing (as `scanfuse align` does): `poses.toml` carries `building_from_site` and the map
+//! files are in building coordinates.
 
 use std::path::PathBuf;
 use std::sync::mpsc;
@@ -10,8 +13,13 @@ use scanfuse::daemon::config::{
     self, Config, Connect, FoxgloveConfig, PublishConfig, RegistrationConfig, ScanMode,
     SensorConfig, SiteConfig, WebConfig,
 };
-use scanfuse::daemon::run::{RunOptions, run_daemon};
+use scanfuse::daemon::protocol::Poses;
+use scanfuse::daemon::run::{AlignAtEnd, RunOptions, run_daemon};
+use scanfuse::drawing::align::{AlignSensor, align};
+use scanfuse::drawing::{self, BuildingFromSite, Drawing, ReadOptions};
+use scanfuse::geometry::pose2;
 use scanfuse::record;
+use scanfuse::register::RegisterParams;
 
 use super::BadInput;
 use super::run::{Terminal, daemon_runtime, finish};
@@ -44,6 +52,16 @@ pub struct Args {
     /// The sensor whose frame is the site frame (default: the first one found).
     #[arg(long)]
     anchor: Option<String>,
+    /// Align the final poses to this building drawing (.dxf, .svg, .png, .pgm): poses.toml
+    /// gets `building_from_site` and the map files are written in building coordinates.
+    #[arg(long)]
+    drawing: Option<PathBuf>,
+    /// With --drawing: the layers that hold walls, comma-separated.
+    #[arg(long, value_delimiter = ',', requires = "drawing")]
+    layers: Option<Vec<String>>,
+    /// With --drawing: metres per drawing unit (SVG, rasters, a DXF without $INSUNITS).
+    #[arg(long, requires = "drawing")]
+    scale: Option<f64>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -51,6 +69,25 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if !(speed > 0.0 && (speed.is_finite() || args.max)) {
         return Err(BadInput(format!("--speed {speed} must be a positive number")).into());
     }
+    // A bad drawing is refused before the replay, not after it.
+    let drawing = match &args.drawing {
+        Some(path) => {
+            let opts = ReadOptions {
+                layers: args.layers.clone(),
+                scale_m_per_unit: args.scale,
+                ..ReadOptions::default()
+            };
+            let d = drawing::read(path, &opts).map_err(|e| BadInput(e.to_string()))?;
+            println!(
+                "drawing {}: {} segments in {}",
+                path.display(),
+                d.segments.len(),
+                d.units
+            );
+            Some(std::sync::Arc::new(d))
+        }
+        None => None,
+    };
     let mut sensors: Vec<SensorConfig> = Vec::new();
     let mut truth = std::collections::BTreeMap::new();
     let mut moved = std::collections::BTreeMap::new();
@@ -113,6 +150,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             socket_mode: config::DEFAULT_SOCKET_MODE,
             anchor,
             max_clients: config::DEFAULT_MAX_CLIENTS,
+            // The page draws it under the map once the site is aligned to it.
+            drawing: args.drawing.clone().map(|path| config::DrawingConfig {
+                path,
+                layers: args.layers.clone(),
+                scale_m_per_unit: args.scale,
+            }),
         },
         sensors,
         registration: RegistrationConfig::default(),
@@ -157,6 +200,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         replay_recorded_time: true,
         stop_when_replay_ends: true,
         tap: Some(tap),
+        align_at_end: drawing.map(|d| {
+            let files = args.files.clone();
+            AlignAtEnd(std::sync::Arc::new(move |poses: &Poses| {
+                align_replayed(&d, &files, poses)
+            }))
+        }),
         ..RunOptions::default()
     };
     let printer =
@@ -164,4 +213,50 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let summary = daemon_runtime()?.block_on(run_daemon(config, options));
     let _ = printer.join();
     finish(summary?, &args.out)
+}
+
+/// Aligns the replay's final poses to the drawing: each sensor's static view (prepared from
+/// the recordings as `register` prepares it) at the pose the daemon ended with.
+fn align_replayed(drawing: &Drawing, files: &[PathBuf], poses: &Poses) -> Option<BuildingFromSite> {
+    println!(
+        "aligning the final poses to the drawing {}…",
+        drawing.source
+    );
+    let prepared = match super::register::prepare_files(files, false, false) {
+        Ok(p) => p,
+        Err(e) => {
+            println!("not aligned to the drawing: {e:#}");
+            return None;
+        }
+    };
+    let sensors: Vec<AlignSensor<'_>> = prepared
+        .iter()
+        .filter_map(|(info, input)| {
+            let input = input.as_ref()?;
+            let p = poses.sensors.iter().find(|p| p.id == info.id)?;
+            let (Some(x), Some(y), Some(yaw)) = (p.x_m, p.y_m, p.yaw_deg) else {
+                return None;
+            };
+            p.registered.then_some(AlignSensor {
+                id: &info.id,
+                model: &input.model,
+                site_from_sensor: pose2(x, y, yaw.to_radians()),
+            })
+        })
+        .collect();
+    let alignment = align(drawing, &sensors, &[], false, &RegisterParams::default());
+    let b = BuildingFromSite::from_alignment(&alignment);
+    if b.aligned {
+        println!(
+            "building_from_site: x {:.3} m, y {:.3} m, yaw {:.2}°, scale {:.4} ({}); map files in building coordinates",
+            b.x_m, b.y_m, b.yaw_deg, b.scale, b.method
+        );
+    } else {
+        println!(
+            "not aligned to the drawing ({}): {}; map files stay in the anchor's frame",
+            b.method,
+            b.reason.as_deref().unwrap_or("")
+        );
+    }
+    Some(b)
 }

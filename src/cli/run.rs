@@ -541,6 +541,7 @@ mod tests {
         Poses {
             anchor: "gate".into(),
             sensors: vec![gate, ust],
+            building_from_site: None,
         }
     }
 
@@ -655,6 +656,7 @@ mod tests {
                 pose("gate", 0.0, 0.0, PoseSource::Registered),
                 pose("b", 2.5, 10.0, PoseSource::ReRegistered),
             ],
+            building_from_site: None,
         });
         let text = String::from_utf8(out.0.lock().unwrap().clone()).unwrap();
         let b = text

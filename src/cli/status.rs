@@ -400,6 +400,7 @@ mod tests {
         let poses = Poses {
             anchor: "entrance".into(),
             sensors: vec![pa, SensorPose::unregistered("dock", "no static view yet")],
+            building_from_site: None,
         };
         let table = render_table(&status, &poses);
         let lines: Vec<&str> = table.lines().collect();

@@ -177,6 +177,19 @@ pub struct SiteConfig {
     pub anchor: String,
     /// Status-socket clients served at once; more are refused.
     pub max_clients: usize,
+    /// The building drawing (`drawing`, `drawing_layers`, `drawing_scale`): drawn under the
+    /// map on the page once `poses.toml` holds `building_from_site`.
+    pub drawing: Option<DrawingConfig>,
+}
+
+/// `[site] drawing = "FILE"` with its layers and scale (as `scanfuse align` takes them).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DrawingConfig {
+    pub path: PathBuf,
+    /// Layers that hold walls; `None` keeps all.
+    pub layers: Option<Vec<String>>,
+    /// Metres per drawing unit (SVG, rasters, a DXF without `$INSUNITS`).
+    pub scale_m_per_unit: Option<f64>,
 }
 
 /// One `[[sensor]]`.
@@ -525,6 +538,9 @@ struct RawSite {
     socket_mode: Option<Spanned<String>>,
     anchor: Spanned<String>,
     max_clients: Option<Spanned<i64>>,
+    drawing: Option<Spanned<String>>,
+    drawing_layers: Option<Spanned<Vec<String>>>,
+    drawing_scale: Option<Spanned<f64>>,
 }
 
 #[derive(Deserialize)]
@@ -770,6 +786,39 @@ impl Config {
             Some(s) => resolve(s.get_ref()),
             None => PathBuf::from(DEFAULT_STATE_DIR),
         };
+        let drawing = match &site.drawing {
+            Some(d) if d.get_ref().is_empty() => {
+                return Err(loc.at(
+                    d.span(),
+                    "site.drawing",
+                    "must not be empty; e.g. \"plan.dxf\"",
+                ));
+            }
+            Some(d) => Some(DrawingConfig {
+                path: resolve(d.get_ref()),
+                layers: site.drawing_layers.as_ref().map(|l| l.get_ref().clone()),
+                scale_m_per_unit: match &site.drawing_scale {
+                    Some(v) if !(v.get_ref().is_finite() && *v.get_ref() > 0.0) => {
+                        return Err(loc.at(
+                            v.span(),
+                            "site.drawing_scale",
+                            "must be a positive number of metres per drawing unit",
+                        ));
+                    }
+                    Some(v) => Some(*v.get_ref()),
+                    None => None,
+                },
+            }),
+            None => {
+                if let Some(v) = &site.drawing_layers {
+                    return Err(loc.at(v.span(), "site.drawing_layers", "needs site.drawing"));
+                }
+                if let Some(v) = &site.drawing_scale {
+                    return Err(loc.at(v.span(), "site.drawing_scale", "needs site.drawing"));
+                }
+                None
+            }
+        };
         let socket = match &site.socket {
             Some(s) if s.get_ref().is_empty() => {
                 return Err(loc.at(
@@ -933,6 +982,7 @@ impl Config {
                 socket_mode,
                 anchor,
                 max_clients,
+                drawing,
             },
             sensors,
             registration,
@@ -1389,6 +1439,7 @@ impl Config {
             ("site.socket", a.socket != b.socket),
             ("site.socket_mode", a.socket_mode != b.socket_mode),
             ("site.max_clients", a.max_clients != b.max_clients),
+            ("site.drawing", a.drawing != b.drawing),
             (
                 "publish.watch_backlog",
                 self.publish.watch_backlog != new.publish.watch_backlog,
@@ -1595,6 +1646,31 @@ map_cell_m = 0.1
             }) => (line, key, message),
             other => panic!("expected an Invalid error, got {other:?}"),
         }
+    }
+
+    #[test]
+    fn a_drawing_is_resolved_beside_the_config_and_its_options_need_it() {
+        assert_eq!(parse(GOOD).unwrap().site.drawing, None);
+        let with = GOOD.replace(
+            "anchor = \"entrance\"\n",
+            "anchor = \"entrance\"\ndrawing = \"plan.svg\"\ndrawing_layers = [\"A-WALL\", \"S-COLS\"]\ndrawing_scale = 0.001\n",
+        );
+        assert_eq!(
+            parse(&with).unwrap().site.drawing,
+            Some(DrawingConfig {
+                path: PathBuf::from("/etc/scanfuse/plan.svg"),
+                layers: Some(vec!["A-WALL".into(), "S-COLS".into()]),
+                scale_m_per_unit: Some(0.001),
+            })
+        );
+        let (_, key, _) = invalid(&GOOD.replace(
+            "anchor = \"entrance\"\n",
+            "anchor = \"entrance\"\ndrawing_scale = 0.001\n",
+        ));
+        assert_eq!(key, "site.drawing_scale");
+        let (_, key, message) = invalid(&with.replace("0.001", "-1"));
+        assert_eq!(key, "site.drawing_scale");
+        assert!(message.contains("positive"), "{message}");
     }
 
     #[test]

@@ -131,6 +131,7 @@ mod tests {
         let mut poses = Poses {
             anchor: "a".into(),
             sensors: vec![a.clone(), SensorPose::unregistered("b", "no view")],
+            building_from_site: None,
         };
         assert_eq!(
             status_line(&status, &poses),

@@ -206,7 +206,15 @@ pub struct Pipeline {
     tracker: std::sync::OnceLock<DropOldestSender<PosedScan>>,
     /// Where the Foxglove server listens, or why it does not (`status`' `foxglove`).
     foxglove: Mutex<Option<String>>,
+    /// Where the site frame lies in the building drawing's (from `poses.toml`), for `poses`.
+    building_from_site: Mutex<Option<crate::drawing::BuildingFromSite>>,
+    /// The building drawing (`[site] drawing`), and its `DRAWING` line for the page once the
+    /// site is aligned to it.
+    drawing: Mutex<PageDrawing>,
 }
+
+/// The drawing, and its page line once the site is aligned to it.
+type PageDrawing = (Option<Arc<crate::drawing::Drawing>>, Option<Arc<str>>);
 
 /// A sensor's latest scan, placed or not, for outputs that draw scans in the sensor's own
 /// frame (the Foxglove bridge).
@@ -271,7 +279,37 @@ impl Pipeline {
             web: Mutex::new(None),
             tracker: std::sync::OnceLock::new(),
             foxglove: Mutex::new(None),
+            building_from_site: Mutex::new(None),
+            drawing: Mutex::new((None, None)),
         }
+    }
+
+    /// The site's alignment to the building drawing, shown in `poses` replies (and placing
+    /// the drawing on the page).
+    pub(super) fn set_building_from_site(&self, b: Option<crate::drawing::BuildingFromSite>) {
+        *lock(&self.building_from_site) = b;
+        self.update_drawing_line();
+    }
+
+    /// The building drawing the page draws under the map once the site is aligned to it.
+    pub(super) fn set_drawing(&self, d: Arc<crate::drawing::Drawing>) {
+        lock(&self.drawing).0 = Some(d);
+        self.update_drawing_line();
+    }
+
+    /// The page's `DRAWING` line, when there is a drawing and an alignment to it.
+    pub fn drawing_line(&self) -> Option<Arc<str>> {
+        lock(&self.drawing).1.clone()
+    }
+
+    fn update_drawing_line(&self) {
+        let building = lock(&self.building_from_site).clone();
+        let mut d = lock(&self.drawing);
+        let line = match (&d.0, &building) {
+            (Some(drawing), Some(b)) => crate::web::bridge::drawing_line(drawing, b),
+            _ => None,
+        };
+        d.1 = line.map(Arc::from);
     }
 
     /// What `status` says of the Foxglove server.
@@ -776,6 +814,7 @@ impl StatusSource for Pipeline {
         Poses {
             anchor: self.anchor.clone(),
             sensors,
+            building_from_site: lock(&self.building_from_site).clone(),
         }
     }
 

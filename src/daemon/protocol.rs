@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 /// Major protocol version: bumped when a client written for the old one would misread.
 pub const PROTO_MAJOR: u32 = 1;
 /// Minor protocol version: bumped when fields or classes are added.
-pub const PROTO_MINOR: u32 = 2;
+pub const PROTO_MINOR: u32 = 3;
 
 /// Request lines longer than this are rejected (and discarded up to their newline).
 pub const MAX_LINE_BYTES: usize = 64 * 1024;
@@ -266,6 +266,11 @@ impl PoseSource {
 pub struct Poses {
     pub anchor: String,
     pub sensors: Vec<SensorPose>,
+    /// Where the site frame lies in the building drawing's (`poses.toml`'s
+    /// `[building_from_site]`, `scanfuse align --json`'s vocabulary), since protocol 1.3;
+    /// absent when the site has none. The poses above stay in the site frame.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub building_from_site: Option<crate::drawing::BuildingFromSite>,
 }
 
 /// Declares a struct in the pose vocabulary: `id`, `registered`, the pose and its sigmas (left
@@ -697,6 +702,7 @@ mod tests {
         let line = Message::Poses(Poses {
             anchor: "a".into(),
             sensors: vec![pose],
+            building_from_site: None,
         })
         .to_line();
         assert_eq!(
@@ -714,6 +720,34 @@ mod tests {
         .to_line();
         assert!(!status.contains("null"), "{status}");
         assert!(status.starts_with(r#"{"class":"STATUS","#), "{status}");
+    }
+
+    #[test]
+    fn poses_carry_building_from_site_only_when_one_is_set() {
+        let mut poses = Poses {
+            anchor: "a".into(),
+            sensors: Vec::new(),
+            building_from_site: None,
+        };
+        let line = Message::Poses(poses.clone()).to_line();
+        assert!(!line.contains("building_from_site"), "{line}");
+        poses.building_from_site = Some(crate::drawing::BuildingFromSite {
+            x_m: 12.5,
+            y_m: -3.0,
+            yaw_deg: 23.0,
+            scale: 1.0,
+            aligned: true,
+            method: "pairs+lines".into(),
+            reason: None,
+        });
+        let line = Message::Poses(poses).to_line();
+        assert!(!line.contains("null"), "{line}");
+        assert!(
+            line.ends_with(
+                r#""building_from_site":{"x_m":12.5,"y_m":-3.0,"yaw_deg":23.0,"scale":1.0,"aligned":true,"method":"pairs+lines"}}"#
+            ),
+            "{line}"
+        );
     }
 
     #[test]
@@ -753,7 +787,21 @@ mod tests {
             }),
             Message::Poses(Poses {
                 anchor: "a".into(),
+                sensors: vec![pose.clone()],
+                building_from_site: None,
+            }),
+            Message::Poses(Poses {
+                anchor: "a".into(),
                 sensors: vec![pose],
+                building_from_site: Some(crate::drawing::BuildingFromSite {
+                    x_m: 12.5,
+                    y_m: -3.0,
+                    yaw_deg: 23.0,
+                    scale: 1.0,
+                    aligned: true,
+                    method: "automatic+lines".into(),
+                    reason: None,
+                }),
             }),
             Message::Watch(Watch {
                 status: true,

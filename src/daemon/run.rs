@@ -68,6 +68,25 @@ pub struct RunOptions {
     pub tap: Option<std::sync::mpsc::Sender<Report>>,
     /// Run the people tracker (`TRACKS` on the people stream); on by default.
     pub track: bool,
+    /// `scanfuse replay --drawing`: align the final poses to a building drawing before the
+    /// final save, so that `poses.toml` carries `building_from_site` and the map files are in
+    /// building coordinates.
+    pub align_at_end: Option<AlignAtEnd>,
+}
+
+/// Finds `building_from_site` for the final poses (in the site frame); `None` keeps what
+/// the state directory already holds.
+#[derive(Clone)]
+pub struct AlignAtEnd(pub Arc<AlignFn>);
+
+/// What [`AlignAtEnd`] calls.
+pub type AlignFn =
+    dyn Fn(&super::protocol::Poses) -> Option<crate::drawing::BuildingFromSite> + Send + Sync;
+
+impl std::fmt::Debug for AlignAtEnd {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("AlignAtEnd(..)")
+    }
 }
 
 impl Default for RunOptions {
@@ -82,6 +101,7 @@ impl Default for RunOptions {
             stop_when_replay_ends: false,
             tap: None,
             track: true,
+            align_at_end: None,
         }
     }
 }
@@ -327,10 +347,31 @@ async fn start_sensor(
     Ok(())
 }
 
+/// Reads `[site] drawing` for the page's underlay. A drawing that cannot be read is an error
+/// on the log, the socket and the terminal, and the daemon goes on without it.
+async fn load_drawing(d: super::config::DrawingConfig, pipeline: &Pipeline) {
+    let opts = crate::drawing::ReadOptions {
+        layers: d.layers.clone(),
+        scale_m_per_unit: d.scale_m_per_unit,
+        ..crate::drawing::ReadOptions::default()
+    };
+    let path = d.path.clone();
+    match tokio::task::spawn_blocking(move || crate::drawing::read(&path, &opts)).await {
+        Ok(Ok(drawing)) => pipeline.set_drawing(Arc::new(drawing)),
+        Ok(Err(e)) => pipeline.announce(
+            EventKind::Error,
+            None,
+            format!("the drawing is not drawn on the page: {e}"),
+        ),
+        Err(e) => tracing::warn!("reading the drawing {} failed: {e}", d.path.display()),
+    }
+}
+
 /// Loads `poses.toml` when it fits the config; says why not otherwise.
 fn load_saved_poses(config: &Config, pipeline: &Pipeline) {
     match PosesFile::load_matching(config) {
         Ok(Some(file)) => {
+            pipeline.set_building_from_site(file.building_from_site.clone());
             for s in file.sensors.iter().filter(|s| s.registered) {
                 let (Some(x_m), Some(y_m), Some(yaw_deg), Some(source)) =
                     (s.x_m, s.y_m, s.yaw_deg, s.source)
@@ -459,6 +500,9 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
         options.tap.clone(),
     ));
     load_saved_poses(&config, &pipeline);
+    if let Some(d) = config.site.drawing.clone() {
+        load_drawing(d, &pipeline).await;
+    }
     let tracker = if options.track {
         let (queue, task) = TrackerTask::start(publisher.clone(), TrackParams::default())?;
         pipeline.feed_tracker(queue);
@@ -671,6 +715,24 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
             break;
         }
     }
+    if let Some(AlignAtEnd(align)) = options.align_at_end.clone() {
+        let p = Arc::clone(&pipeline);
+        match tokio::task::spawn_blocking(move || {
+            let found = align(&p.poses())?;
+            p.set_building_from_site(Some(found.clone()));
+            Some(super::state::keep_building_from_site(
+                p.state_dir(),
+                p.anchor(),
+                found,
+            ))
+        })
+        .await
+        {
+            Ok(Some(Err(e))) => pipeline.announce(EventKind::Error, None, e.to_string()),
+            Ok(_) => {}
+            Err(e) => tracing::warn!("alignment to the drawing failed: {e}"),
+        }
+    }
     let p = Arc::clone(&pipeline);
     let saved = tokio::task::spawn_blocking(move || p.save_now())
         .await
@@ -783,5 +845,159 @@ async fn reload(
     Config {
         sensors: new.sensors,
         ..config
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::daemon::protocol::{Message, PoseSource, SensorPose};
+    use crate::daemon::state::SavedPose;
+    use crate::drawing::BuildingFromSite;
+
+    /// A site aligned to its drawing (`scanfuse align --save`, `replay --drawing`) says so in
+    /// every `poses` reply after a restart; one that is not leaves the field out.
+    #[test]
+    fn saved_building_from_site_is_in_the_poses_reply() {
+        let dir = tempfile::tempdir().unwrap();
+        let text = format!(
+            "[site]\nname = \"s\"\nanchor = \"a\"\nstate_dir = \"{}\"\n[[sensor]]\nid = \"a\"\nconnect = \"tcp://127.0.0.1:1\"\n",
+            dir.path().display()
+        );
+        let config = Config::parse(&text, std::path::Path::new("/c/site.toml")).unwrap();
+        let pipeline = || {
+            let (queue, _worker) = drop_oldest(16);
+            let (commands, _rx) = crossbeam_channel::unbounded();
+            let p = Pipeline::new(&config, queue, commands, Publisher::new(4), None);
+            for s in &config.sensors {
+                p.add_sensor(
+                    SensorSpec::from_config(s),
+                    Arc::default(),
+                    watch::channel(false).0,
+                );
+            }
+            load_saved_poses(&config, &p);
+            p
+        };
+        let mut anchor = SensorPose::unregistered("a", "");
+        anchor.registered = true;
+        anchor.reason = None;
+        (anchor.x_m, anchor.y_m, anchor.yaw_deg) = (Some(0.0), Some(0.0), Some(0.0));
+        let mut file = PosesFile {
+            anchor: "a".into(),
+            sensors: vec![SavedPose::from_pose(
+                &anchor,
+                PoseSource::Registered,
+                std::time::SystemTime::now(),
+            )],
+            building_from_site: None,
+        };
+        file.save(dir.path()).unwrap();
+        let line = Message::Poses(pipeline().poses()).to_line();
+        assert!(!line.contains("building_from_site"), "{line}");
+
+        let b = BuildingFromSite {
+            x_m: 31.5,
+            y_m: 7.25,
+            yaw_deg: -23.0,
+            scale: 1.0,
+            aligned: true,
+            method: "automatic+lines".into(),
+            reason: None,
+        };
+        file.building_from_site = Some(b.clone());
+        file.save(dir.path()).unwrap();
+        let poses = pipeline().poses();
+        assert_eq!(poses.building_from_site, Some(b));
+        let line = Message::Poses(poses).to_line();
+        assert!(
+            line.contains(r#""building_from_site":{"x_m":31.5,"y_m":7.25,"yaw_deg":-23.0,"scale":1.0,"aligned":true,"method":"automatic+lines"}"#),
+            "{line}"
+        );
+    }
+
+    /// `[site] drawing` is read at start and reaches the page (its `DRAWING` line) once the
+    /// site is aligned to it; a drawing that cannot be read leaves the daemon running without.
+    #[tokio::test]
+    async fn a_configured_drawing_is_on_the_page_once_the_site_is_aligned() {
+        let dir = tempfile::tempdir().unwrap();
+        // A 40 × 40 px raster with a dark bar 20 px long: its faces are wall segments.
+        let (w, h) = (40usize, 40usize);
+        let mut px = vec![255u8; w * h];
+        for r in 18..22 {
+            for c in 10..30 {
+                px[r * w + c] = 0;
+            }
+        }
+        let mut pgm = format!("P5\n{w} {h}\n255\n").into_bytes();
+        pgm.extend(px);
+        std::fs::write(dir.path().join("plan.pgm"), pgm).unwrap();
+        let config_for = |drawing: &str| {
+            let text = format!(
+                "[site]\nname = \"s\"\nanchor = \"a\"\nstate_dir = \"{}\"\ndrawing = \"{drawing}\"\ndrawing_scale = 0.1\n[[sensor]]\nid = \"a\"\nconnect = \"tcp://127.0.0.1:1\"\n",
+                dir.path().display()
+            );
+            Config::parse(&text, &dir.path().join("site.toml")).unwrap()
+        };
+        let start = |config: &Config| {
+            let (queue, _worker) = drop_oldest(16);
+            let (commands, _rx) = crossbeam_channel::unbounded();
+            let p = Pipeline::new(config, queue, commands, Publisher::new(4), None);
+            for s in &config.sensors {
+                p.add_sensor(
+                    SensorSpec::from_config(s),
+                    Arc::default(),
+                    watch::channel(false).0,
+                );
+            }
+            load_saved_poses(config, &p);
+            p
+        };
+        let mut anchor = SensorPose::unregistered("a", "");
+        anchor.registered = true;
+        anchor.reason = None;
+        (anchor.x_m, anchor.y_m, anchor.yaw_deg) = (Some(0.0), Some(0.0), Some(0.0));
+        let mut file = PosesFile {
+            anchor: "a".into(),
+            sensors: vec![SavedPose::from_pose(
+                &anchor,
+                PoseSource::Registered,
+                std::time::SystemTime::now(),
+            )],
+            building_from_site: Some(BuildingFromSite {
+                x_m: 0.0,
+                y_m: 0.0,
+                yaw_deg: 0.0,
+                scale: 1.0,
+                aligned: false,
+                method: "automatic".into(),
+                reason: Some("symmetric".into()),
+            }),
+        };
+        file.save(dir.path()).unwrap();
+        let config = config_for("plan.pgm");
+        let p = start(&config);
+        load_drawing(config.site.drawing.clone().unwrap(), &p).await;
+        assert_eq!(p.drawing_line(), None, "not aligned: nothing to draw");
+
+        file.building_from_site = Some(BuildingFromSite {
+            aligned: true,
+            method: "pairs".into(),
+            reason: None,
+            ..file.building_from_site.clone().unwrap()
+        });
+        file.save(dir.path()).unwrap();
+        let p = start(&config);
+        load_drawing(config.site.drawing.clone().unwrap(), &p).await;
+        let line = p.drawing_line().expect("a DRAWING line");
+        let v: serde_json::Value = serde_json::from_str(&line).unwrap();
+        assert_eq!(v["class"], "DRAWING");
+        let n = v["segments_m"].as_array().unwrap().len();
+        assert!(n >= 8 && n.is_multiple_of(4), "{line}");
+
+        let config = config_for("missing.pgm");
+        let p = start(&config);
+        load_drawing(config.site.drawing.clone().unwrap(), &p).await;
+        assert_eq!(p.drawing_line(), None);
     }
 }

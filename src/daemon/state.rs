@@ -99,6 +99,30 @@ pub struct PosesFile {
     pub building_from_site: Option<crate::drawing::BuildingFromSite>,
 }
 
+/// Sets `building_from_site` in `dir`'s `poses.toml` (a file with no poses yet when there is
+/// none, or one for another anchor), keeping its poses: the next save of the poses and map
+/// files (`pipeline_fuse::save_files`) then writes them in building coordinates.
+pub fn keep_building_from_site(
+    dir: &Path,
+    anchor: &str,
+    building: crate::drawing::BuildingFromSite,
+) -> Result<(), StateError> {
+    let mut file = match PosesFile::load(dir)? {
+        Some(f) if f.anchor == anchor => f,
+        _ => PosesFile {
+            anchor: anchor.to_string(),
+            sensors: Vec::new(),
+            building_from_site: None,
+        },
+    };
+    file.building_from_site = Some(building);
+    std::fs::create_dir_all(dir).map_err(|source| StateError::Write {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    file.save(dir).map(|_| ())
+}
+
 pose_vocabulary! {
     /// One `[[sensor]]` of `poses.toml`: the register/socket pose vocabulary plus `source` and
     /// `updated`. An unregistered sensor has a `reason` and no pose fields, and no `source`.

@@ -1,7 +1,8 @@
 //! What the page's WebSocket carries, daemon → page: the status socket's own lines (`EVENT`,
 //! `FRAME`, `STATUS`, `POSES`, replies; `TRACKS` paced like one sensor's scans, every `ZONES`
-//! and `CROSSING`), and two classes only the page needs (`MAP`, the
-//! occupancy grid; `SENSORS`, each sensor's field of view). One [`Hub`] per server
+//! and `CROSSING`), and three classes only the page needs (`MAP`, the
+//! occupancy grid; `SENSORS`, each sensor's field of view; `DRAWING`, the building drawing's
+//! walls in the site frame, sent once to each page). One [`Hub`] per server
 //! subscribes to the [`Publisher`] as a `watch` client does, paces each sensor's scans to
 //! `frames_per_s`, takes snapshots on a timer, and hands every line to every page through a
 //! bounded broadcast: a page that falls `send_queue` lines behind is dropped by its own task
@@ -30,6 +31,8 @@ pub const MAP_EVERY: Duration = Duration::from_secs(3);
 pub const MAX_MAP_CELLS: usize = 250_000;
 /// Events a page that opens gets from before it opened.
 const EVENTS_KEPT: usize = 60;
+/// A `DRAWING` line carries at most this many segments (the longest: walls before clutter).
+pub const MAX_DRAWING_SEGMENTS: usize = 20_000;
 
 /// What the page needs of the daemon beyond the status socket's requests.
 pub trait PageSource: StatusSource {
@@ -37,6 +40,11 @@ pub trait PageSource: StatusSource {
     fn occupancy(&self) -> Option<OccupancyGrid>;
     /// Each sensor's field of view: id, first and last beam angle (rad, sensor frame).
     fn fields_of_view(&self) -> Vec<(String, f64, f64)>;
+    /// The `DRAWING` line (see [`drawing_line`]) when a drawing is set and the site is aligned
+    /// to it; the same `Arc` until either changes.
+    fn drawing(&self) -> Option<Arc<str>> {
+        None
+    }
 }
 
 impl PageSource for Pipeline {
@@ -47,6 +55,57 @@ impl PageSource for Pipeline {
     fn fields_of_view(&self) -> Vec<(String, f64, f64)> {
         Pipeline::fields_of_view(self)
     }
+
+    fn drawing(&self) -> Option<Arc<str>> {
+        Pipeline::drawing_line(self)
+    }
+}
+
+/// `{"class":"DRAWING","segments_m":[x0,y0,x1,y1,…]}`: the drawing's wall segments in the site
+/// frame (the page's), mm-rounded.
+#[derive(Debug, Serialize)]
+#[serde(tag = "class", rename = "DRAWING")]
+struct DrawingMessage {
+    segments_m: Vec<f64>,
+}
+
+/// The `DRAWING` line of `drawing` placed by `building_from_site`: every segment moved into
+/// the site frame (the inverse of the alignment), the longest [`MAX_DRAWING_SEGMENTS`] kept.
+/// `None` when the site is not aligned to the drawing.
+pub fn drawing_line(
+    drawing: &crate::drawing::Drawing,
+    building_from_site: &crate::drawing::BuildingFromSite,
+) -> Option<String> {
+    let t = building_from_site.similarity()?;
+    if !(t.scale.is_finite() && t.scale > 0.0) {
+        return None;
+    }
+    let (c, s) = (t.yaw_rad.cos(), t.yaw_rad.sin());
+    // p_site = R(-yaw) · (p_building - (x, y)) / scale
+    let to_site = |p: &nalgebra::Point2<f64>| {
+        let (dx, dy) = (p.x - t.x_m, p.y - t.y_m);
+        [(c * dx + s * dy) / t.scale, (-s * dx + c * dy) / t.scale]
+    };
+    let mut kept: Vec<&crate::drawing::WallSegment> = drawing.segments.iter().collect();
+    if kept.len() > MAX_DRAWING_SEGMENTS {
+        kept.sort_by(|a, b| b.length_m().total_cmp(&a.length_m()));
+        kept.truncate(MAX_DRAWING_SEGMENTS);
+    }
+    let mm = |v: f64| (v * 1000.0).round() / 1000.0;
+    let segments_m = kept
+        .iter()
+        .flat_map(|seg| {
+            let ([ax, ay], [bx, by]) = (to_site(&seg.a), to_site(&seg.b));
+            [mm(ax), mm(ay), mm(bx), mm(by)]
+        })
+        .filter(|v| v.is_finite())
+        .collect::<Vec<f64>>();
+    // A non-finite coordinate (never from a drawing read) would break the 4-per-segment
+    // layout; drop the line rather than send a wrong one.
+    if segments_m.len() != kept.len() * 4 {
+        return None;
+    }
+    serde_json::to_string(&DrawingMessage { segments_m }).ok()
 }
 
 /// `{"class":"MAP",…}`: the grid's cells, row-major from the bottom row (y = `origin_y_m`)
@@ -173,6 +232,9 @@ struct Cache {
     frames: BTreeMap<String, Utf8Bytes>,
     /// The latest `ZONES`.
     zones: Option<Utf8Bytes>,
+    /// The `DRAWING` line, and the source's `Arc` it was made from (to notice a change
+    /// without comparing the text).
+    drawing: Option<(Arc<str>, Utf8Bytes)>,
 }
 
 /// The [`Pacer`] key of `TRACKS` (no sensor id can be it: ids are printable).
@@ -237,11 +299,19 @@ impl Hub {
     pub fn subscribe(&self) -> (broadcast::Receiver<Utf8Bytes>, Vec<Utf8Bytes>) {
         let rx = self.tx.subscribe();
         let c = lock(&self.cache);
-        let mut first: Vec<Utf8Bytes> = [&c.status, &c.poses, &c.sensors, &c.map, &c.zones]
-            .into_iter()
-            .flatten()
-            .cloned()
-            .collect();
+        let drawing = c.drawing.as_ref().map(|(_, line)| line);
+        let mut first: Vec<Utf8Bytes> = [
+            c.status.as_ref(),
+            c.poses.as_ref(),
+            c.sensors.as_ref(),
+            drawing,
+            c.map.as_ref(),
+            c.zones.as_ref(),
+        ]
+        .into_iter()
+        .flatten()
+        .cloned()
+        .collect();
         first.extend(c.events.iter().cloned());
         first.extend(c.frames.values().cloned());
         drop(c);
@@ -284,6 +354,27 @@ impl Hub {
         self.send(status);
         self.send(poses);
         self.send(sensors);
+        // The drawing goes to each page once: in its first lines, or here when it changes.
+        let drawing = source.drawing();
+        let changed = {
+            let mut c = lock(&self.cache);
+            match (&drawing, &c.drawing) {
+                (Some(now), Some((was, _))) if Arc::ptr_eq(now, was) => None,
+                (None, None) => None,
+                (None, Some(_)) => {
+                    c.drawing = None;
+                    None
+                }
+                (Some(now), _) => {
+                    let line = text(now);
+                    c.drawing = Some((Arc::clone(now), line.clone()));
+                    Some(line)
+                }
+            }
+        };
+        if let Some(line) = changed {
+            self.send(line);
+        }
     }
 
     async fn refresh_map<S: PageSource + ?Sized>(&self, source: &Arc<S>) {
@@ -454,6 +545,163 @@ mod tests {
         );
     }
 
+    fn drawing_of(segments: Vec<((f64, f64), (f64, f64))>) -> crate::drawing::Drawing {
+        crate::drawing::Drawing {
+            source: "plan.dxf".into(),
+            segments: segments
+                .into_iter()
+                .map(|(a, b)| crate::drawing::WallSegment {
+                    a: Point2::new(a.0, a.1),
+                    b: Point2::new(b.0, b.1),
+                    layer: "A-WALL".into(),
+                })
+                .collect(),
+            units: "m".into(),
+            bounds: (Point2::new(0.0, 0.0), Point2::new(1.0, 1.0)),
+            layers: vec!["A-WALL".into()],
+        }
+    }
+
+    fn aligned(x_m: f64, y_m: f64, yaw_deg: f64) -> crate::drawing::BuildingFromSite {
+        crate::drawing::BuildingFromSite {
+            x_m,
+            y_m,
+            yaw_deg,
+            scale: 1.0,
+            aligned: true,
+            method: "automatic+lines".into(),
+            reason: None,
+        }
+    }
+
+    fn segments_of(line: &str) -> Vec<f64> {
+        let v: serde_json::Value = serde_json::from_str(line).unwrap();
+        assert_eq!(v["class"], "DRAWING", "{line}");
+        v["segments_m"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect()
+    }
+
+    #[test]
+    fn the_drawing_is_sent_in_the_site_frame_and_only_when_aligned() {
+        // The site's origin stands at (10, 0) in the building, its x axis along the
+        // building's y: the wall (10, 0)–(10, 5) is (0, 0)–(5, 0) on the page.
+        let d = drawing_of(vec![((10.0, 0.0), (10.0, 5.0))]);
+        let line = drawing_line(&d, &aligned(10.0, 0.0, 90.0)).unwrap();
+        let got = segments_of(&line);
+        let want = [0.0, 0.0, 5.0, 0.0];
+        assert_eq!(got.len(), 4, "{line}");
+        for (g, w) in got.iter().zip(want) {
+            assert!((g - w).abs() < 1e-3, "{line}");
+        }
+        let mut not = aligned(10.0, 0.0, 90.0);
+        not.aligned = false;
+        not.reason = Some("the hall is symmetric".into());
+        assert_eq!(drawing_line(&d, &not), None);
+    }
+
+    #[test]
+    fn a_large_drawing_keeps_its_longest_segments() {
+        let n = MAX_DRAWING_SEGMENTS + 500;
+        // Short clutter, and one long wall at the end.
+        let mut segs: Vec<((f64, f64), (f64, f64))> = (0..n - 1)
+            .map(|i| ((i as f64 * 0.01, 0.0), (i as f64 * 0.01, 0.05)))
+            .collect();
+        segs.push(((0.0, 10.0), (40.0, 10.0)));
+        let line = drawing_line(&drawing_of(segs), &aligned(0.0, 0.0, 0.0)).unwrap();
+        let got = segments_of(&line);
+        assert_eq!(got.len(), MAX_DRAWING_SEGMENTS * 4);
+        assert!(
+            got.chunks(4).any(|c| c == [0.0, 10.0, 40.0, 10.0]),
+            "the long wall is kept"
+        );
+    }
+
+    /// A page gets the drawing once (in its first lines when it opens later), and again only
+    /// when the drawing or the alignment changes.
+    #[test]
+    fn the_drawing_goes_to_each_page_once() {
+        use crate::daemon::protocol::{Poses, Saved, Status};
+        use crate::daemon::socket::Refused;
+        struct Drawn(Mutex<Option<Arc<str>>>);
+        impl StatusSource for Drawn {
+            fn status(&self) -> Status {
+                Status {
+                    site: "s".into(),
+                    uptime_s: 0.0,
+                    queue_drops: 0,
+                    sensors: vec![],
+                    web: None,
+                    foxglove: None,
+                }
+            }
+            fn poses(&self) -> Poses {
+                Poses {
+                    anchor: "a".into(),
+                    sensors: vec![],
+                    building_from_site: Some(aligned(0.0, 0.0, 0.0)),
+                }
+            }
+            fn reregister(&self, _: &str) -> Result<String, Refused> {
+                Err(Refused("no".into()))
+            }
+            fn save(&self) -> Result<Saved, Refused> {
+                Err(Refused("no".into()))
+            }
+        }
+        impl PageSource for Drawn {
+            fn occupancy(&self) -> Option<OccupancyGrid> {
+                None
+            }
+            fn fields_of_view(&self) -> Vec<(String, f64, f64)> {
+                Vec::new()
+            }
+            fn drawing(&self) -> Option<Arc<str>> {
+                lock(&self.0).clone()
+            }
+        }
+        let first_line: Arc<str> = Arc::from(
+            drawing_line(
+                &drawing_of(vec![((0.0, 0.0), (4.0, 0.0))]),
+                &aligned(0.0, 0.0, 0.0),
+            )
+            .unwrap(),
+        );
+        let source = Drawn(Mutex::new(Some(Arc::clone(&first_line))));
+        let hub = Hub::new(64, 10.0);
+        let (mut page, first) = hub.subscribe();
+        assert!(first.is_empty());
+        let drawings = |page: &mut broadcast::Receiver<Utf8Bytes>| {
+            let mut n = 0;
+            while let Ok(line) = page.try_recv() {
+                n += usize::from(line.as_str().starts_with(r#"{"class":"DRAWING""#));
+            }
+            n
+        };
+        for _ in 0..3 {
+            hub.refresh_state(&source);
+        }
+        assert_eq!(drawings(&mut page), 1, "sent once, not every refresh");
+        let (_, first) = hub.subscribe();
+        assert!(
+            first.iter().any(|l| l.as_str() == &*first_line),
+            "a page that opens later gets it first"
+        );
+        *lock(&source.0) = Some(Arc::from(
+            drawing_line(
+                &drawing_of(vec![((0.0, 0.0), (4.0, 0.0))]),
+                &aligned(1.0, 0.0, 0.0),
+            )
+            .unwrap(),
+        ));
+        hub.refresh_state(&source);
+        hub.refresh_state(&source);
+        assert_eq!(drawings(&mut page), 1, "a new alignment is sent once");
+    }
+
     /// TRACKS reach a page paced like a sensor's scans; ZONES and CROSSING all reach it, and
     /// the latest ZONES is among the first lines of a page that opens later.
     #[tokio::test]
@@ -478,6 +726,7 @@ mod tests {
                 Poses {
                     anchor: "a".into(),
                     sensors: vec![],
+                    building_from_site: None,
                 }
             }
             fn reregister(&self, _: &str) -> Result<String, Refused> {

@@ -612,6 +612,7 @@ mod tests {
                 pose("b", true, 4.0, -2.0, 90.0),
                 pose("c", false, 0.0, 0.0, 0.0),
             ],
+            building_from_site: None,
         };
         let placed = placed_poses(&poses);
         let tf = transforms(&placed, timestamp(5));
@@ -645,6 +646,7 @@ mod tests {
         let mut poses = Poses {
             anchor: "a".into(),
             sensors: vec![pose("a", true, 0.0, 0.0, 0.0)],
+            building_from_site: None,
         };
         assert!(feed.poses(&poses).is_some(), "the first are sent");
         assert!(feed.poses(&poses).is_none(), "unchanged: nothing");

@@ -66,6 +66,7 @@ impl MemorySite {
                     anchor,
                     SensorPose::unregistered("dock", "no static view yet"),
                 ],
+                building_from_site: None,
             }),
             state_dir: state_dir.to_path_buf(),
             reregistered: Mutex::new(Vec::new()),
@@ -192,7 +193,7 @@ impl LineClient {
     pub async fn connect_past_banner(path: &Path) -> LineClient {
         let mut client = LineClient::connect(path).await;
         match client.message().await {
-            Some(Message::Version(v)) => assert_eq!((v.proto_major, v.proto_minor), (1, 2)),
+            Some(Message::Version(v)) => assert_eq!((v.proto_major, v.proto_minor), (1, 3)),
             other => panic!("expected a VERSION banner, got {other:?}"),
         }
         client
