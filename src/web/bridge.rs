@@ -545,6 +545,52 @@ mod tests {
         );
     }
 
+    /// A site with no sensors and, when set, an alignment and a `DRAWING` line: what the
+    /// hub's tests need of a source.
+    #[derive(Default)]
+    struct Site {
+        aligned: Option<crate::drawing::BuildingFromSite>,
+        drawing: Mutex<Option<Arc<str>>>,
+    }
+
+    impl StatusSource for Site {
+        fn status(&self) -> crate::daemon::protocol::Status {
+            crate::daemon::protocol::Status {
+                site: "s".into(),
+                uptime_s: 0.0,
+                queue_drops: 0,
+                sensors: vec![],
+                web: None,
+                foxglove: None,
+            }
+        }
+        fn poses(&self) -> crate::daemon::protocol::Poses {
+            crate::daemon::protocol::Poses {
+                anchor: "a".into(),
+                sensors: vec![],
+                building_from_site: self.aligned.clone(),
+            }
+        }
+        fn reregister(&self, _: &str) -> Result<String, crate::daemon::socket::Refused> {
+            Err(crate::daemon::socket::Refused("no".into()))
+        }
+        fn save(&self) -> Result<crate::daemon::protocol::Saved, crate::daemon::socket::Refused> {
+            Err(crate::daemon::socket::Refused("no".into()))
+        }
+    }
+
+    impl PageSource for Site {
+        fn occupancy(&self) -> Option<OccupancyGrid> {
+            None
+        }
+        fn fields_of_view(&self) -> Vec<(String, f64, f64)> {
+            Vec::new()
+        }
+        fn drawing(&self) -> Option<Arc<str>> {
+            lock(&self.drawing).clone()
+        }
+    }
+
     fn drawing_of(segments: Vec<((f64, f64), (f64, f64))>) -> crate::drawing::Drawing {
         crate::drawing::Drawing {
             source: "plan.dxf".into(),
@@ -624,45 +670,6 @@ mod tests {
     /// when the drawing or the alignment changes.
     #[test]
     fn the_drawing_goes_to_each_page_once() {
-        use crate::daemon::protocol::{Poses, Saved, Status};
-        use crate::daemon::socket::Refused;
-        struct Drawn(Mutex<Option<Arc<str>>>);
-        impl StatusSource for Drawn {
-            fn status(&self) -> Status {
-                Status {
-                    site: "s".into(),
-                    uptime_s: 0.0,
-                    queue_drops: 0,
-                    sensors: vec![],
-                    web: None,
-                    foxglove: None,
-                }
-            }
-            fn poses(&self) -> Poses {
-                Poses {
-                    anchor: "a".into(),
-                    sensors: vec![],
-                    building_from_site: Some(aligned(0.0, 0.0, 0.0)),
-                }
-            }
-            fn reregister(&self, _: &str) -> Result<String, Refused> {
-                Err(Refused("no".into()))
-            }
-            fn save(&self) -> Result<Saved, Refused> {
-                Err(Refused("no".into()))
-            }
-        }
-        impl PageSource for Drawn {
-            fn occupancy(&self) -> Option<OccupancyGrid> {
-                None
-            }
-            fn fields_of_view(&self) -> Vec<(String, f64, f64)> {
-                Vec::new()
-            }
-            fn drawing(&self) -> Option<Arc<str>> {
-                lock(&self.0).clone()
-            }
-        }
         let first_line: Arc<str> = Arc::from(
             drawing_line(
                 &drawing_of(vec![((0.0, 0.0), (4.0, 0.0))]),
@@ -670,7 +677,10 @@ mod tests {
             )
             .unwrap(),
         );
-        let source = Drawn(Mutex::new(Some(Arc::clone(&first_line))));
+        let source = Site {
+            aligned: Some(aligned(0.0, 0.0, 0.0)),
+            drawing: Mutex::new(Some(Arc::clone(&first_line))),
+        };
         let hub = Hub::new(64, 10.0);
         let (mut page, first) = hub.subscribe();
         assert!(first.is_empty());
@@ -690,7 +700,7 @@ mod tests {
             first.iter().any(|l| l.as_str() == &*first_line),
             "a page that opens later gets it first"
         );
-        *lock(&source.0) = Some(Arc::from(
+        *lock(&source.drawing) = Some(Arc::from(
             drawing_line(
                 &drawing_of(vec![((0.0, 0.0), (4.0, 0.0))]),
                 &aligned(1.0, 0.0, 0.0),
@@ -706,55 +716,19 @@ mod tests {
     /// the latest ZONES is among the first lines of a page that opens later.
     #[tokio::test]
     async fn people_reach_pages_paced_and_zones_are_kept() {
-        use crate::daemon::protocol::{
-            Crossing, Poses, Saved, Side, Status, Track, Tracks, ZoneCount, Zones,
-        };
-        use crate::daemon::socket::Refused;
-        struct Nothing;
-        impl StatusSource for Nothing {
-            fn status(&self) -> Status {
-                Status {
-                    site: "s".into(),
-                    uptime_s: 0.0,
-                    queue_drops: 0,
-                    sensors: vec![],
-                    web: None,
-                    foxglove: None,
-                }
-            }
-            fn poses(&self) -> Poses {
-                Poses {
-                    anchor: "a".into(),
-                    sensors: vec![],
-                    building_from_site: None,
-                }
-            }
-            fn reregister(&self, _: &str) -> Result<String, Refused> {
-                Err(Refused("no".into()))
-            }
-            fn save(&self) -> Result<Saved, Refused> {
-                Err(Refused("no".into()))
-            }
-        }
-        impl PageSource for Nothing {
-            fn occupancy(&self) -> Option<OccupancyGrid> {
-                None
-            }
-            fn fields_of_view(&self) -> Vec<(String, f64, f64)> {
-                Vec::new()
-            }
-        }
+        use crate::daemon::protocol::{Crossing, Side, Track, Tracks, ZoneCount, Zones};
         let publisher = Publisher::new(64);
         // One TRACKS per 1000 s: only the first of a burst passes.
         let hub = Hub::new(64, 0.001);
         let (mut page, _) = hub.subscribe();
         let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-        let task =
-            tokio::spawn(
-                Arc::clone(&hub).run(Arc::new(Nothing), publisher.clone(), async move {
-                    let _ = stop_rx.await;
-                }),
-            );
+        let task = tokio::spawn(Arc::clone(&hub).run(
+            Arc::new(Site::default()),
+            publisher.clone(),
+            async move {
+                let _ = stop_rx.await;
+            },
+        ));
         while publisher.people_watchers() == 0 {
             tokio::task::yield_now().await;
         }
