@@ -64,6 +64,9 @@ fn the_example_sets_every_key() {
         "max_clients",
         "frames_per_s",
         "send_queue", // [web] (token_file is shown commented out: check needs the file), [foxglove]
+        "enabled",
+        "background_s",
+        "death_s", // [track]
     ];
     for key in keys {
         let set = text.lines().any(|l| {
@@ -84,7 +87,13 @@ fn the_example_sets_every_key() {
     }
     // Every key the loader accepts is in the lists above: an unknown key is rejected with the
     // list of valid ones, which must all be documented.
-    for table in ["[site]", "[registration]", "[publish]", "[foxglove]"] {
+    for table in [
+        "[site]",
+        "[registration]",
+        "[publish]",
+        "[foxglove]",
+        "[track]",
+    ] {
         let probe = text.replacen(table, &format!("{table}\nzz_probe = 1"), 1);
         let err = Config::parse(&probe, &example_path())
             .unwrap_err()

@@ -173,6 +173,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             listen: args.foxglove,
             ..FoxgloveConfig::default()
         },
+        track: config::TrackConfig::default(),
     };
     if let Some(addr) = args.web
         && !addr.ip().is_loopback()

@@ -42,6 +42,41 @@ pub struct Config {
     /// `[[zone]]`, `[[line]]`, `[osc]`, `[mqtt]`: what is done with the tracks.
     pub people: PeopleConfig,
     pub foxglove: FoxgloveConfig,
+    /// `[track]`: the people tracker.
+    pub track: TrackConfig,
+}
+
+/// `[track]`: whether the daemon follows people, and the two times a site tunes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrackConfig {
+    pub enabled: bool,
+    /// Something that stands still this long becomes background (a box put down); a person
+    /// standing still stays a person at least this long. At least 60 s.
+    pub background_s: f64,
+    /// A track unseen this long ends (a person hidden behind another keeps their id for this
+    /// long).
+    pub death_s: f64,
+}
+
+impl Default for TrackConfig {
+    fn default() -> Self {
+        let p = crate::track::TrackParams::default();
+        TrackConfig {
+            enabled: true,
+            background_s: p.background.absorb_s,
+            death_s: p.death_s,
+        }
+    }
+}
+
+impl TrackConfig {
+    /// The tracker's settings: the defaults with this section's times.
+    pub fn params(&self) -> crate::track::TrackParams {
+        let mut p = crate::track::TrackParams::default();
+        p.background.absorb_s = self.background_s;
+        p.death_s = self.death_s;
+        p
+    }
 }
 
 /// The tracking outputs: zones and lines counted, and where tracks are sent besides the
@@ -477,6 +512,16 @@ struct RawConfig {
     mqtt: Option<Spanned<RawMqtt>>,
     #[serde(default)]
     foxglove: Option<Spanned<RawFoxglove>>,
+    #[serde(default)]
+    track: Option<Spanned<RawTrack>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawTrack {
+    enabled: Option<bool>,
+    background_s: Option<Spanned<f64>>,
+    death_s: Option<Spanned<f64>>,
 }
 
 #[derive(Deserialize)]
@@ -972,6 +1017,10 @@ impl Config {
             Some(f) => parse_foxglove(&loc, f)?,
             None => FoxgloveConfig::default(),
         };
+        let track = match raw.track {
+            Some(t) => parse_track(&loc, t.into_inner())?,
+            None => TrackConfig::default(),
+        };
 
         Ok(Config {
             path: path.to_path_buf(),
@@ -990,6 +1039,7 @@ impl Config {
             web,
             people,
             foxglove,
+            track,
         })
     }
 
@@ -1063,6 +1113,31 @@ impl Config {
 
 /// `[foxglove]`, checked. Any address is allowed: the server takes no requests that change
 /// anything (no client publishing, services or parameters).
+/// `[track]`, checked.
+fn parse_track(loc: &Locator<'_>, raw: RawTrack) -> Result<TrackConfig, ConfigError> {
+    let mut out = TrackConfig::default();
+    if let Some(e) = raw.enabled {
+        out.enabled = e;
+    }
+    if let Some(v) = &raw.background_s {
+        out.background_s = *v.get_ref();
+        if !(60.0..=86_400.0).contains(&out.background_s) {
+            return Err(loc.at(
+                v.span(),
+                "track.background_s",
+                "must be 60–86400 seconds: a person standing still must stay a person for at least a minute",
+            ));
+        }
+    }
+    if let Some(v) = &raw.death_s {
+        out.death_s = *v.get_ref();
+        if !(out.death_s >= 0.1 && out.death_s <= 60.0) {
+            return Err(loc.at(v.span(), "track.death_s", "must be 0.1–60 seconds"));
+        }
+    }
+    Ok(out)
+}
+
 fn parse_foxglove(
     loc: &Locator<'_>,
     raw: Spanned<RawFoxglove>,
@@ -1455,6 +1530,7 @@ impl Config {
             // The page and Foxglove servers are bound once, at start.
             ("web", self.web != new.web),
             ("foxglove", self.foxglove != new.foxglove),
+            ("track", self.track != new.track),
         ] {
             if differs {
                 changes.need_restart.push(key);
@@ -1671,6 +1747,28 @@ map_cell_m = 0.1
         let (_, key, message) = invalid(&with.replace("0.001", "-1"));
         assert_eq!(key, "site.drawing_scale");
         assert!(message.contains("positive"), "{message}");
+    }
+
+    #[test]
+    fn the_tracker_section_sets_its_times_and_refuses_a_background_under_a_minute() {
+        assert_eq!(parse(GOOD).unwrap().track, TrackConfig::default());
+        let with = format!("{GOOD}\n[track]\nbackground_s = 300\ndeath_s = 3\n");
+        let t = parse(&with).unwrap().track;
+        assert!(t.enabled);
+        let p = t.params();
+        assert_eq!((p.background.absorb_s, p.death_s), (300.0, 3.0));
+        let off = parse(&format!("{GOOD}\n[track]\nenabled = false\n")).unwrap();
+        assert!(!off.track.enabled);
+        let (line, key, message) = invalid(&with.replace("300", "20"));
+        assert_eq!(
+            (line, key.as_str()),
+            (GOOD.lines().count() + 3, "track.background_s")
+        );
+        assert!(message.contains("at least a minute"), "{message}");
+        let (_, key, _) = invalid(&with.replace("death_s = 3", "death_s = 0"));
+        assert_eq!(key, "track.death_s");
+        let (_, key, _) = invalid(&format!("{GOOD}\n[track]\nbirth_s = 1\n"));
+        assert_eq!(key, "track.birth_s");
     }
 
     #[test]

@@ -28,7 +28,6 @@ use crate::emulator::{Emulator, EmulatorConfig, EmulatorError, Gated, ReplayGate
 use crate::geometry::{Pose3, pose2};
 use crate::record::{self, RecordError};
 use crate::sensor::{Driver, DriverConfig, QUIT_TIMEOUT};
-use crate::track::TrackParams;
 
 /// Scans a driver may hand over before its forwarding task takes them.
 const DRIVER_CHANNEL: usize = 256;
@@ -503,8 +502,8 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
     if let Some(d) = config.site.drawing.clone() {
         load_drawing(d, &pipeline).await;
     }
-    let tracker = if options.track {
-        let (queue, task) = TrackerTask::start(publisher.clone(), TrackParams::default())?;
+    let tracker = if options.track && config.track.enabled {
+        let (queue, task) = TrackerTask::start(publisher.clone(), config.track.params())?;
         pipeline.feed_tracker(queue);
         Some(task)
     } else {

@@ -40,6 +40,17 @@ impl Kalman {
         (mean + diff).max(0.0).sqrt()
     }
 
+    /// Caps the speed at `max_m_s` (people walk; a faster estimate is noise that would carry
+    /// an unseen track away from its person).
+    pub fn limit_speed(&mut self, max_m_s: f64) {
+        let speed = self.velocity().norm();
+        if speed > max_m_s {
+            let k = max_m_s / speed;
+            self.x[2] *= k;
+            self.x[3] *= k;
+        }
+    }
+
     /// Moves the estimate `dt_s` ahead; `accel_psd` is the white acceleration's spectral
     /// density (m²/s³): how fast a walker changes speed and direction.
     pub fn predict(&mut self, dt_s: f64, accel_psd: f64) {

@@ -66,13 +66,21 @@ pub struct TrackParams {
     pub birth_sigma_v_m_s: f64,
     /// No track is born within 0.6 m of another.
     pub birth_clear_m: f64,
-    /// Two confirmed tracks closer than 0.3 m are one person: the younger ends.
+    /// Two confirmed tracks that keep within 0.3 m of each other, their velocities within
+    /// 0.5 m/s, for 0.5 s are one person: the younger ends.
     pub same_track_m: f64,
+    pub same_track_s: f64,
+    pub same_track_v_m_s: f64,
     /// A track is confirmed (gets its id) at its 5th detection; a tentative one unseen for
     /// 0.2 s is dropped, a confirmed one unseen for 1.5 s ends.
     pub confirm_hits: u32,
     pub tentative_death_s: f64,
     pub death_s: f64,
+    /// A confirmed track is listed while seen within the last 0.5 s; unseen longer (hidden
+    /// behind others) it is kept, to take its person back, but not listed.
+    pub shown_unseen_s: f64,
+    /// No one walks faster than 2.5 m/s: a faster estimate is capped.
+    pub max_speed_m_s: f64,
     /// A sensor whose pose changes by more than 0.1 m or 1° was moved: its background
     /// starts again.
     pub repose_m: f64,
@@ -109,9 +117,13 @@ impl Default for TrackParams {
             birth_sigma_v_m_s: 1.0,
             birth_clear_m: 0.6,
             same_track_m: 0.3,
+            same_track_s: 0.5,
+            same_track_v_m_s: 0.5,
             confirm_hits: 5,
             tentative_death_s: 0.2,
             death_s: 1.5,
+            shown_unseen_s: 0.5,
+            max_speed_m_s: 2.5,
             repose_m: 0.1,
             repose_rad: 1f64.to_radians(),
         }

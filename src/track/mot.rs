@@ -34,7 +34,13 @@ impl ClearMot {
     }
 
     /// One frame: the true people (id, x, y) and the tracks (id, x, y) at the same instant.
-    pub fn frame(&mut self, truth: &[(String, f64, f64)], tracks: &[(u64, f64, f64)]) {
+    /// Returns the identity switches of this frame: (truth index, track it had, track it has).
+    pub fn frame(
+        &mut self,
+        truth: &[(String, f64, f64)],
+        tracks: &[(u64, f64, f64)],
+    ) -> Vec<(usize, u64, u64)> {
+        let mut switches = Vec::new();
         self.frames += 1;
         self.truths += truth.len();
         let dist = |i: usize, j: usize| {
@@ -83,9 +89,11 @@ impl ClearMot {
                 && prev != track
             {
                 self.id_switches += 1;
+                switches.push((i, prev, track));
             }
         }
         self.false_tracks += used.iter().filter(|u| !**u).count();
+        switches
     }
 
     /// 1 − (misses + false tracks + id switches) / truths.

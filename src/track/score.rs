@@ -564,7 +564,21 @@ pub fn score_plan(
                     z.truth_sum += truth_in as f64;
                 }
                 let before = (score.mot.misses, score.mot.false_tracks);
-                score.mot.frame(&people, &tracks);
+                let switches = score.mot.frame(&people, &tracks);
+                for (i, from, to) in &switches {
+                    let (id, x, y) = &people[*i];
+                    let near = people
+                        .iter()
+                        .filter(|(o, _, _)| o != id)
+                        .map(|(_, ox, oy)| (ox - x).hypot(oy - y))
+                        .fold(f64::INFINITY, f64::min);
+                    let alive = tracks.iter().any(|(t, _, _)| t == from);
+                    tracing::debug!(
+                        "switch t {:.1} {id} at {x:.2},{y:.2}: {from} -> {to} (old track {}; nearest other person {near:.2} m)",
+                        (truth.t_ns - start_ns) as f64 * 1e-9,
+                        if alive { "alive" } else { "gone" }
+                    );
+                }
                 if tracing::enabled!(tracing::Level::TRACE) {
                     tracing::trace!(
                         "t {:.1} truth {} tracks {} miss +{} false +{} live {}",

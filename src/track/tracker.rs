@@ -64,6 +64,8 @@ struct TrackState {
     born_ns: u64,
     last_seen_ns: u64,
     hits: u32,
+    /// How long it has kept together with an older track, at one velocity: the same person.
+    together_ns: u64,
     /// Sensors that updated the track in the latest step.
     sensors: Vec<String>,
 }
@@ -348,6 +350,7 @@ impl Tracker {
                 .sum::<nalgebra::Vector2<f64>>()
                 / seen.len() as f64;
             t.filter.update(&Point2::from(mean), p.sigma_meas_m);
+            t.filter.limit_speed(p.max_speed_m_s);
             t.last_seen_ns = t_ns;
             t.hits += 1;
             t.sensors = seen
@@ -360,23 +363,37 @@ impl Tracker {
             }
         }
         let (detections, _) = self.merged();
-        // Two tracks on one person: the younger goes (the older keeps its id).
-        let mut gone = vec![false; self.tracks.len()];
+        // Two tracks on one person: the younger goes (the older keeps its id). Two people who
+        // cross or brush past each other are close only for a moment, and walk differently:
+        // tracks count as one only when they have kept together, at one velocity, for
+        // `same_track_s`.
+        let mut duplicate = vec![false; self.tracks.len()];
+        let mut together = vec![false; self.tracks.len()];
         for i in 0..self.tracks.len() {
             for j in i + 1..self.tracks.len() {
                 let (a, b) = (&self.tracks[i], &self.tracks[j]);
-                if gone[i] || gone[j] || a.id == 0 || b.id == 0 {
+                if a.id == 0 || b.id == 0 {
                     continue;
                 }
-                if (a.filter.position() - b.filter.position()).norm() > p.same_track_m {
-                    continue;
-                }
-                if a.born_ns <= b.born_ns {
-                    gone[j] = true;
-                } else {
-                    gone[i] = true;
+                let apart = (a.filter.position() - b.filter.position()).norm();
+                if apart <= p.same_track_m {
+                    let younger = if a.born_ns <= b.born_ns { j } else { i };
+                    let dv = (a.filter.velocity() - b.filter.velocity()).norm();
+                    duplicate[younger] = true;
+                    together[younger] = dv <= p.same_track_v_m_s;
                 }
             }
+        }
+        let step_ns = (dt_s * 1e9) as u64;
+        let same_ns = (p.same_track_s * 1e9) as u64;
+        let mut gone = vec![false; self.tracks.len()];
+        for (k, t) in self.tracks.iter_mut().enumerate() {
+            t.together_ns = if duplicate[k] {
+                t.together_ns + step_ns
+            } else {
+                0
+            };
+            gone[k] = duplicate[k] && (together[k] || t.together_ns >= same_ns);
         }
         let mut k = 0;
         self.tracks.retain(|_| {
@@ -409,6 +426,7 @@ impl Tracker {
                 born_ns: d.stamp_ns,
                 last_seen_ns: t_ns,
                 hits: 1,
+                together_ns: 0,
                 sensors: Vec::new(),
             });
         }
@@ -421,6 +439,9 @@ impl Tracker {
             .tracks
             .iter()
             .filter(|t| t.id != 0)
+            .filter(|t| {
+                t_ns.saturating_sub(t.last_seen_ns) as f64 * 1e-9 <= self.params.shown_unseen_s
+            })
             .map(|t| {
                 let at = t.filter.position();
                 let v = t.filter.velocity();
@@ -514,6 +535,50 @@ mod tests {
         for (_, d) in last.iter().flatten() {
             assert!(*d < 0.05, "{last:?}");
         }
+    }
+
+    /// Two walkers who pass through each other (seen as one body while they overlap) keep
+    /// their ids: tracks that meet only for a moment, walking different ways, are two people.
+    #[test]
+    fn people_who_brush_past_each_other_keep_their_ids() {
+        let mut tracker = Tracker::new(TrackParams::default());
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let paths = |t_s: f64| {
+            [
+                Point2::new(1.2 * t_s, 3.0),
+                Point2::new(8.0 - 1.2 * t_s, 3.1),
+            ]
+        };
+        let (mut start, mut last) = (None, None);
+        for k in 0..(7 * S / TICK) {
+            let t_ns = k * TICK;
+            let [a, b] = paths(t_ns as f64 * 1e-9);
+            let seen = if (a - b).norm() < 0.4 {
+                vec![Point2::from((a.coords + b.coords) / 2.0)]
+            } else {
+                vec![a, b]
+            };
+            for (i, sensor) in ["a", "b"].iter().enumerate() {
+                let noisy_seen: Vec<Point2<f64>> =
+                    seen.iter().map(|p| noisy(&mut rng, *p)).collect();
+                let t = t_ns + i as u64 * TICK / 2;
+                if let Some(out) = tracker.push_detections(sensor, t, &noisy_seen)
+                    && out.tracks.len() == 2
+                {
+                    let ids = paths(out.t_ns as f64 * 1e-9).map(|p| id_near(&out, p));
+                    if start.is_none() && out.t_ns < 2 * S {
+                        start = Some(ids);
+                    }
+                    last = Some(ids);
+                }
+            }
+        }
+        let (Some(start), Some(last)) = (start, last) else {
+            panic!("never two confirmed tracks");
+        };
+        let ids = |v: [Option<(u64, f64)>; 2]| v.map(|x| x.map(|(id, _)| id));
+        assert_eq!(ids(start), ids(last), "{start:?} → {last:?}");
+        assert_ne!(ids(start)[0], ids(start)[1]);
     }
 
     #[test]
