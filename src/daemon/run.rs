@@ -904,6 +904,7 @@ mod tests {
             aligned: true,
             method: "automatic+lines".into(),
             reason: None,
+            ..Default::default()
         };
         file.building_from_site = Some(b.clone());
         file.save(dir.path()).unwrap();
@@ -972,6 +973,7 @@ mod tests {
                 aligned: false,
                 method: "automatic".into(),
                 reason: Some("symmetric".into()),
+                ..Default::default()
             }),
         };
         file.save(dir.path()).unwrap();

@@ -617,6 +617,7 @@ mod tests {
             aligned: true,
             method: "automatic+lines".into(),
             reason: None,
+            ..Default::default()
         }
     }
 
