@@ -72,6 +72,9 @@ pub struct RunOptions {
     /// final save, so that `poses.toml` carries `building_from_site` and the map files are in
     /// building coordinates.
     pub align_at_end: Option<AlignAtEnd>,
+    /// `[site] drawing`, already read by the caller (`scanfuse replay --drawing` reads it to
+    /// refuse a bad one before replaying): drawn on the page instead of reading it again.
+    pub drawing: Option<Arc<crate::drawing::Drawing>>,
 }
 
 /// Finds `building_from_site` for the final poses (in the site frame); `None` keeps what
@@ -102,6 +105,7 @@ impl Default for RunOptions {
             tap: None,
             track: true,
             align_at_end: None,
+            drawing: None,
         }
     }
 }
@@ -500,7 +504,9 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
         options.tap.clone(),
     ));
     load_saved_poses(&config, &pipeline);
-    if let Some(d) = config.site.drawing.clone() {
+    if let Some(d) = options.drawing.clone() {
+        pipeline.set_drawing(d);
+    } else if let Some(d) = config.site.drawing.clone() {
         load_drawing(d, &pipeline).await;
     }
     let tracker = if options.track {
@@ -598,6 +604,7 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
             config.people.clone(),
             config.site.name.clone(),
             publisher.clone(),
+            pipeline.watch_building_from_site(),
             async move {
                 let _ = rx.wait_for(|s| *s).await;
             },
