@@ -60,9 +60,8 @@ pub fn wanted(config: &PeopleConfig) -> bool {
 /// through `building_from_site` (`p_site = R(−yaw) (p_b − t) / scale`), the lines' hysteresis
 /// with them.
 pub fn to_site(zones: &[Zone], lines: &[CountLine], t: &Similarity) -> (Vec<Zone>, Vec<CountLine>) {
-    let back = nalgebra::Rotation2::new(-t.yaw_rad);
     let p = |q: Xy| -> Xy {
-        let v = back * nalgebra::Vector2::new(q[0] - t.x_m, q[1] - t.y_m) / t.scale;
+        let v = t.to_site(&nalgebra::Point2::new(q[0], q[1]));
         [v.x, v.y]
     };
     let zones = zones

@@ -159,6 +159,10 @@ pub struct PosedScan {
 
 /// Reports for a terminal front end (`scanfuse run`, `scanfuse replay`).
 #[derive(Debug, Clone)]
+#[allow(
+    clippy::large_enum_variant,
+    reason = "one Tick a second to a terminal: boxing it would buy nothing"
+)]
 pub enum Report {
     Event(Event),
     /// Once a second: how things are.

@@ -47,6 +47,12 @@ impl Similarity {
         Point2::from(r * p.coords * self.scale + Vector2::new(self.x_m, self.y_m))
     }
 
+    /// The inverse: the site point at building point `p` (`R(−yaw) (p − t) / scale`).
+    pub fn to_site(&self, p: &Point2<f64>) -> Point2<f64> {
+        let back = Rotation2::new(-self.yaw_rad);
+        Point2::from(back * (p.coords - Vector2::new(self.x_m, self.y_m)) / self.scale)
+    }
+
     /// The rigid part (as a pose; the scale left out).
     pub fn pose(&self) -> Pose2 {
         pose2(self.x_m, self.y_m, self.yaw_rad)
