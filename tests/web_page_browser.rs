@@ -86,6 +86,7 @@ fn the_page_shows_every_sensor_where_poses_has_it_and_a_drag_surveys_one() {
         log.lines().rev().take(30).collect::<Vec<_>>().join("\n")
     );
     let summary: serde_json::Value = serde_json::from_slice(&out.stdout).expect("a JSON summary");
+    eprintln!("browser summary: {summary}");
     assert!(summary["moved_m"].as_f64().unwrap() > 0.05, "{summary}");
     // Every wall of the drawing drawn, lying on the scans' walls within a couple of pixels.
     assert_eq!(
