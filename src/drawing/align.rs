@@ -326,6 +326,12 @@ pub const MOVED_M: f64 = 0.08;
 const MIN_LINE_POINTS: usize = 15;
 /// Robust scale of the fit (Cauchy weights): walls 20 cm off barely pull.
 const ROBUST_M: f64 = 0.04;
+/// The robust scale of the first iterations, narrowing to [`ROBUST_M`]: wide at first, so
+/// that every wall pulls and the fit settles where most walls agree, not on whichever wall
+/// (perhaps one moved since the drawing) the start happened to lie nearest.
+const ROBUST_SCHEDULE_M: [f64; 7] = [0.3, 0.3, 0.2, 0.15, 0.1, 0.07, 0.05];
+/// A line with this many points or more weighs as one line; fewer, proportionally less.
+const LINE_FULL_POINTS: f64 = 20.0;
 
 /// Fits the map's wall points to the nearest drawing lines, from `init` (scale kept): Gauss-
 /// Newton on point-to-line distances with Cauchy weights, the gate narrowing from `gate_m`.
@@ -342,24 +348,41 @@ fn refine_n(
 ) -> Refined {
     let mut t = *init;
     let gates = [gate_m, gate_m, 0.75 * gate_m, 0.5 * gate_m, 0.3, 0.25, 0.2];
+    let mut hits: Vec<(usize, f64, Vector3<f64>)> = Vec::with_capacity(map.len());
+    let mut per_line = vec![0u32; index.lines.len()];
     for iter in 0..max_iter {
         let gate = gates
             .get(iter)
             .copied()
             .unwrap_or(0.2)
             .clamp(0.15, MAX_GATE_M);
+        let robust = ROBUST_SCHEDULE_M.get(iter).copied().unwrap_or(ROBUST_M);
         let r = Rotation2::new(t.yaw_rad);
-        let (mut hh, mut g) = (Matrix3::zeros(), Vector3::zeros());
+        hits.clear();
         for m in map {
             let q = t.apply(&m.p);
             let n = r * m.n;
-            let Some((_, res, ln)) = index.nearest(&q, &n, gate) else {
+            let Some((k, res, ln)) = index.nearest(&q, &n, gate) else {
                 continue;
             };
-            let w = 1.0 / (1.0 + (res / ROBUST_M).powi(2));
-            let j = Vector3::new(ln.x, ln.y, ln.dot(&Vector2::new(-q.y, q.x)));
+            per_line[k] += 1;
+            hits.push((
+                k,
+                res,
+                Vector3::new(ln.x, ln.y, ln.dot(&Vector2::new(-q.y, q.x))),
+            ));
+        }
+        // Each line counts once (its points share its error): a long wall moved since the
+        // drawing, seen by every sensor, must not outvote the many walls that were not.
+        let (mut hh, mut g) = (Matrix3::zeros(), Vector3::zeros());
+        for (k, res, j) in &hits {
+            let share = 1.0 / f64::from(per_line[*k]).max(LINE_FULL_POINTS);
+            let w = share / (1.0 + (res / robust).powi(2));
             hh += j * j.transpose() * w;
             g += j * (w * res);
+        }
+        for (k, _, _) in &hits {
+            per_line[*k] = 0;
         }
         let Some(inv) = (hh + Matrix3::identity() * 1e-9).try_inverse() else {
             break;
