@@ -258,14 +258,14 @@ fn print_human(o: &AlignOut) {
     let b = &o.building_from_site;
     if b.aligned {
         let pm = |v: Option<f64>, k: f64, unit: &str| {
-            v.map_or(String::new(), |v| format!(" ± {:.1} {unit}", v * k))
+            v.map_or(String::new(), |v| format!(" ± {:.2}{unit}", v * k))
         };
         println!(
             "building_from_site: x {:.3} m{}, y {:.3} m{}, yaw {:.2}°{}, scale {:.4}  ({}{})",
             b.x_m,
-            pm(b.sigma_x_m, 100.0, "cm"),
+            pm(b.sigma_x_m, 100.0, " cm"),
             b.y_m,
-            pm(b.sigma_y_m, 100.0, "cm"),
+            pm(b.sigma_y_m, 100.0, " cm"),
             b.yaw_deg,
             pm(b.sigma_yaw_deg, 1.0, "°"),
             b.scale,
