@@ -156,7 +156,7 @@ pub fn run(args: Args) -> Result<()> {
     let mut register = to_output(&anchor_id, &prepared, &site, 0);
     if let Some(t) = alignment.building_from_site {
         for s in &mut register.sensors {
-            to_building(s, &t, alignment.refined.as_ref());
+            to_building(s, &t, alignment.line_fit());
         }
     }
     if let Some(dir) = &args.save {

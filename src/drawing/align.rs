@@ -752,6 +752,16 @@ pub struct Alignment {
     pub refined: Option<Refined>,
 }
 
+impl Alignment {
+    /// The line fit the transform came from (its σ and residuals), when it did: `None` when
+    /// not aligned, or when the pairs' fit was kept because the walls fit poorly near it.
+    pub fn line_fit(&self) -> Option<&Refined> {
+        self.refined
+            .as_ref()
+            .filter(|_| self.building_from_site.is_some() && self.method.ends_with("+lines"))
+    }
+}
+
 /// Aligns the site to the drawing: from `pairs` when given (then refined on the lines),
 /// else automatically.
 pub fn align(

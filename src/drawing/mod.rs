@@ -101,11 +101,7 @@ impl BuildingFromSite {
             yaw_rad: 0.0,
             scale: 1.0,
         });
-        let sigma = a
-            .refined
-            .as_ref()
-            .filter(|_| a.building_from_site.is_some())
-            .map(|r| r.sigma);
+        let sigma = a.line_fit().map(|r| r.sigma);
         BuildingFromSite {
             x_m: t.x_m,
             y_m: t.y_m,
