@@ -27,6 +27,11 @@ mod walkable;
 use std::fmt;
 
 pub use overlap::view_overlap;
+
+/// The plan's wall pieces (end points, m) with its doors cut out, as a drawing shows them.
+pub fn wall_pieces(plan: &Plan) -> Result<Vec<([f64; 2], [f64; 2])>, PlanError> {
+    Ok(scene::Scene::build(plan)?.wall_pieces())
+}
 pub use plan::{BoxShape, Circle, Crowd, Door, Model, Move, Person, Plan, Queue, SensorPlan, Wall};
 pub use simulation::{PEOPLE_TRUTH_PERIOD_NS, SimEvent, Simulation};
 

@@ -1,8 +1,8 @@
 //! `scanfuse eval --only drawing`: the alignment of a site to its building drawing (issue 19),
 //! measured. Each site is installed in a plan of `--plans` and registered from simulated scans
 //! (its frame is the anchor's, so `building_from_site` is far from the identity); the drawing is
-//! made from the plan as an architect's would be: walls and pillars, the furniture the scanners
-//! see left out, one or two walls drawn 20 cm off ("moved since the drawing"), and with
+//! made from the plan as an architect's would be: walls (with their door openings) and
+//! pillars, the furniture the scanners see left out, one or two walls drawn 20 cm off ("moved since the drawing"), and with
 //! `--drawing-clutter N` N desks no scanner sees (a furniture layer nobody deselected). Each
 //! sensor's building-frame pose is scored against the simulator's truth (plan frame = building
 //! frame) for the automatic alignment and for two clicked points up to 20 cm off, refined. Two
@@ -165,12 +165,12 @@ fn score(
     }
 }
 
-/// The drawing of `plan`: its walls, with `moved` (wall, segment) pieces drawn `MOVED_M` along
-/// their left normal, and its pillars (boxes up to 1 m across and round columns reaching 2.5 m);
+/// The drawing of `plan`: its walls with the doors cut out, the `moved` pieces drawn `MOVED_M`
+/// along their left normal, and its pillars (boxes up to 1 m across and round columns reaching 2.5 m);
 /// other boxes and circles are furniture and left out. `clutter` desks on FURNITURE are added.
 fn plan_drawing(
     plan: &Plan,
-    moved: &[(usize, usize)],
+    moved: &[usize],
     clutter: usize,
     rng: &mut ChaCha8Rng,
 ) -> Result<Drawing> {
@@ -180,16 +180,14 @@ fn plan_drawing(
         layer: layer.to_string(),
     };
     let mut out = Vec::new();
-    for (wi, w) in plan.walls.iter().enumerate() {
-        for (si, (a, b)) in w.segments().enumerate() {
-            let (mut a, mut b) = (Point2::new(a[0], a[1]), Point2::new(b[0], b[1]));
-            if moved.contains(&(wi, si)) {
-                let u = (b - a).normalize();
-                let shift = Vector2::new(-u.y, u.x) * MOVED_M;
-                (a, b) = (a + shift, b + shift);
-            }
-            out.push(seg(a, b, "A-WALL"));
+    for (k, (a, b)) in scanfuse::sim::wall_pieces(plan)?.into_iter().enumerate() {
+        let (mut a, mut b) = (Point2::new(a[0], a[1]), Point2::new(b[0], b[1]));
+        if moved.contains(&k) {
+            let u = (b - a).normalize();
+            let shift = Vector2::new(-u.y, u.x) * MOVED_M;
+            (a, b) = (a + shift, b + shift);
         }
+        out.push(seg(a, b, "A-WALL"));
     }
     let polygon = |out: &mut Vec<WallSegment>, pts: &[Point2<f64>]| {
         for k in 0..pts.len() {
@@ -249,18 +247,13 @@ fn plan_drawing(
     )?)
 }
 
-/// One or two wall pieces of at least 3 m to draw moved.
-fn pick_moved(plan: &Plan, rng: &mut ChaCha8Rng) -> Vec<(usize, usize)> {
-    let long: Vec<(usize, usize)> = plan
-        .walls
+/// One or two wall pieces (of [`scanfuse::sim::wall_pieces`]) of at least 3 m to draw moved.
+fn pick_moved(plan: &Plan, rng: &mut ChaCha8Rng) -> Result<Vec<usize>> {
+    let long: Vec<usize> = scanfuse::sim::wall_pieces(plan)?
         .iter()
         .enumerate()
-        .flat_map(|(wi, w)| {
-            w.segments()
-                .enumerate()
-                .filter(|(_, (a, b))| (b[0] - a[0]).hypot(b[1] - a[1]) >= 3.0)
-                .map(move |(si, _)| (wi, si))
-        })
+        .filter(|(_, (a, b))| (b[0] - a[0]).hypot(b[1] - a[1]) >= 3.0)
+        .map(|(k, _)| k)
         .collect();
     let mut picked = Vec::new();
     for _ in 0..rng.random_range(1..=2) {
@@ -272,7 +265,7 @@ fn pick_moved(plan: &Plan, rng: &mut ChaCha8Rng) -> Vec<(usize, usize)> {
             picked.push(w);
         }
     }
-    picked
+    Ok(picked)
 }
 
 /// Two clicked point pairs: two drawing corners far apart, each click up to `CLICK_M` off,
@@ -371,7 +364,7 @@ fn solve(
     let moved = if symmetric {
         Vec::new()
     } else {
-        pick_moved(&plan, rng)
+        pick_moved(&plan, rng)?
     };
     let drawing = plan_drawing(&plan, &moved, args.drawing_clutter, rng)?;
     let align_sensors: Vec<AlignSensor<'_>> = placed
@@ -390,12 +383,11 @@ fn solve(
     let by_pairs = align(&drawing, &align_sensors, &pairs, false, params);
     let pairs_ms = t0.elapsed().as_secs_f64() * 1e3;
     // A moved wall is named when a line reported moved is that piece of the drawing.
+    let pieces = scanfuse::sim::wall_pieces(&plan)?;
     let named = moved
         .iter()
-        .filter(|(wi, si)| {
-            let Some((a, b)) = plan.walls[*wi].segments().nth(*si) else {
-                return false;
-            };
+        .filter(|k| {
+            let (a, b) = pieces[**k];
             let mid = Point2::new((a[0] + b[0]) / 2.0, (a[1] + b[1]) / 2.0);
             auto.refined
                 .iter()
