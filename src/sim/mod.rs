@@ -28,8 +28,11 @@ use std::fmt;
 
 pub use overlap::view_overlap;
 
-/// The plan's wall pieces (end points, m) with its doors cut out, as a drawing shows them.
-pub fn wall_pieces(plan: &Plan) -> Result<Vec<([f64; 2], [f64; 2])>, PlanError> {
+/// A straight piece of wall: its two end points, m.
+pub type WallPiece = ([f64; 2], [f64; 2]);
+
+/// The plan's wall pieces with its doors cut out, as a drawing shows them.
+pub fn wall_pieces(plan: &Plan) -> Result<Vec<WallPiece>, PlanError> {
     Ok(scene::Scene::build(plan)?.wall_pieces())
 }
 pub use plan::{BoxShape, Circle, Crowd, Door, Model, Move, Person, Plan, Queue, SensorPlan, Wall};

@@ -148,7 +148,7 @@ fn lerp(a: [f64; 2], b: [f64; 2], t: f64) -> [f64; 2] {
 impl Scene {
     /// The wall pieces (end points, m) left between the doors: what a drawing of the
     /// building shows as walls.
-    pub(crate) fn wall_pieces(&self) -> Vec<([f64; 2], [f64; 2])> {
+    pub(crate) fn wall_pieces(&self) -> Vec<super::WallPiece> {
         self.segments.iter().map(|s| (s.a, s.b)).collect()
     }
 
