@@ -35,7 +35,8 @@ fn the_example_sets_every_key() {
         "socket",
         "socket_mode",
         "anchor",
-        "max_clients", // [site]
+        "max_clients",
+        "zones_frame", // [site]
         "id",
         "connect",
         "mode",

@@ -118,6 +118,14 @@ fn dxf_from_ezdxf_aligns_automatically_within_5cm_and_names_the_moved_wall() {
     assert_eq!(b["method"], "automatic+lines", "{out}");
     assert!((b["scale"].as_f64().unwrap() - 1.0).abs() < 1e-9, "{out}");
     assert!(out["pairs"].is_array() && out["anchor"] == "gate", "{out}");
+    // Its σ comes from the lines fitted, each once: millimetres, not the ≈ 0 that thousands
+    // of points would claim, and not more than the target.
+    for key in ["sigma_x_m", "sigma_y_m"] {
+        let v = b[key].as_f64().unwrap_or(-1.0);
+        assert!(v > 0.0005 && v < MAX_ERR_M, "{key}: {out}");
+    }
+    let v = b["sigma_yaw_deg"].as_f64().unwrap_or(-1.0);
+    assert!(v > 0.001 && v < MAX_ERR_DEG, "sigma_yaw_deg: {out}");
     assert_within_truth(dir.path(), &out);
     // Exactly the moved wall is named, with how far (sign: along its left normal, west).
     let moved = moved(&out);

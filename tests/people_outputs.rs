@@ -122,6 +122,7 @@ async fn osc_reaches_a_python_osc_listener() {
         config,
         "test".into(),
         publisher.clone(),
+        tokio::sync::watch::channel(None).1,
         async move {
             let _ = stop_rx.await;
         },
@@ -288,6 +289,7 @@ async fn mqtt_reaches_a_real_broker_and_survives_it_going_away() {
         config,
         "test".into(),
         publisher.clone(),
+        tokio::sync::watch::channel(None).1,
         async move {
             let _ = stop_rx.await;
         },

@@ -2,8 +2,13 @@
 //! loopback, and tests/python/web_page.py (Playwright driving Debian's headless Chromium)
 //! opens it, waits for `data-ready`, checks every drawn sensor's `data-sensor` and
 //! `data-pose` against the status socket's `poses`, drags one sensor and checks that `poses`
-//! then shows it surveyed where it was dropped. It leaves a screenshot in
-//! `target/web-page.png` (the one in docs/ is such a picture).
+//! then shows it surveyed where it was dropped. The same page and daemon carry the building
+//! drawing: Python's ezdxf exports the hall's plan to DXF (tests/python/plan_to_drawing.py),
+//! `[site] drawing` names it and `poses.toml` holds the poses and `building_from_site` as
+//! `scanfuse align --save` leaves them (here from the recording's truth: the building frame
+//! is the plan's); the page must draw the drawing under the map, its walls on the scans'
+//! walls. It leaves a screenshot in `target/web-page.png` (the one in docs/ is such a
+//! picture).
 //!
 //! Needs SCANFUSE_TEST_PYTHON (the venv .ci/run builds) and /usr/bin/chromium (.ci/run
 //! installs it); skips without them, except under CI.
@@ -46,6 +51,7 @@ fn the_page_shows_every_sensor_where_poses_has_it_and_a_drag_surveys_one() {
         &sensors,
         &format!("\n[web]\nlisten = \"127.0.0.1:{port}\"\n"),
     );
+    let drawing = with_drawing(&python, &hall, &config, dir.path());
     let _daemon = start_daemon(&config, dir.path());
     let sock = dir.path().join("s.sock");
     let mut client = Client::connect(&sock, Duration::from_secs(30));
@@ -67,7 +73,7 @@ fn the_page_shows_every_sensor_where_poses_has_it_and_a_drag_surveys_one() {
         .arg(&sock)
         .arg("--screenshot")
         .arg(&screenshot)
-        .args(["--browser", CHROMIUM])
+        .args(["--browser", CHROMIUM, "--drawing"])
         .env("PLAYWRIGHT_SKIP_BROWSER_DOWNLOAD", "1")
         .output()
         .expect("run the browser test");
@@ -80,7 +86,19 @@ fn the_page_shows_every_sensor_where_poses_has_it_and_a_drag_surveys_one() {
         log.lines().rev().take(30).collect::<Vec<_>>().join("\n")
     );
     let summary: serde_json::Value = serde_json::from_slice(&out.stdout).expect("a JSON summary");
+    eprintln!("browser summary: {summary}");
     assert!(summary["moved_m"].as_f64().unwrap() > 0.05, "{summary}");
+    // Every wall of the drawing drawn, lying on the scans' walls within a couple of pixels.
+    assert_eq!(
+        summary["drawing_segments"].as_u64(),
+        Some(drawing.segments.len() as u64),
+        "{summary}"
+    );
+    assert!(
+        summary["drawing_points"].as_u64().unwrap() > 200
+            && summary["drawing_median_px"].as_f64().unwrap() < 2.0,
+        "{summary}"
+    );
     assert!(
         std::fs::metadata(&screenshot).is_ok_and(|m| m.len() > 10_000),
         "a screenshot"
@@ -92,4 +110,86 @@ fn the_page_shows_every_sensor_where_poses_has_it_and_a_drag_surveys_one() {
         surveys.contains(&format!("id = \"{dragged}\"")),
         "{surveys}"
     );
+}
+
+/// Exports the hall's plan to `dir/plan.dxf`, names it in the config's `[site]` (walls and
+/// columns only) and writes `state/poses.toml` with every sensor's true pose in the anchor's
+/// frame and `building_from_site` (the anchor's true pose: the plan's frame is the building's).
+fn with_drawing(
+    python: &Path,
+    hall: &Path,
+    config: &Path,
+    dir: &Path,
+) -> scanfuse::drawing::Drawing {
+    let plan = common::repo().join("fixtures/plans/hall.toml");
+    let dxf = dir.join("plan.dxf");
+    common::succeeded(
+        Command::new(python)
+            .arg(common::repo().join("tests/python/plan_to_drawing.py"))
+            .arg(&plan)
+            .arg(&dxf)
+            .arg(dir.join("plan.svg")),
+    );
+    let layers = vec!["A-WALL".to_string(), "A-COLS".to_string()];
+    let text = std::fs::read_to_string(config).unwrap().replacen(
+        "anchor = \"gate\"\n",
+        &format!(
+            "anchor = \"gate\"\ndrawing = \"{}\"\ndrawing_layers = [\"A-WALL\", \"A-COLS\"]\n",
+            dxf.display()
+        ),
+        1,
+    );
+    std::fs::write(config, text).unwrap();
+    let recording = scanfuse::record::read(hall).unwrap();
+    let truth = |id: &str| {
+        let t = recording
+            .sensors
+            .iter()
+            .find(|s| s.id == id)
+            .and_then(|s| s.truth)
+            .expect("the hall recording carries truth");
+        scanfuse::geometry::pose2(t.x_m, t.y_m, t.yaw_deg.to_radians())
+    };
+    let gate = truth("gate");
+    let now = std::time::SystemTime::now();
+    std::fs::create_dir_all(dir.join("state")).unwrap();
+    let sensors = HALL
+        .iter()
+        .map(|(id, _)| {
+            let p = gate.inverse() * truth(id);
+            let mut pose = scanfuse::daemon::protocol::SensorPose::unregistered(*id, "");
+            pose.registered = true;
+            pose.reason = None;
+            pose.x_m = Some(p.translation.x);
+            pose.y_m = Some(p.translation.y);
+            pose.yaw_deg = Some(p.rotation.angle().to_degrees());
+            scanfuse::daemon::state::SavedPose::from_pose(
+                &pose,
+                scanfuse::daemon::protocol::PoseSource::Registered,
+                now,
+            )
+        })
+        .collect();
+    scanfuse::daemon::state::PosesFile {
+        anchor: "gate".into(),
+        sensors,
+        building_from_site: Some(scanfuse::drawing::BuildingFromSite {
+            x_m: gate.translation.x,
+            y_m: gate.translation.y,
+            yaw_deg: gate.rotation.angle().to_degrees(),
+            aligned: true,
+            method: "pairs+lines".into(),
+            ..Default::default()
+        }),
+    }
+    .save(&dir.join("state"))
+    .unwrap();
+    scanfuse::drawing::read(
+        &dxf,
+        &scanfuse::drawing::ReadOptions {
+            layers: Some(layers),
+            ..Default::default()
+        },
+    )
+    .unwrap()
 }

@@ -155,12 +155,8 @@ pub fn run(args: Args) -> Result<()> {
     let align_ms = align_started.elapsed().as_secs_f64() * 1e3;
     let mut register = to_output(&anchor_id, &prepared, &site, 0);
     if let Some(t) = alignment.building_from_site {
-        let sigma = alignment
-            .refined
-            .as_ref()
-            .map_or((0.0, 0.0, 0.0), |r| r.sigma);
         for s in &mut register.sensors {
-            to_building(s, &t, sigma);
+            to_building(s, &t, alignment.line_fit());
         }
     }
     if let Some(dir) = &args.save {
@@ -193,8 +189,12 @@ pub fn run(args: Args) -> Result<()> {
 }
 
 /// A site-frame pose moved into the building: position and heading, σ turned with it and the
-/// alignment's own σ added.
-fn to_building(s: &mut SensorPose, t: &drawing::align::Similarity, sigma: (f64, f64, f64)) {
+/// alignment's own σ at the sensor (its translation and, over the lever arm, its turn) added.
+fn to_building(
+    s: &mut SensorPose,
+    t: &drawing::align::Similarity,
+    refined: Option<&drawing::align::Refined>,
+) {
     let (Some(x), Some(y), Some(yaw)) = (s.x_m, s.y_m, s.yaw_deg) else {
         return;
     };
@@ -202,14 +202,16 @@ fn to_building(s: &mut SensorPose, t: &drawing::align::Similarity, sigma: (f64, 
     s.x_m = Some(b.translation.x);
     s.y_m = Some(b.translation.y);
     s.yaw_deg = Some(scanfuse::geometry::wrap_angle_rad(b.rotation.angle()).to_degrees());
+    let (ax, ay) = refined.map_or((0.0, 0.0), |r| r.sigma_at(&nalgebra::Point2::new(x, y)));
+    let ayaw = refined.map_or(0.0, |r| r.sigma.2);
     let (c, sn) = (t.yaw_rad.cos(), t.yaw_rad.sin());
     if let (Some(sx), Some(sy)) = (s.sigma_x_m, s.sigma_y_m) {
         let (sx, sy) = (sx * t.scale, sy * t.scale);
-        s.sigma_x_m = Some(((c * sx).powi(2) + (sn * sy).powi(2) + sigma.0.powi(2)).sqrt());
-        s.sigma_y_m = Some(((sn * sx).powi(2) + (c * sy).powi(2) + sigma.1.powi(2)).sqrt());
+        s.sigma_x_m = Some(((c * sx).powi(2) + (sn * sy).powi(2) + ax.powi(2)).sqrt());
+        s.sigma_y_m = Some(((sn * sx).powi(2) + (c * sy).powi(2) + ay.powi(2)).sqrt());
     }
     if let Some(sw) = s.sigma_yaw_deg {
-        s.sigma_yaw_deg = Some((sw.powi(2) + sigma.2.to_degrees().powi(2)).sqrt());
+        s.sigma_yaw_deg = Some((sw.powi(2) + ayaw.to_degrees().powi(2)).sqrt());
     }
 }
 
@@ -255,11 +257,17 @@ fn save(dir: &std::path::Path, anchor: &str, site: &Output, a: &Alignment) -> Re
 fn print_human(o: &AlignOut) {
     let b = &o.building_from_site;
     if b.aligned {
+        let pm = |v: Option<f64>, k: f64, unit: &str| {
+            v.map_or(String::new(), |v| format!(" ± {:.2}{unit}", v * k))
+        };
         println!(
-            "building_from_site: x {:.3} m, y {:.3} m, yaw {:.2}°, scale {:.4}  ({}{})",
+            "building_from_site: x {:.3} m{}, y {:.3} m{}, yaw {:.2}°{}, scale {:.4}  ({}{})",
             b.x_m,
+            pm(b.sigma_x_m, 100.0, " cm"),
             b.y_m,
+            pm(b.sigma_y_m, 100.0, " cm"),
             b.yaw_deg,
+            pm(b.sigma_yaw_deg, 1.0, "°"),
             b.scale,
             b.method,
             o.rms_m

@@ -201,6 +201,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         replay_recorded_time: true,
         stop_when_replay_ends: true,
         tap: Some(tap),
+        drawing: drawing.clone(),
         align_at_end: drawing.map(|d| {
             let files = args.files.clone();
             AlignAtEnd(std::sync::Arc::new(move |poses: &Poses| {

@@ -232,10 +232,49 @@ pub fn render_table(status: &Status, poses: &Poses) -> String {
             _ => {}
         }
     }
+    // Where the site frame lies in the building drawing, in the same columns: the row a
+    // person reads to turn the poses above into drawing coordinates.
+    if let Some(b) = &poses.building_from_site {
+        let _ = writeln!(out, "{}", building_row(b));
+        match (&b.reason, b.aligned) {
+            (Some(why), false) => notes.push(format!(
+                "building: not aligned to the drawing (the poses stay in the anchor's frame): {why}"
+            )),
+            (Some(why), true) => notes.push(format!("building: {why}")),
+            _ => {}
+        }
+        if b.aligned && (b.scale - 1.0).abs() > 1e-9 {
+            notes.push(format!(
+                "building: the drawing's scale against the site's is {:.4}",
+                b.scale
+            ));
+        }
+    }
     for note in notes {
         let _ = writeln!(out, "{note}");
     }
     out
+}
+
+/// `building_from_site` as a row of the table: the site origin's place in the drawing.
+fn building_row(b: &scanfuse::drawing::BuildingFromSite) -> String {
+    let num = |v: Option<f64>, decimals: usize| match v.filter(|_| b.aligned) {
+        Some(v) => format!("{v:.decimals$}"),
+        None => "-".to_string(),
+    };
+    format!(
+        "{:<16} {:<12} {:>8} {:>9} {:>9} {:>8} {:>7} {:>7} {:>7}  {:<14} -",
+        "building←site",
+        if b.aligned { "aligned" } else { "not aligned" },
+        "-",
+        num(Some(b.x_m), 3),
+        num(Some(b.y_m), 3),
+        num(Some(b.yaw_deg), 2),
+        num(b.sigma_x_m, 3),
+        num(b.sigma_y_m, 3),
+        num(b.sigma_yaw_deg, 2),
+        b.method,
+    )
 }
 
 fn row(id: &str, s: Option<&SensorStatus>, p: Option<&SensorPose>) -> String {
@@ -427,6 +466,41 @@ mod tests {
         assert_eq!(lines.len(), 6, "{table}");
         assert_eq!(lines[4], "entrance: rests on one pair only (with dock)");
         assert_eq!(lines[5], "dock: not registered: no static view yet");
+
+        // building_from_site is a row of its own, with its σ; not aligned, it says why.
+        poses.building_from_site = Some(scanfuse::drawing::BuildingFromSite {
+            x_m: 31.5,
+            y_m: -7.25,
+            yaw_deg: 23.0,
+            aligned: true,
+            method: "automatic+lines".into(),
+            sigma_x_m: Some(0.004),
+            sigma_y_m: Some(0.006),
+            sigma_yaw_deg: Some(0.03),
+            ..Default::default()
+        });
+        let table = render_table(&status, &poses);
+        let row = table
+            .lines()
+            .find(|l| l.starts_with("building←site"))
+            .expect(&table);
+        for part in [
+            "aligned", "31.500", "-7.250", "23.00", "0.004", "0.006", "0.03",
+        ] {
+            assert!(row.contains(part), "{part}: {table}");
+        }
+        assert!(row.contains("automatic+lines"), "{table}");
+        poses.building_from_site = Some(scanfuse::drawing::BuildingFromSite {
+            method: "automatic".into(),
+            reason: Some("ambiguous: a symmetric building?".into()),
+            ..Default::default()
+        });
+        let table = render_table(&status, &poses);
+        assert!(table.contains("building←site    not aligned"), "{table}");
+        assert!(
+            table.contains("building: not aligned to the drawing (the poses stay in the anchor's frame): ambiguous"),
+            "{table}"
+        );
     }
 
     #[test]

@@ -85,10 +85,23 @@ impl TrackConfig {
 pub struct PeopleConfig {
     pub zones: Vec<Zone>,
     pub lines: Vec<CountLine>,
+    /// `[site] zones_frame`: the frame the zones' and lines' coordinates are in.
+    pub zones_frame: ZonesFrame,
     /// `[osc] targets`: UDP addresses every OSC message goes to; empty sends none.
     pub osc_targets: Vec<std::net::SocketAddr>,
     /// `[mqtt]`; `None` publishes nothing.
     pub mqtt: Option<MqttConfig>,
+}
+
+/// The frame `[[zone]]` and `[[line]]` are drawn in (`[site] zones_frame`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ZonesFrame {
+    /// The site frame (the anchor sensor's), as the tracks are.
+    #[default]
+    Site,
+    /// The building drawing's: placed through `building_from_site` once the site is aligned
+    /// to the drawing; nothing is counted before.
+    Building,
 }
 
 /// MQTT broker port unless the url names one.
@@ -586,6 +599,7 @@ struct RawSite {
     drawing: Option<Spanned<String>>,
     drawing_layers: Option<Spanned<Vec<String>>>,
     drawing_scale: Option<Spanned<f64>>,
+    zones_frame: Option<Spanned<String>>,
 }
 
 #[derive(Deserialize)]
@@ -812,6 +826,7 @@ impl Config {
 
         let site_span = raw.site.span();
         let site = raw.site.into_inner();
+        let zones_frame = site.zones_frame.clone();
         let name = site.name.get_ref().trim().to_string();
         if name.is_empty() {
             return Err(loc.at(
@@ -1013,6 +1028,25 @@ impl Config {
             &name,
             &resolve,
         )?;
+        let people = PeopleConfig {
+            zones_frame: match &zones_frame {
+                None => ZonesFrame::Site,
+                Some(f) => match f.get_ref().as_str() {
+                    "site" => ZonesFrame::Site,
+                    "building" => ZonesFrame::Building,
+                    other => {
+                        return Err(loc.at(
+                            f.span(),
+                            "site.zones_frame",
+                            format!(
+                                "{other:?} is not a frame: use \"site\" (the anchor sensor's, the default) or \"building\" (the drawing's, through building_from_site)"
+                            ),
+                        ));
+                    }
+                },
+            },
+            ..people
+        };
         let foxglove = match raw.foxglove {
             Some(f) => parse_foxglove(&loc, f)?,
             None => FoxgloveConfig::default(),
@@ -1083,11 +1117,16 @@ impl Config {
         let p = &self.people;
         if !p.zones.is_empty() || !p.lines.is_empty() {
             out.push_str(&format!(
-                "  {} zone{}, {} counting line{}\n",
+                "  {} zone{}, {} counting line{}{}\n",
                 p.zones.len(),
                 if p.zones.len() == 1 { "" } else { "s" },
                 p.lines.len(),
                 if p.lines.len() == 1 { "" } else { "s" },
+                match p.zones_frame {
+                    ZonesFrame::Site => "",
+                    ZonesFrame::Building =>
+                        " in building coordinates (counted once the site is aligned to the drawing)",
+                },
             ));
         }
         if !p.osc_targets.is_empty() {
@@ -1722,6 +1761,31 @@ map_cell_m = 0.1
             }) => (line, key, message),
             other => panic!("expected an Invalid error, got {other:?}"),
         }
+    }
+
+    #[test]
+    fn zones_frame_is_site_or_building_and_anything_else_is_named() {
+        assert_eq!(parse(GOOD).unwrap().people.zones_frame, ZonesFrame::Site);
+        let with = |v: &str| {
+            GOOD.replace(
+                "anchor = \"entrance\"\n",
+                &format!("anchor = \"entrance\"\nzones_frame = {v}\n"),
+            )
+        };
+        assert_eq!(
+            parse(&with("\"building\"")).unwrap().people.zones_frame,
+            ZonesFrame::Building
+        );
+        assert_eq!(
+            parse(&with("\"site\"")).unwrap().people.zones_frame,
+            ZonesFrame::Site
+        );
+        let (line, key, message) = invalid(&with("\"drawing\""));
+        assert_eq!((line, key.as_str()), (7, "site.zones_frame"));
+        assert!(
+            message.contains("\"drawing\"") && message.contains("\"building\""),
+            "{message}"
+        );
     }
 
     #[test]

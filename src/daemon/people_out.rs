@@ -14,6 +14,11 @@
 //! - `/scanfuse/zone  ,si  id count` — one per zone of a `ZONES`;
 //! - `/scanfuse/crossing  ,sisii  line track side left_total right_total` (side `left`/`right`).
 //!
+//! Zones and lines drawn in building coordinates (`[site] zones_frame = "building"`) are moved
+//! into the site frame, where the tracks are, through `building_from_site` as it is known
+//! (watched: an alignment made later places them then); until it is, nothing is counted and
+//! an `EVENT` says so once, rather than counting in the wrong place.
+//!
 //! MQTT topics (payloads are the protocol's JSON lines): `<prefix>/tracks` (QoS 0),
 //! `<prefix>/zones` (QoS 1, retained, published again on every reconnect) and
 //! `<prefix>/crossing` (QoS 1).
@@ -27,10 +32,12 @@ use rosc::{OscMessage, OscPacket, OscType};
 use rumqttc::{AsyncClient, Event as MqttEvent, MqttOptions, Packet, QoS};
 use tokio::sync::broadcast;
 
-use super::config::{MqttConfig, PeopleConfig};
+use super::config::{MqttConfig, PeopleConfig, ZonesFrame};
 use super::protocol::{EventKind, Message, Side};
 use super::socket::Publisher;
-use crate::track::zones::Counter;
+use crate::drawing::BuildingFromSite;
+use crate::drawing::align::Similarity;
+use crate::track::zones::{CountLine, Counter, Xy, Zone};
 
 /// First wait before reconnecting to a broker; doubles up to [`MQTT_BACKOFF_MAX`].
 pub const MQTT_BACKOFF_MIN: Duration = Duration::from_millis(500);
@@ -49,17 +56,61 @@ pub fn wanted(config: &PeopleConfig) -> bool {
         || config.mqtt.is_some()
 }
 
+/// Zones and lines given in building coordinates, in the site frame: each point taken back
+/// through `building_from_site` (`p_site = R(−yaw) (p_b − t) / scale`), the lines' hysteresis
+/// with them.
+pub fn to_site(zones: &[Zone], lines: &[CountLine], t: &Similarity) -> (Vec<Zone>, Vec<CountLine>) {
+    let p = |q: Xy| -> Xy {
+        let v = t.to_site(&nalgebra::Point2::new(q[0], q[1]));
+        [v.x, v.y]
+    };
+    let zones = zones
+        .iter()
+        .map(|z| Zone {
+            id: z.id.clone(),
+            polygon: z.polygon.iter().map(|q| p(*q)).collect(),
+        })
+        .collect();
+    let lines = lines
+        .iter()
+        .map(|l| CountLine {
+            id: l.id.clone(),
+            from: p(l.from),
+            to: p(l.to),
+            hysteresis_m: l.hysteresis_m / t.scale,
+        })
+        .collect();
+    (zones, lines)
+}
+
+/// The counter of `config`'s zones and lines in the site frame; `None` while they are in
+/// building coordinates and the site is not aligned to the drawing.
+fn site_counter(config: &PeopleConfig, building: Option<&BuildingFromSite>) -> Option<Counter> {
+    match config.zones_frame {
+        ZonesFrame::Site => Some(Counter::new(config.zones.clone(), config.lines.clone())),
+        ZonesFrame::Building => {
+            let t = building.and_then(BuildingFromSite::similarity)?;
+            let (zones, lines) = to_site(&config.zones, &config.lines, &t);
+            Some(Counter::new(zones, lines))
+        }
+    }
+}
+
 /// Runs the outputs of `config` until `shutdown` or until the publisher is gone. `site`
-/// names this daemon to the broker.
+/// names this daemon to the broker; `building` is `building_from_site` as it changes.
 pub async fn run(
     config: PeopleConfig,
     site: String,
     publisher: Publisher,
+    mut building: tokio::sync::watch::Receiver<Option<BuildingFromSite>>,
     shutdown: impl Future<Output = ()>,
 ) {
     tokio::pin!(shutdown);
     let mut rx = publisher.subscribe_people();
-    let mut counter = Counter::new(config.zones.clone(), config.lines.clone());
+    let counts = !config.zones.is_empty() || !config.lines.is_empty();
+    let mut counter = site_counter(&config, building.borrow_and_update().as_ref());
+    // Said once: building-frame zones wait for an alignment.
+    let mut said_waiting = false;
     let mut osc = match OscSink::bind(config.osc_targets.clone()) {
         Ok(sink) => sink,
         Err(e) => {
@@ -97,7 +148,24 @@ pub async fn run(
         let Message::Tracks(tracks) = message.as_ref() else {
             continue;
         };
-        let derived = counter.update(tracks);
+        if config.zones_frame == ZonesFrame::Building && building.has_changed().unwrap_or(false) {
+            counter = site_counter(&config, building.borrow_and_update().as_ref());
+            if counter.is_some() && counts {
+                tracing::info!("zones and lines placed in the site through building_from_site");
+            }
+        }
+        if counter.is_none() && counts && !said_waiting {
+            said_waiting = true;
+            publisher.announce(
+                EventKind::Error,
+                None,
+                "zones and lines are in building coordinates ([site] zones_frame = \"building\") but the site is not aligned to the drawing yet: nothing is counted until it is (scanfuse align --save, or replay --drawing)",
+            );
+        }
+        let derived = counter
+            .as_mut()
+            .map(|c| c.update(tracks))
+            .unwrap_or_default();
         for m in std::iter::once(message.as_ref()).chain(&derived) {
             if let Some(osc) = osc.as_mut() {
                 osc.send(m);
@@ -457,7 +525,8 @@ mod tests {
         };
         let mut watcher = publisher.subscribe_people();
         let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-        let task = tokio::spawn(run(config, "t".into(), publisher.clone(), async move {
+        let (_building, rx) = tokio::sync::watch::channel(None);
+        let task = tokio::spawn(run(config, "t".into(), publisher.clone(), rx, async move {
             let _ = stop_rx.await;
         }));
         // Wait for the task's subscription, then walk one person north through the door.
@@ -512,5 +581,112 @@ mod tests {
         assert_eq!((c.track, c.to, c.t_ns), (7, Side::Left, 2));
         let _ = stop_tx.send(());
         task.await.unwrap();
+    }
+
+    /// Zones drawn on the drawing are placed through building_from_site: counted nothing,
+    /// with one EVENT, until the site is aligned; then counted where the drawing puts them.
+    #[tokio::test]
+    async fn building_frame_zones_wait_for_the_alignment_then_count_in_the_right_place() {
+        let publisher = Publisher::new(64);
+        // In the building 10–14 × 20–24; the site origin stands at (10, 20), turned 90°, so
+        // the site point (2, −2) is the building's (12, 22): inside. The untransformed square
+        // would not hold it.
+        let config = PeopleConfig {
+            zones: vec![Zone {
+                id: "lobby".into(),
+                polygon: vec![[10.0, 20.0], [14.0, 20.0], [14.0, 24.0], [10.0, 24.0]],
+            }],
+            zones_frame: ZonesFrame::Building,
+            ..PeopleConfig::default()
+        };
+        let mut watcher = publisher.subscribe_people();
+        let mut events = publisher.subscribe_events();
+        let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+        let (building, rx) = tokio::sync::watch::channel(None);
+        let task = tokio::spawn(run(config, "t".into(), publisher.clone(), rx, async move {
+            let _ = stop_rx.await;
+        }));
+        while publisher.people_watchers() < 2 {
+            tokio::task::yield_now().await;
+        }
+        let tracks = |t_ns: u64| {
+            Message::Tracks(Tracks {
+                t_ns,
+                tracks: vec![Track {
+                    id: 3,
+                    x_m: 2.0,
+                    y_m: -2.0,
+                    vx_m_s: 0.0,
+                    vy_m_s: 0.0,
+                    sigma_m: 0.05,
+                    age_s: 1.0,
+                    sensors: vec![],
+                }],
+            })
+        };
+        for t in 0..2 {
+            publisher.people(tracks(t));
+        }
+        for _ in 0..2 {
+            let m = watcher.recv().await.unwrap();
+            assert!(matches!(m.as_ref(), Message::Tracks(_)), "{m:?}");
+        }
+        let said = events.recv().await.unwrap();
+        assert!(said.contains("not aligned to the drawing yet"), "{said}");
+        building
+            .send(Some(BuildingFromSite {
+                x_m: 10.0,
+                y_m: 20.0,
+                yaw_deg: 90.0,
+                aligned: true,
+                method: "pairs+lines".into(),
+                ..BuildingFromSite::default()
+            }))
+            .unwrap();
+        publisher.people(tracks(2));
+        let mut zones = None;
+        while zones.is_none() {
+            if let Message::Zones(z) = watcher.recv().await.unwrap().as_ref() {
+                zones = Some(z.clone());
+            }
+        }
+        let z = zones.unwrap();
+        assert_eq!(z.t_ns, 2, "nothing counted before the alignment: {z:?}");
+        assert_eq!((z.zones[0].count, z.zones[0].tracks.clone()), (1, vec![3]));
+        // Said once only.
+        assert!(events.try_recv().is_err());
+        let _ = stop_tx.send(());
+        task.await.unwrap();
+    }
+
+    #[test]
+    fn to_site_inverts_building_from_site_with_scale() {
+        let t = Similarity {
+            x_m: 5.0,
+            y_m: -3.0,
+            yaw_rad: 0.7,
+            scale: 2.0,
+        };
+        let site_pt = nalgebra::Point2::new(1.5, 4.0);
+        let b = t.apply(&site_pt);
+        let (zones, lines) = to_site(
+            &[Zone {
+                id: "z".into(),
+                polygon: vec![[b.x, b.y]],
+            }],
+            &[CountLine {
+                id: "l".into(),
+                from: [b.x, b.y],
+                to: [b.x, b.y],
+                hysteresis_m: 0.4,
+            }],
+            &t,
+        );
+        let p = zones[0].polygon[0];
+        assert!(
+            (p[0] - 1.5).abs() < 1e-9 && (p[1] - 4.0).abs() < 1e-9,
+            "{p:?}"
+        );
+        assert!((lines[0].hysteresis_m - 0.2).abs() < 1e-12);
     }
 }

@@ -159,6 +159,10 @@ pub struct PosedScan {
 
 /// Reports for a terminal front end (`scanfuse run`, `scanfuse replay`).
 #[derive(Debug, Clone)]
+#[allow(
+    clippy::large_enum_variant,
+    reason = "one Tick a second to a terminal: boxing it would buy nothing"
+)]
 pub enum Report {
     Event(Event),
     /// Once a second: how things are.
@@ -206,8 +210,9 @@ pub struct Pipeline {
     tracker: std::sync::OnceLock<DropOldestSender<PosedScan>>,
     /// Where the Foxglove server listens, or why it does not (`status`' `foxglove`).
     foxglove: Mutex<Option<String>>,
-    /// Where the site frame lies in the building drawing's (from `poses.toml`), for `poses`.
-    building_from_site: Mutex<Option<crate::drawing::BuildingFromSite>>,
+    /// Where the site frame lies in the building drawing's (from `poses.toml`), for `poses`,
+    /// the page and the zones drawn in building coordinates (which watch it).
+    building_from_site: tokio::sync::watch::Sender<Option<crate::drawing::BuildingFromSite>>,
     /// The building drawing (`[site] drawing`), and its `DRAWING` line for the page once the
     /// site is aligned to it.
     drawing: Mutex<PageDrawing>,
@@ -279,7 +284,7 @@ impl Pipeline {
             web: Mutex::new(None),
             tracker: std::sync::OnceLock::new(),
             foxglove: Mutex::new(None),
-            building_from_site: Mutex::new(None),
+            building_from_site: tokio::sync::watch::Sender::new(None),
             drawing: Mutex::new((None, None)),
         }
     }
@@ -287,8 +292,16 @@ impl Pipeline {
     /// The site's alignment to the building drawing, shown in `poses` replies (and placing
     /// the drawing on the page).
     pub(super) fn set_building_from_site(&self, b: Option<crate::drawing::BuildingFromSite>) {
-        *lock(&self.building_from_site) = b;
+        self.building_from_site.send_replace(b);
         self.update_drawing_line();
+    }
+
+    /// `building_from_site` as it changes (the people outputs place building-frame zones
+    /// through it).
+    pub(super) fn watch_building_from_site(
+        &self,
+    ) -> tokio::sync::watch::Receiver<Option<crate::drawing::BuildingFromSite>> {
+        self.building_from_site.subscribe()
     }
 
     /// The building drawing the page draws under the map once the site is aligned to it.
@@ -303,7 +316,7 @@ impl Pipeline {
     }
 
     fn update_drawing_line(&self) {
-        let building = lock(&self.building_from_site).clone();
+        let building = self.building_from_site.borrow().clone();
         let mut d = lock(&self.drawing);
         let line = match (&d.0, &building) {
             (Some(drawing), Some(b)) => crate::web::bridge::drawing_line(drawing, b),
@@ -814,7 +827,7 @@ impl StatusSource for Pipeline {
         Poses {
             anchor: self.anchor.clone(),
             sensors,
-            building_from_site: lock(&self.building_from_site).clone(),
+            building_from_site: self.building_from_site.borrow().clone(),
         }
     }
 

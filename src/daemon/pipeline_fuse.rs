@@ -405,6 +405,7 @@ mod tests {
             aligned: true,
             method: "pairs+lines".into(),
             reason: None,
+            ..Default::default()
         });
         aligned.save(dir.path()).unwrap();
         save_files(

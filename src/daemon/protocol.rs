@@ -739,6 +739,7 @@ mod tests {
             aligned: true,
             method: "pairs+lines".into(),
             reason: None,
+            ..Default::default()
         });
         let line = Message::Poses(poses).to_line();
         assert!(!line.contains("null"), "{line}");
@@ -801,6 +802,7 @@ mod tests {
                     aligned: true,
                     method: "automatic+lines".into(),
                     reason: None,
+                    ..Default::default()
                 }),
             }),
             Message::Watch(Watch {

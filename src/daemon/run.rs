@@ -71,6 +71,9 @@ pub struct RunOptions {
     /// final save, so that `poses.toml` carries `building_from_site` and the map files are in
     /// building coordinates.
     pub align_at_end: Option<AlignAtEnd>,
+    /// `[site] drawing`, already read by the caller (`scanfuse replay --drawing` reads it to
+    /// refuse a bad one before replaying): drawn on the page instead of reading it again.
+    pub drawing: Option<Arc<crate::drawing::Drawing>>,
 }
 
 /// Finds `building_from_site` for the final poses (in the site frame); `None` keeps what
@@ -101,6 +104,7 @@ impl Default for RunOptions {
             tap: None,
             track: true,
             align_at_end: None,
+            drawing: None,
         }
     }
 }
@@ -499,7 +503,9 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
         options.tap.clone(),
     ));
     load_saved_poses(&config, &pipeline);
-    if let Some(d) = config.site.drawing.clone() {
+    if let Some(d) = options.drawing.clone() {
+        pipeline.set_drawing(d);
+    } else if let Some(d) = config.site.drawing.clone() {
         load_drawing(d, &pipeline).await;
     }
     let tracker = if options.track && config.track.enabled {
@@ -597,6 +603,7 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
             config.people.clone(),
             config.site.name.clone(),
             publisher.clone(),
+            pipeline.watch_building_from_site(),
             async move {
                 let _ = rx.wait_for(|s| *s).await;
             },
@@ -903,6 +910,7 @@ mod tests {
             aligned: true,
             method: "automatic+lines".into(),
             reason: None,
+            ..Default::default()
         };
         file.building_from_site = Some(b.clone());
         file.save(dir.path()).unwrap();
@@ -971,6 +979,7 @@ mod tests {
                 aligned: false,
                 method: "automatic".into(),
                 reason: Some("symmetric".into()),
+                ..Default::default()
             }),
         };
         file.save(dir.path()).unwrap();

@@ -389,6 +389,7 @@ mod tests {
             aligned: true,
             method: "automatic+lines".into(),
             reason: None,
+            ..Default::default()
         });
         let text = file.to_toml().unwrap();
         assert!(text.contains("[building_from_site]"), "{text}");

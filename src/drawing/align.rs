@@ -47,6 +47,12 @@ impl Similarity {
         Point2::from(r * p.coords * self.scale + Vector2::new(self.x_m, self.y_m))
     }
 
+    /// The inverse: the site point at building point `p` (`R(−yaw) (p − t) / scale`).
+    pub fn to_site(&self, p: &Point2<f64>) -> Point2<f64> {
+        let back = Rotation2::new(-self.yaw_rad);
+        Point2::from(back * (p.coords - Vector2::new(self.x_m, self.y_m)) / self.scale)
+    }
+
     /// The rigid part (as a pose; the scale left out).
     pub fn pose(&self) -> Pose2 {
         pose2(self.x_m, self.y_m, self.yaw_rad)
@@ -292,10 +298,26 @@ pub struct Refined {
     pub rms_m: f64,
     /// Map points within 5 cm of a drawing line / map points.
     pub inlier_share: f64,
-    /// σ of x, y (m) and yaw (rad) of the alignment.
+    /// σ of x, y (m) and yaw (rad) of the alignment (of the site origin's place in the
+    /// building and the turn), from [`Refined::covariance`].
     pub sigma: (f64, f64, f64),
+    /// Covariance of (x, y, yaw) of the transform: each fitted line once (see
+    /// `line_covariance`), not each of its thousands of points.
+    pub covariance: Matrix3<f64>,
     /// Lines with enough support, the moved ones first, then by offset.
     pub lines: Vec<LineResidual>,
+}
+
+impl Refined {
+    /// σ of x and y (m) of where the site point `p_site` lands in the building: the
+    /// alignment's translation and, over the lever arm from the site origin, its turn.
+    pub fn sigma_at(&self, p_site: &Point2<f64>) -> (f64, f64) {
+        let l = self.transform.apply(p_site).coords
+            - Vector2::new(self.transform.x_m, self.transform.y_m);
+        let j = nalgebra::Matrix2x3::new(1.0, 0.0, -l.y, 0.0, 1.0, l.x);
+        let c = j * self.covariance * j.transpose();
+        (c[(0, 0)].max(0.0).sqrt(), c[(1, 1)].max(0.0).sqrt())
+    }
 }
 
 /// A wall this far (m) off its drawing line is reported moved.
@@ -304,6 +326,12 @@ pub const MOVED_M: f64 = 0.08;
 const MIN_LINE_POINTS: usize = 15;
 /// Robust scale of the fit (Cauchy weights): walls 20 cm off barely pull.
 const ROBUST_M: f64 = 0.04;
+/// The robust scale of the first iterations, narrowing to [`ROBUST_M`]: wide at first, so
+/// that every wall pulls and the fit settles where most walls agree, not on whichever wall
+/// (perhaps one moved since the drawing) the start happened to lie nearest.
+const ROBUST_SCHEDULE_M: [f64; 7] = [0.3, 0.3, 0.2, 0.15, 0.1, 0.07, 0.05];
+/// A line with this many points or more weighs as one line; fewer, proportionally less.
+const LINE_FULL_POINTS: f64 = 20.0;
 
 /// Fits the map's wall points to the nearest drawing lines, from `init` (scale kept): Gauss-
 /// Newton on point-to-line distances with Cauchy weights, the gate narrowing from `gate_m`.
@@ -320,27 +348,42 @@ fn refine_n(
 ) -> Refined {
     let mut t = *init;
     let gates = [gate_m, gate_m, 0.75 * gate_m, 0.5 * gate_m, 0.3, 0.25, 0.2];
-    let mut h = Matrix3::zeros();
+    let mut hits: Vec<(usize, f64, Vector3<f64>)> = Vec::with_capacity(map.len());
+    let mut per_line = vec![0u32; index.lines.len()];
     for iter in 0..max_iter {
         let gate = gates
             .get(iter)
             .copied()
             .unwrap_or(0.2)
             .clamp(0.15, MAX_GATE_M);
+        let robust = ROBUST_SCHEDULE_M.get(iter).copied().unwrap_or(ROBUST_M);
         let r = Rotation2::new(t.yaw_rad);
-        let (mut hh, mut g) = (Matrix3::zeros(), Vector3::zeros());
+        hits.clear();
         for m in map {
             let q = t.apply(&m.p);
             let n = r * m.n;
-            let Some((_, res, ln)) = index.nearest(&q, &n, gate) else {
+            let Some((k, res, ln)) = index.nearest(&q, &n, gate) else {
                 continue;
             };
-            let w = 1.0 / (1.0 + (res / ROBUST_M).powi(2));
-            let j = Vector3::new(ln.x, ln.y, ln.dot(&Vector2::new(-q.y, q.x)));
+            per_line[k] += 1;
+            hits.push((
+                k,
+                res,
+                Vector3::new(ln.x, ln.y, ln.dot(&Vector2::new(-q.y, q.x))),
+            ));
+        }
+        // Each line counts once (its points share its error): a long wall moved since the
+        // drawing, seen by every sensor, must not outvote the many walls that were not.
+        let (mut hh, mut g) = (Matrix3::zeros(), Vector3::zeros());
+        for (k, res, j) in &hits {
+            let share = 1.0 / f64::from(per_line[*k]).max(LINE_FULL_POINTS);
+            let w = share / (1.0 + (res / robust).powi(2));
             hh += j * j.transpose() * w;
             g += j * (w * res);
         }
-        h = hh;
+        for (k, _, _) in &hits {
+            per_line[*k] = 0;
+        }
         let Some(inv) = (hh + Matrix3::identity() * 1e-9).try_inverse() else {
             break;
         };
@@ -358,17 +401,24 @@ fn refine_n(
             break;
         }
     }
-    residuals(map, index, t, h)
+    residuals(map, index, t)
 }
 
-fn residuals(map: &[MapPoint], index: &LineIndex<'_>, t: Similarity, h: Matrix3<f64>) -> Refined {
+fn residuals(map: &[MapPoint], index: &LineIndex<'_>, t: Similarity) -> Refined {
     let r = Rotation2::new(t.yaw_rad);
-    let mut per_line: Vec<Vec<f64>> = vec![Vec::new(); index.lines.len()];
+    // Each line's residuals and how far along it its points reach (the seen extent).
+    let mut per_line: Vec<(Vec<f64>, f64, f64)> =
+        vec![(Vec::new(), f64::INFINITY, f64::NEG_INFINITY); index.lines.len()];
     let (mut sq, mut inliers) = (0.0, 0usize);
     for m in map {
         let q = t.apply(&m.p);
         if let Some((k, res, _)) = index.nearest(&q, &(r * m.n), 0.5) {
-            per_line[k].push(res);
+            let s = &index.lines[k];
+            let along = (s.b - s.a).normalize().dot(&(q - s.a));
+            let l = &mut per_line[k];
+            l.0.push(res);
+            l.1 = l.1.min(along);
+            l.2 = l.2.max(along);
             if res.abs() <= 0.05 {
                 sq += res * res;
                 inliers += 1;
@@ -380,41 +430,87 @@ fn residuals(map: &[MapPoint], index: &LineIndex<'_>, t: Similarity, h: Matrix3<
     } else {
         f64::INFINITY
     };
-    let mut lines: Vec<LineResidual> = per_line
-        .into_iter()
-        .enumerate()
-        .filter(|(_, v)| v.len() >= MIN_LINE_POINTS)
-        .map(|(k, mut v)| {
-            v.sort_by(f64::total_cmp);
-            let offset_m = v[v.len() / 2];
-            let s = &index.lines[k];
-            LineResidual {
-                a: s.a,
-                b: s.b,
-                layer: s.layer.clone(),
-                offset_m,
-                points: v.len(),
-                moved: offset_m.abs() > MOVED_M,
-            }
-        })
-        .collect();
+    let mut lines = Vec::new();
+    let mut extents = Vec::new();
+    for (k, (mut v, lo, hi)) in per_line.into_iter().enumerate() {
+        if v.len() < MIN_LINE_POINTS {
+            continue;
+        }
+        v.sort_by(f64::total_cmp);
+        let offset_m = v[v.len() / 2];
+        let s = &index.lines[k];
+        let moved = offset_m.abs() > MOVED_M;
+        if !moved {
+            let u = (s.b - s.a).normalize();
+            extents.push((s.a + u * lo, s.a + u * hi, offset_m));
+        }
+        lines.push(LineResidual {
+            a: s.a,
+            b: s.b,
+            layer: s.layer.clone(),
+            offset_m,
+            points: v.len(),
+            moved,
+        });
+    }
     lines.sort_by(|x, y| {
         y.moved
             .cmp(&x.moved)
             .then(y.offset_m.abs().total_cmp(&x.offset_m.abs()))
     });
-    // σ: residual variance over the normal matrix, inflated for correlated neighbours.
-    let var = rms_m.min(0.05).powi(2) * 16.0;
-    let cov = h
-        .try_inverse()
-        .map(|c| c * var)
-        .unwrap_or(Matrix3::identity());
+    let covariance = line_covariance(&extents, &t);
     Refined {
         transform: t,
         rms_m,
         inlier_share: inliers as f64 / map.len().max(1) as f64,
-        sigma: (cov[(0, 0)].sqrt(), cov[(1, 1)].sqrt(), cov[(2, 2)].sqrt()),
+        sigma: (
+            covariance[(0, 0)].sqrt(),
+            covariance[(1, 1)].sqrt(),
+            covariance[(2, 2)].sqrt(),
+        ),
+        covariance,
         lines,
+    }
+}
+
+/// Smallest σ of a line's offset (m): neither a drawing nor a wall's face is truer than this.
+const MIN_LINE_SIGMA_M: f64 = 0.01;
+/// σ (m, m, rad) given when the lines do not pin the alignment down at all.
+const UNKNOWN_SIGMA: f64 = 1e3;
+
+/// The covariance of (x, y, yaw) of `building_from_site` from the lines fitted (seed 003's
+/// line fit): the points along one wall share its error (its thickness, the drawing's
+/// accuracy), so each line counts once, as its seen extent's two ends, with the spread of the
+/// lines' offsets as their σ; walls reported moved are left out (the robust fit ignored them).
+/// Parallel walls only leave the slide along them unknown, and that shows.
+fn line_covariance(extents: &[(Point2<f64>, Point2<f64>, f64)], t: &Similarity) -> Matrix3<f64> {
+    let unknown = Matrix3::identity() * UNKNOWN_SIGMA.powi(2);
+    if extents.len() < 3 {
+        return unknown;
+    }
+    // Offsets' spread, with three degrees of freedom taken by the fit.
+    let var = (extents.iter().map(|e| e.2 * e.2).sum::<f64>() / (extents.len() - 3).max(1) as f64)
+        .max(MIN_LINE_SIGMA_M.powi(2));
+    let origin = Vector2::new(t.x_m, t.y_m);
+    let mut info = Matrix3::zeros();
+    for (a, b, _) in extents {
+        let d = b - a;
+        let len = d.norm();
+        let n = if len > 1e-9 {
+            Vector2::new(-d.y, d.x) / len
+        } else {
+            continue;
+        };
+        for e in [a, b] {
+            // q = R p + t: ∂q/∂t = I, ∂q/∂yaw = perp(q − t).
+            let lever = e.coords - origin;
+            let j = Vector3::new(n.x, n.y, n.dot(&Vector2::new(-lever.y, lever.x)));
+            info += j * j.transpose() / var;
+        }
+    }
+    match info.try_inverse() {
+        Some(c) if c.iter().all(|v| v.is_finite()) && c[(0, 0)] >= 0.0 => c,
+        _ => unknown,
     }
 }
 
@@ -656,6 +752,16 @@ pub struct Alignment {
     pub refined: Option<Refined>,
 }
 
+impl Alignment {
+    /// The line fit the transform came from (its σ and residuals), when it did: `None` when
+    /// not aligned, or when the pairs' fit was kept because the walls fit poorly near it.
+    pub fn line_fit(&self) -> Option<&Refined> {
+        self.refined
+            .as_ref()
+            .filter(|_| self.building_from_site.is_some() && self.method.ends_with("+lines"))
+    }
+}
+
 /// Aligns the site to the drawing: from `pairs` when given (then refined on the lines),
 /// else automatically.
 pub fn align(
@@ -843,6 +949,71 @@ mod tests {
                 .contains("0,0=1")
         );
         assert!(parse_pairs("a,b=1,2").is_err());
+    }
+
+    #[test]
+    fn sigma_counts_each_wall_once_and_an_unpinned_slide_shows() {
+        // A 20 × 10 room whose walls stand up to 3 cm off their drawn lines (wall faces vs
+        // drawing), with an inner partition: thousands of points, but only five lines.
+        let drawn = [
+            ((0.0, 0.0), (20.0, 0.0)),
+            ((20.0, 0.0), (20.0, 10.0)),
+            ((20.0, 10.0), (0.0, 10.0)),
+            ((0.0, 10.0), (0.0, 0.0)),
+            ((8.0, 0.0), (8.0, 6.0)),
+        ];
+        let offsets = [0.03, -0.02, 0.01, 0.025, -0.03];
+        let seen: Vec<Line> = drawn
+            .iter()
+            .zip(offsets)
+            .map(|(&((ax, ay), (bx, by)), o)| {
+                let (dx, dy) = (bx - ax, by - ay);
+                let l = f64::hypot(dx, dy);
+                let (nx, ny) = (-dy / l * o, dx / l * o);
+                ((ax + nx, ay + ny), (bx + nx, by + ny))
+            })
+            .collect();
+        let truth = Similarity {
+            x_m: 5.0,
+            y_m: 2.0,
+            yaw_rad: 0.2,
+            scale: 1.0,
+        };
+        let d = drawing(&drawn);
+        let index = LineIndex::new(&d);
+        let r = refine(&map_of(&seen, &truth), &index, &truth, 0.5);
+        let (sx, sy, syaw) = r.sigma;
+        // Points alone would claim well under a millimetre; the lines' spread says centimetres.
+        assert!(
+            sx > 0.008 && sy > 0.008 && sx < 0.1 && sy < 0.1,
+            "{:?}",
+            r.sigma
+        );
+        assert!(
+            syaw > 0.01f64.to_radians() && syaw < 1f64.to_radians(),
+            "{syaw}"
+        );
+        // The error made is within 3 σ.
+        let (dt, dr) = pose_error(&r.transform.pose(), &truth.pose());
+        assert!(
+            dt < 3.0 * sx.hypot(sy) && dr < 3.0 * syaw,
+            "{dt} {dr} {:?}",
+            r.sigma
+        );
+        // σ at a site point 20 m away grows with the lever arm of the turn.
+        let (fx, fy) = r.sigma_at(&Point2::new(20.0, 20.0));
+        assert!(fx.hypot(fy) > sx.hypot(sy), "{fx} {fy}");
+
+        // A corridor of parallel walls pins the across and the turn, not the along.
+        let corridor = [
+            ((0.0, 0.0), (30.0, 0.0)),
+            ((0.0, 1.5), (30.0, 1.5)),
+            ((0.0, 3.0), (30.0, 3.0)),
+        ];
+        let d = drawing(&corridor);
+        let index = LineIndex::new(&d);
+        let c = refine(&map_of(&corridor, &truth), &index, &truth, 0.5);
+        assert!(c.sigma.0.max(c.sigma.1) > 10.0, "{:?}", c.sigma);
     }
 
     #[test]

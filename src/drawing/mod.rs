@@ -65,6 +65,32 @@ pub struct BuildingFromSite {
     pub method: String,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reason: Option<String>,
+    /// σ of x, y (m) and yaw (degrees), as the poses carry theirs: from the line fit, each
+    /// drawing line counted once (`align::Refined::covariance`); absent without one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sigma_x_m: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sigma_y_m: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sigma_yaw_deg: Option<f64>,
+}
+
+impl Default for BuildingFromSite {
+    /// The identity, not aligned.
+    fn default() -> Self {
+        BuildingFromSite {
+            x_m: 0.0,
+            y_m: 0.0,
+            yaw_deg: 0.0,
+            scale: 1.0,
+            aligned: false,
+            method: String::new(),
+            reason: None,
+            sigma_x_m: None,
+            sigma_y_m: None,
+            sigma_yaw_deg: None,
+        }
+    }
 }
 
 impl BuildingFromSite {
@@ -75,6 +101,7 @@ impl BuildingFromSite {
             yaw_rad: 0.0,
             scale: 1.0,
         });
+        let sigma = a.line_fit().map(|r| r.sigma);
         BuildingFromSite {
             x_m: t.x_m,
             y_m: t.y_m,
@@ -83,6 +110,9 @@ impl BuildingFromSite {
             aligned: a.building_from_site.is_some(),
             method: a.method.clone(),
             reason: a.reason.clone(),
+            sigma_x_m: sigma.map(|s| s.0),
+            sigma_y_m: sigma.map(|s| s.1),
+            sigma_yaw_deg: sigma.map(|s| s.2.to_degrees()),
         }
     }
 
@@ -237,6 +267,24 @@ pub fn parse(
         Format::Png | Format::Pgm => raster::segments(file, data, format, opts)?,
     };
     finish(file, raw, opts)
+}
+
+impl Drawing {
+    /// A drawing made in code (eval, tests) from segments in metres, checked as a file's are.
+    pub fn from_segments(
+        source: &str,
+        segments: Vec<WallSegment>,
+        units: &str,
+    ) -> Result<Drawing, DrawingError> {
+        let mut layers: Vec<String> = segments.iter().map(|s| s.layer.clone()).collect();
+        layers.dedup();
+        let raw = Raw {
+            segments,
+            layers,
+            units: units.to_string(),
+        };
+        finish(source, raw, &ReadOptions::default())
+    }
 }
 
 /// What a reader hands back: segments in metres (all layers), the layers seen, the units.

@@ -27,6 +27,14 @@ mod walkable;
 use std::fmt;
 
 pub use overlap::view_overlap;
+
+/// A straight piece of wall: its two end points, m.
+pub type WallPiece = ([f64; 2], [f64; 2]);
+
+/// The plan's wall pieces with its doors cut out, as a drawing shows them.
+pub fn wall_pieces(plan: &Plan) -> Result<Vec<WallPiece>, PlanError> {
+    Ok(scene::Scene::build(plan)?.wall_pieces())
+}
 pub use plan::{BoxShape, Circle, Crowd, Door, Model, Move, Person, Plan, Queue, SensorPlan, Wall};
 pub use simulation::{PEOPLE_TRUTH_PERIOD_NS, SimEvent, Simulation};
 

@@ -146,6 +146,12 @@ fn lerp(a: [f64; 2], b: [f64; 2], t: f64) -> [f64; 2] {
 }
 
 impl Scene {
+    /// The wall pieces (end points, m) left between the doors: what a drawing of the
+    /// building shows as walls.
+    pub(crate) fn wall_pieces(&self) -> Vec<super::WallPiece> {
+        self.segments.iter().map(|s| (s.a, s.b)).collect()
+    }
+
     /// Builds the geometry, cutting each door into the wall segment nearest to it.
     pub fn build(plan: &Plan) -> Result<Scene, PlanError> {
         // Every wall segment with the gaps (arc-length intervals) doors cut into it.

@@ -80,11 +80,9 @@ pub fn drawing_line(
     if !(t.scale.is_finite() && t.scale > 0.0) {
         return None;
     }
-    let (c, s) = (t.yaw_rad.cos(), t.yaw_rad.sin());
-    // p_site = R(-yaw) · (p_building - (x, y)) / scale
     let to_site = |p: &nalgebra::Point2<f64>| {
-        let (dx, dy) = (p.x - t.x_m, p.y - t.y_m);
-        [(c * dx + s * dy) / t.scale, (-s * dx + c * dy) / t.scale]
+        let q = t.to_site(p);
+        [q.x, q.y]
     };
     let mut kept: Vec<&crate::drawing::WallSegment> = drawing.segments.iter().collect();
     if kept.len() > MAX_DRAWING_SEGMENTS {
@@ -617,6 +615,7 @@ mod tests {
             aligned: true,
             method: "automatic+lines".into(),
             reason: None,
+            ..Default::default()
         }
     }
 

@@ -5,7 +5,12 @@ the page (its data-sensor and data-pose) against the status socket's `poses` rep
 one sensor, and checks that `poses` then shows it surveyed where it was dropped. Saves a
 screenshot before the drag (FILE-before.png) and after it (FILE). Run by tests/web_page_browser.rs:
 
-    python web_page.py --url http://127.0.0.1:PORT/ --socket PATH --screenshot FILE.png
+    python web_page.py --url http://127.0.0.1:PORT/ --socket PATH --screenshot FILE.png [--drawing]
+
+With --drawing the daemon has a building drawing and an alignment to it: the page must draw
+the drawing under the map (`data-drawing` on the canvas), and the drawing's walls must lie on
+the scans' walls on screen: the summary gives the drawn segment count and the median screen
+distance (px) from the scan points near a drawn wall to that wall.
 """
 
 import argparse
@@ -64,6 +69,37 @@ def agree(page_poses, socket_poses):
     return True
 
 
+def seg_px(p, seg, scale):
+    """Screen distance (px) from site point p to segment seg = (ax, ay, bx, by)."""
+    ax, ay, bx, by = seg
+    dx, dy = bx - ax, by - ay
+    ln2 = dx * dx + dy * dy
+    t = 0.0 if ln2 == 0 else max(0.0, min(1.0, ((p[0] - ax) * dx + (p[1] - ay) * dy) / ln2))
+    ex, ey = ax + t * dx - p[0], ay + t * dy - p[1]
+    return (ex * ex + ey * ey) ** 0.5 * scale
+
+
+def drawing_fit(page):
+    """(segments drawn, median px from scan points within 0.3 m of a drawn wall to it,
+    points counted): the drawing's walls against where the scans put the walls, on screen."""
+    view = page.evaluate(
+        "() => ({d: st.drawing, frames: st.frames, scale: st.scale,"
+        " drawn: canvas.getAttribute('data-drawing')})"
+    )
+    d, scale = view["d"] or [], view["scale"]
+    segs = [tuple(d[i : i + 4]) for i in range(0, len(d) - 3, 4)]
+    dists = []
+    for xy in view["frames"].values():
+        for i in range(0, len(xy) - 1, 6):
+            p = (xy[i], xy[i + 1])
+            best = min((seg_px(p, s, scale) for s in segs), default=None)
+            if best is not None and best <= 0.3 * scale:
+                dists.append(best)
+    dists.sort()
+    median = dists[len(dists) // 2] if dists else None
+    return int(view["drawn"] or 0), median, len(dists)
+
+
 def until(what, seconds, check):
     end = time.monotonic() + seconds
     last = None
@@ -81,6 +117,7 @@ def main():
     ap.add_argument("--socket", required=True)
     ap.add_argument("--screenshot", required=True)
     ap.add_argument("--browser", default="/usr/bin/chromium")
+    ap.add_argument("--drawing", action="store_true")
     args = ap.parse_args()
 
     with sync_playwright() as p:
@@ -105,6 +142,14 @@ def main():
         before = until("the page to show every placed sensor as `poses` has it", 60, same)
         time.sleep(1.0)  # a map and a status round more, for the picture
         page.screenshot(path=args.screenshot.replace(".png", "-before.png"))
+        drawing = None
+        if args.drawing:
+            until(
+                "the page to draw the building drawing (data-drawing)",
+                20,
+                lambda: page.get_attribute("canvas", "data-drawing"),
+            )
+            drawing = drawing_fit(page)
         anchor = ask(args.socket, {"cmd": "poses"})["anchor"]
         sensor = next(sid for sid in sorted(before) if sid != anchor)
 
@@ -155,6 +200,9 @@ def main():
                     "from": before[sensor],
                     "to": [after["x_m"], after["y_m"], after["yaw_deg"]],
                     "moved_m": round(moved_m, 3),
+                    "drawing_segments": drawing and drawing[0],
+                    "drawing_median_px": drawing and drawing[1],
+                    "drawing_points": drawing and drawing[2],
                 }
             )
         )

@@ -18,6 +18,7 @@ use std::io::Write;
 use std::path::PathBuf;
 use std::time::Instant;
 
+mod drawing;
 mod real;
 mod sim;
 mod site;
@@ -63,10 +64,14 @@ pub struct Args {
     /// Folder of the crowd plans tracking is scored in (`--only tracking`).
     #[arg(long, default_value = "fixtures/plans-crowd")]
     pub track_plans: PathBuf,
-    /// Parts to run: sim, site, real, classes (comma separated; default all), and tracking
-    /// (only when named).
+    /// Parts to run: sim, site, real, classes (comma separated; default all), and tracking and
+    /// drawing (only when named).
     #[arg(long, value_delimiter = ',')]
     pub only: Vec<String>,
+    /// Desks of clutter added to each building drawing (`--only drawing`): entities no scanner
+    /// sees, as in a drawing whose furniture layer was not left out.
+    #[arg(long, default_value_t = 0)]
+    pub drawing_clutter: usize,
     /// For each pair at ≥ 30 % overlap that was not registered correctly, print which stage lost
     /// the true pose: rotation candidates, translation hypotheses, coarse ranking or refinement.
     #[arg(long)]
@@ -119,6 +124,9 @@ pub fn run(args: Args) -> Result<()> {
             );
             sites(&plans, &args, &params, SiteDraw::Random)?;
         }
+    }
+    if args.only.iter().any(|o| o == "drawing") {
+        drawing::run(&load_plans(&args.plans)?, &args, &params)?;
     }
     if args.only.iter().any(|o| o == "tracking") {
         tracking::run(&args.track_plans, args.track_seconds, args.seed)?;

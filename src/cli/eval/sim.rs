@@ -146,7 +146,7 @@ fn random_sensor(
 }
 
 /// Every wall of `plan` as 2D segments (doors ignored: a wall with a door still encloses).
-fn wall_segments(plan: &Plan) -> Vec<raycast::Wall> {
+pub(super) fn wall_segments(plan: &Plan) -> Vec<raycast::Wall> {
     plan.walls
         .iter()
         .flat_map(|w| w.segments())
@@ -167,7 +167,7 @@ fn enclosed(walls: &[raycast::Wall], (x, y): (f64, f64)) -> bool {
 /// Simulates `plan` and prepares every sensor's static view (over the first `SIM_SECONDS`)
 /// and the people it saw walk (over `motion_seconds`, when longer); `None` when a sensor
 /// stands somewhere useless (inside furniture, outside the building).
-fn simulate_models(
+pub(super) fn simulate_models(
     plan: &Plan,
     seed: u64,
     motion_seconds: f64,
@@ -236,7 +236,7 @@ fn describe(info: &SensorInfo, site_from_sensor: &Pose2) -> String {
     format!("{} at ({:.1} {:.1}){height}{pitch}", info.model, t.x, t.y)
 }
 
-fn truth_pose(info: &SensorInfo) -> Option<Pose2> {
+pub(super) fn truth_pose(info: &SensorInfo) -> Option<Pose2> {
     info.truth
         .map(|t| pose2(t.x_m, t.y_m, t.yaw_deg.to_radians()))
 }
@@ -311,7 +311,7 @@ pub(super) const INSTALLED_OVERLAP: f64 = 0.3;
 
 /// `n` sensors as `SiteDraw::Installed` describes, or `None` when a sensor finds no spot
 /// within a few tries (the caller draws another site).
-fn installed_sensors(
+pub(super) fn installed_sensors(
     plan: &Plan,
     n: usize,
     models: &[Model],
