@@ -72,7 +72,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     args.seed
                 );
             }
-            let source = plan.origin.clone();
+            let source = format!("--generate concourse:{}", plan.sensors.len());
             (plan, source)
         }
         (None, None) => {
