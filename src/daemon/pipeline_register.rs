@@ -537,8 +537,8 @@ impl Registrar {
             .collect();
         let mut refuted: BTreeMap<&str, Vec<(&str, MotionEvidence)>> = BTreeMap::new();
         let mut confirmed: BTreeMap<&str, Vec<(&str, usize)>> = BTreeMap::new();
-        // Only pairs whose views meet under their poses can see the same walkers: at 100
-        // sensors that is a few hundred pairs of the 4950.
+        // Only pairs whose views meet under their poses can see the same walkers; the others
+        // (beyond each other's reach, behind walls) would only cost `co_motion` a pass.
         for (i, (a, pose_a, ma)) in placed.iter().enumerate() {
             for (b, pose_b, mb) in placed.iter().skip(i + 1) {
                 let a_from_b = pose_a.inverse() * pose_b;
