@@ -112,8 +112,9 @@ fn rss_mib(pid: u32) -> Result<(f64, f64), Error> {
     Ok((field("VmRSS:")?, field("VmHWM:")?))
 }
 
-/// Scans per sensor (from `status`) and how many sensors the daemon has placed.
-fn site_state(socket: &Path) -> Result<(Vec<(String, u64)>, usize), Error> {
+/// Scans per sensor and the registration queue's drops (from `status`), and how many sensors
+/// the daemon has placed.
+fn site_state(socket: &Path) -> Result<(Vec<(String, u64)>, u64, usize), Error> {
     let mut stream = BufReader::new(common::connect_when_up(socket)?);
     let mut ask = |req: &str| -> Result<Message, Error> {
         stream.get_mut().write_all(req.as_bytes())?;
@@ -129,15 +130,18 @@ fn site_state(socket: &Path) -> Result<(Vec<(String, u64)>, usize), Error> {
             }
         }
     };
-    let scans = match ask("{\"cmd\":\"status\"}\n")? {
-        Message::Status(s) => s.sensors.iter().map(|x| (x.id.clone(), x.scans)).collect(),
-        _ => Vec::new(),
+    let (scans, drops) = match ask("{\"cmd\":\"status\"}\n")? {
+        Message::Status(s) => (
+            s.sensors.iter().map(|x| (x.id.clone(), x.scans)).collect(),
+            s.queue_drops,
+        ),
+        _ => (Vec::new(), 0),
     };
     let placed = match ask("{\"cmd\":\"poses\"}\n")? {
         Message::Poses(p) => p.sensors.iter().filter(|x| x.registered).count(),
         _ => 0,
     };
-    Ok((scans, placed))
+    Ok((scans, drops, placed))
 }
 
 /// The last lines the daemon logged.
@@ -265,6 +269,10 @@ fn main() -> Result<(), Error> {
         ));
     }
     text.push_str("\n[publish]\nsave_interval_s = 5\nwatch_backlog = 4096\n");
+    // `SCANFUSE_BENCH_QUEUE`: the registration queue's size (the daemon's default otherwise).
+    if let Ok(queue) = std::env::var("SCANFUSE_BENCH_QUEUE") {
+        text.push_str(&format!("\n[registration]\nqueue_scans = {queue}\n"));
+    }
     let config = dir.path().join("site.toml");
     std::fs::write(&config, text)?;
     PosesFile {
@@ -292,7 +300,7 @@ fn main() -> Result<(), Error> {
     // Every sensor streaming before anything is measured.
     let started = Instant::now();
     loop {
-        let (scans, placed) = site_state(&socket)?;
+        let (scans, _, placed) = site_state(&socket)?;
         let streaming = scans.iter().filter(|(_, s)| *s > 0).count();
         if streaming == n && placed == n {
             break;
@@ -319,7 +327,7 @@ fn main() -> Result<(), Error> {
         let socket = socket.clone();
         std::thread::spawn(move || watch_frames(&socket, window_s))
     });
-    let (before, _) = site_state(&socket)?;
+    let (before, drops0, _) = site_state(&socket)?;
     let ticks0 = cpu_ticks(pid)?;
     let threads0 = thread_ticks(pid)?;
     let t0 = Instant::now();
@@ -339,7 +347,7 @@ fn main() -> Result<(), Error> {
         .filter(|(c, _)| *c >= 0.005)
         .collect();
     threads.sort_by(|a, b| b.0.total_cmp(&a.0));
-    let (after, placed) = site_state(&socket)?;
+    let (after, drops1, placed) = site_state(&socket)?;
     let (rss, hwm) = rss_mib(pid)?;
     drop(daemon);
 
@@ -354,12 +362,13 @@ fn main() -> Result<(), Error> {
     let silent = rates.iter().filter(|(r, _)| *r < 1.0).count();
     let total: f64 = rates.iter().map(|(r, _)| r).sum();
     println!(
-        "  over {elapsed:.0} s: {} sensors streaming ({silent} silent), {total:.0} scans/s in all; slowest {:.1} Hz ({}), fastest {:.1} Hz ({}); {placed} placed at the end",
+        "  over {elapsed:.0} s: {} sensors streaming ({silent} silent), {total:.0} scans/s in all; slowest {:.1} Hz ({}), fastest {:.1} Hz ({}); {placed} placed at the end; the registration queue dropped {} scans",
         rates.len() - silent,
         rates.first().map_or(0.0, |r| r.0),
         rates.first().map_or("", |r| r.1.as_str()),
         rates.last().map_or(0.0, |r| r.0),
         rates.last().map_or("", |r| r.1.as_str()),
+        drops1.saturating_sub(drops0),
     );
     println!(
         "  daemon CPU {:.2} of one core (target < 1); RSS {rss:.0} MiB now, {:.0} MiB sampled max, {hwm:.0} MiB peak (VmHWM; target < 1024)",
