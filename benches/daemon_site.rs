@@ -112,9 +112,12 @@ fn rss_mib(pid: u32) -> Result<(f64, f64), Error> {
     Ok((field("VmRSS:")?, field("VmHWM:")?))
 }
 
+/// Scans per sensor, the registration queue's drops, sensors placed.
+type SiteState = (Vec<(String, u64)>, u64, usize);
+
 /// Scans per sensor and the registration queue's drops (from `status`), and how many sensors
 /// the daemon has placed.
-fn site_state(socket: &Path) -> Result<(Vec<(String, u64)>, u64, usize), Error> {
+fn site_state(socket: &Path) -> Result<SiteState, Error> {
     let mut stream = BufReader::new(common::connect_when_up(socket)?);
     let mut ask = |req: &str| -> Result<Message, Error> {
         stream.get_mut().write_all(req.as_bytes())?;
