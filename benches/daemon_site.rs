@@ -1,0 +1,460 @@
+//! The daemon at a hundred sensors (issue 20): a simulated concourse of
+//! `SCANFUSE_BENCH_SENSORS` scanners (default 100, `sim::generate`, seed 1, 30 people walking)
+//! is recorded once (`SCANFUSE_BENCH_REC_S` s, default 10, cached under
+//! `target/bench-data/`), then every sensor is served by an emulator in this process on
+//! loopback TCP, looped at ×1 (UTMs at 40 Hz, UXMs at 20 Hz), and the release daemon runs in
+//! its own process (`scanfuse run`, the real drivers, registration worker with its walker
+//! check, tracker, fuser, status socket) with the true poses in `poses.toml`. A client watches
+//! `map` on the socket. Over `SCANFUSE_BENCH_S` s (default 20) after every sensor streams it
+//! prints the daemon's CPU (fraction of one core, `/proc/PID/stat`), its RSS now and at peak
+//! (VmRSS, VmHWM), scan in → fused frame out at the watcher p50/p99/max (receive time minus
+//! the scan's stamp, the host time its driver had the whole SCIP reply) and each sensor's scan
+//! rate. Targets: < 1 core, < 1 GB, p99 ≤ 2 ms.
+//!
+//! The emulators' own CPU and memory are this process's, not the daemon's.
+//!
+//! Run: `cargo bench --bench daemon_site` (`SCANFUSE_BIN` picks the daemon binary; default
+//! the one cargo built for the bench).
+
+mod common;
+
+use std::io::{BufRead, BufReader, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use scanfuse::daemon::protocol::{Message, PoseSource, SensorPose};
+use scanfuse::daemon::state::{PosesFile, SavedPose};
+use scanfuse::emulator::{Emulator, EmulatorConfig};
+use scanfuse::geometry::{pose2, yaw_rad};
+
+type Error = Box<dyn std::error::Error>;
+
+fn env_f64(name: &str, default: f64) -> f64 {
+    std::env::var(name)
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(default)
+}
+
+/// Kills the daemon when the bench ends, however it ends.
+struct Daemon(Child);
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// utime + stime of a process, in clock ticks.
+fn cpu_ticks(pid: u32) -> Result<u64, Error> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat"))?;
+    // Fields after the command name (which may hold spaces) start after the last ')'.
+    let rest = stat.rsplit_once(')').ok_or("malformed stat")?.1;
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    Ok(f.get(11).ok_or("short stat")?.parse::<u64>()?
+        + f.get(12).ok_or("short stat")?.parse::<u64>()?)
+}
+
+/// CPU ticks of each thread of a process, by thread name (threads of one name added up).
+fn thread_ticks(pid: u32) -> Result<std::collections::BTreeMap<String, u64>, Error> {
+    let mut by_name = std::collections::BTreeMap::new();
+    for entry in std::fs::read_dir(format!("/proc/{pid}/task"))? {
+        let Ok(stat) = std::fs::read_to_string(entry?.path().join("stat")) else {
+            continue;
+        };
+        let (Some(open), Some((_, rest))) = (stat.find('('), stat.rsplit_once(')')) else {
+            continue;
+        };
+        let name = stat[open + 1..stat.len() - rest.len() - 1].to_string();
+        let f: Vec<&str> = rest.split_whitespace().collect();
+        let ticks = f.get(11).and_then(|v| v.parse::<u64>().ok()).unwrap_or(0)
+            + f.get(12).and_then(|v| v.parse::<u64>().ok()).unwrap_or(0);
+        *by_name.entry(name).or_insert(0) += ticks;
+    }
+    Ok(by_name)
+}
+
+/// This thread's CPU time, s (`/proc/thread-self/schedstat`).
+fn own_cpu_s() -> f64 {
+    std::fs::read_to_string("/proc/thread-self/schedstat")
+        .ok()
+        .and_then(|s| s.split_whitespace().next()?.parse::<f64>().ok())
+        .map_or(0.0, |ns| ns * 1e-9)
+}
+
+fn ticks_per_s() -> f64 {
+    Command::new("getconf")
+        .arg("CLK_TCK")
+        .output()
+        .ok()
+        .and_then(|o| String::from_utf8(o.stdout).ok())
+        .and_then(|s| s.trim().parse().ok())
+        .unwrap_or(100.0)
+}
+
+/// (VmRSS, VmHWM) of a process, MiB.
+fn rss_mib(pid: u32) -> Result<(f64, f64), Error> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status"))?;
+    let field = |name: &str| -> Result<f64, Error> {
+        let line = status
+            .lines()
+            .find(|l| l.starts_with(name))
+            .ok_or_else(|| format!("no {name} in /proc/{pid}/status"))?;
+        Ok(line
+            .split_whitespace()
+            .nth(1)
+            .ok_or("malformed status")?
+            .parse::<f64>()?
+            / 1024.0)
+    };
+    Ok((field("VmRSS:")?, field("VmHWM:")?))
+}
+
+/// Scans per sensor, the registration queue's drops, sensors placed.
+type SiteState = (Vec<(String, u64)>, u64, usize);
+
+/// Scans per sensor and the registration queue's drops (from `status`), and how many sensors
+/// the daemon has placed.
+fn site_state(socket: &Path) -> Result<SiteState, Error> {
+    let mut stream = BufReader::new(common::connect_when_up(socket)?);
+    let mut ask = |req: &str| -> Result<Message, Error> {
+        stream.get_mut().write_all(req.as_bytes())?;
+        let mut line = String::new();
+        loop {
+            line.clear();
+            if stream.read_line(&mut line)? == 0 {
+                return Err("the daemon closed the socket".into());
+            }
+            match serde_json::from_str::<Message>(&line) {
+                Ok(Message::Version(_)) | Err(_) => continue,
+                Ok(m) => return Ok(m),
+            }
+        }
+    };
+    let (scans, drops) = match ask("{\"cmd\":\"status\"}\n")? {
+        Message::Status(s) => (
+            s.sensors.iter().map(|x| (x.id.clone(), x.scans)).collect(),
+            s.queue_drops,
+        ),
+        _ => (Vec::new(), 0),
+    };
+    let placed = match ask("{\"cmd\":\"poses\"}\n")? {
+        Message::Poses(p) => p.sensors.iter().filter(|x| x.registered).count(),
+        _ => 0,
+    };
+    Ok((scans, drops, placed))
+}
+
+/// The last lines the daemon logged.
+fn log_tail(log: &Path) -> String {
+    let text = std::fs::read_to_string(log).unwrap_or_default();
+    let mut tail: Vec<&str> = text.lines().rev().take(12).collect();
+    tail.reverse();
+    tail.join("\n")
+}
+
+/// The recording of the concourse, made with the daemon's binary the first time.
+fn recording(bin: &str, sensors: usize, seconds: f64, crowd: u32) -> Result<PathBuf, Error> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/bench-data");
+    std::fs::create_dir_all(&dir)?;
+    let path = dir.join(format!(
+        "concourse-{sensors}-{seconds}s-crowd{crowd}-seed1.mcap"
+    ));
+    if !path.exists() {
+        let partial = path.with_extension("partial");
+        let started = Instant::now();
+        let status = Command::new(bin)
+            .args(["simulate", "--generate", &format!("concourse:{sensors}")])
+            .args(["--seed", "1", "--crowd", &crowd.to_string()])
+            .args([
+                "--seconds",
+                &seconds.to_string(),
+                "--zstd-level",
+                "1",
+                "--out",
+            ])
+            .arg(&partial)
+            .stdout(Stdio::null())
+            .status()?;
+        if !status.success() {
+            return Err(format!("simulating the concourse failed: {status}").into());
+        }
+        std::fs::rename(&partial, &path)?;
+        println!(
+            "  recorded {} in {:.0} s",
+            path.display(),
+            started.elapsed().as_secs_f64()
+        );
+    }
+    Ok(path)
+}
+
+fn main() -> Result<(), Error> {
+    let n = env_f64("SCANFUSE_BENCH_SENSORS", 100.0) as usize;
+    let window_s = env_f64("SCANFUSE_BENCH_S", 20.0);
+    let rec_s = env_f64("SCANFUSE_BENCH_REC_S", 10.0);
+    let crowd = env_f64("SCANFUSE_BENCH_CROWD", 30.0) as u32;
+    let bin = std::env::var("SCANFUSE_BIN")
+        .unwrap_or_else(|_| env!("CARGO_BIN_EXE_scanfuse").to_string());
+    println!("daemon_site: {bin}, a concourse of {n} sensors, {crowd} people, looped at ×1");
+    let file = recording(&bin, n, rec_s, crowd)?;
+    let rec = scanfuse::record::read(&file)?;
+
+    // The emulators: one loopback port each, on this process's runtime.
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()?;
+    let mut ports = Vec::new();
+    for info in &rec.sensors {
+        let emulator = Emulator::new(
+            info,
+            rec.scans_of(&info.id),
+            EmulatorConfig {
+                looping: true,
+                ..EmulatorConfig::default()
+            },
+        )?;
+        let listener = runtime.block_on(tokio::net::TcpListener::bind("127.0.0.1:0"))?;
+        ports.push(listener.local_addr()?.port());
+        runtime.spawn(async move {
+            let _ = emulator.serve(listener).await;
+        });
+    }
+
+    // The site: every sensor on its emulator, the true poses saved, the anchor the first.
+    let dir = tempfile::tempdir()?;
+    let state = dir.path().join("state");
+    std::fs::create_dir_all(&state)?;
+    let socket = dir.path().join("s.sock");
+    let anchor = rec
+        .sensors
+        .first()
+        .ok_or("the recording has no sensors")?
+        .id
+        .clone();
+    let mut text = format!(
+        "[site]\nname = \"concourse\"\nstate_dir = \"{}\"\nsocket = \"{}\"\nanchor = \"{anchor}\"\n",
+        state.display(),
+        socket.display()
+    );
+    let truth = |id: &str| -> Result<_, Error> {
+        let t = rec
+            .sensor(id)
+            .and_then(|s| s.truth)
+            .ok_or("the recording has truth")?;
+        Ok(pose2(t.x_m, t.y_m, t.yaw_deg.to_radians()))
+    };
+    let world_from_anchor = truth(&anchor)?;
+    let mut saved = Vec::new();
+    for (info, port) in rec.sensors.iter().zip(&ports) {
+        text.push_str(&format!(
+            "\n[[sensor]]\nid = \"{}\"\nconnect = \"tcp://127.0.0.1:{port}\"\nmode = \"MD\"\nheight_m = {:?}\npitch_deg = {:?}\n",
+            info.id,
+            info.height_m.unwrap_or(1.0),
+            info.pitch_deg.unwrap_or(0.0)
+        ));
+        let p = world_from_anchor.inverse() * truth(&info.id)?;
+        let mut pose = SensorPose::unregistered(info.id.clone(), "");
+        pose.registered = true;
+        pose.reason = None;
+        pose.x_m = Some(p.translation.x);
+        pose.y_m = Some(p.translation.y);
+        pose.yaw_deg = Some(yaw_rad(&p).to_degrees());
+        pose.z_m = Some(info.height_m.unwrap_or(1.0));
+        pose.pitch_deg = Some(info.pitch_deg.unwrap_or(0.0));
+        saved.push(SavedPose::from_pose(
+            &pose,
+            PoseSource::Registered,
+            SystemTime::now(),
+        ));
+    }
+    text.push_str("\n[publish]\nsave_interval_s = 5\nwatch_backlog = 4096\n");
+    // `SCANFUSE_BENCH_QUEUE`: the registration queue's size (the daemon's default otherwise).
+    if let Ok(queue) = std::env::var("SCANFUSE_BENCH_QUEUE") {
+        text.push_str(&format!("\n[registration]\nqueue_scans = {queue}\n"));
+    }
+    let config = dir.path().join("site.toml");
+    std::fs::write(&config, text)?;
+    PosesFile {
+        anchor: anchor.clone(),
+        sensors: saved,
+        building_from_site: None,
+    }
+    .save(&state)?;
+    let log = dir.path().join("daemon.log");
+    let daemon = Daemon(
+        Command::new(&bin)
+            .args([
+                "run",
+                "--for",
+                &format!("{:.0}s", window_s + 180.0),
+                "--config",
+            ])
+            .arg(&config)
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&log)?)
+            .spawn()?,
+    );
+    let pid = daemon.0.id();
+
+    // Every sensor streaming before anything is measured.
+    let started = Instant::now();
+    loop {
+        let (scans, _, placed) = site_state(&socket)?;
+        let streaming = scans.iter().filter(|(_, s)| *s > 0).count();
+        if streaming == n && placed == n {
+            break;
+        }
+        if started.elapsed() > Duration::from_secs(120) {
+            return Err(format!(
+                "after 120 s: {streaming} of {n} streaming, {placed} placed; the daemon's log ends:\n{}",
+                log_tail(&log)
+            )
+            .into());
+        }
+        std::thread::sleep(Duration::from_millis(500));
+    }
+    println!(
+        "  every sensor streaming and placed after {:.1} s",
+        started.elapsed().as_secs_f64()
+    );
+    std::thread::sleep(Duration::from_secs(2));
+
+    // The watcher, on its own thread: only the stamp is read from each FRAME line (a frame
+    // holds one scan). A watcher that falls behind is dropped by the daemon; that is reported.
+    let watch = std::env::var("SCANFUSE_BENCH_WATCH").map_or(true, |v| v != "0");
+    let watcher = watch.then(|| {
+        let socket = socket.clone();
+        std::thread::spawn(move || watch_frames(&socket, window_s))
+    });
+    let (before, drops0, _) = site_state(&socket)?;
+    let ticks0 = cpu_ticks(pid)?;
+    let threads0 = thread_ticks(pid)?;
+    let t0 = Instant::now();
+    let mut rss_max: f64 = 0.0;
+    while t0.elapsed().as_secs_f64() < window_s {
+        rss_max = rss_max.max(rss_mib(pid)?.0);
+        std::thread::sleep(Duration::from_millis(500));
+    }
+    let elapsed = t0.elapsed().as_secs_f64();
+    let cpu = (cpu_ticks(pid)? - ticks0) as f64 / ticks_per_s() / elapsed;
+    let mut threads: Vec<(f64, String)> = thread_ticks(pid)?
+        .into_iter()
+        .map(|(name, t)| {
+            let was = threads0.get(&name).copied().unwrap_or(0);
+            (t.saturating_sub(was) as f64 / ticks_per_s() / elapsed, name)
+        })
+        .filter(|(c, _)| *c >= 0.005)
+        .collect();
+    threads.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let (after, drops1, placed) = site_state(&socket)?;
+    let (rss, hwm) = rss_mib(pid)?;
+    drop(daemon);
+
+    let mut rates: Vec<(f64, String)> = after
+        .iter()
+        .map(|(id, s)| {
+            let was = before.iter().find(|(b, _)| b == id).map_or(0, |(_, s)| *s);
+            (s.saturating_sub(was) as f64 / elapsed, id.clone())
+        })
+        .collect();
+    rates.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let silent = rates.iter().filter(|(r, _)| *r < 1.0).count();
+    let total: f64 = rates.iter().map(|(r, _)| r).sum();
+    println!(
+        "  over {elapsed:.0} s: {} sensors streaming ({silent} silent), {total:.0} scans/s in all; slowest {:.1} Hz ({}), fastest {:.1} Hz ({}); {placed} placed at the end; the registration queue dropped {} scans",
+        rates.len() - silent,
+        rates.first().map_or(0.0, |r| r.0),
+        rates.first().map_or("", |r| r.1.as_str()),
+        rates.last().map_or(0.0, |r| r.0),
+        rates.last().map_or("", |r| r.1.as_str()),
+        drops1.saturating_sub(drops0),
+    );
+    println!(
+        "  daemon CPU {:.2} of one core (target < 1); RSS {rss:.0} MiB now, {:.0} MiB sampled max, {hwm:.0} MiB peak (VmHWM; target < 1024)",
+        cpu,
+        rss_max.max(rss)
+    );
+    let threads: Vec<String> = threads.iter().map(|(c, n)| format!("{n} {c:.2}")).collect();
+    println!("  daemon CPU by thread (cores): {}", threads.join(", "));
+    let Some(watcher) = watcher else {
+        println!("  no watcher (SCANFUSE_BENCH_WATCH=0)");
+        return Ok(());
+    };
+    let (mut latencies_us, watched_s, ended, client_cpu_s) =
+        watcher.join().map_err(|_| "the watcher panicked")??;
+    if latencies_us.is_empty() {
+        return Err(format!("no frames received ({ended})").into());
+    }
+    latencies_us.sort_by(f64::total_cmp);
+    let pct = |p: f64| latencies_us[((latencies_us.len() - 1) as f64 * p) as usize];
+    println!(
+        "  scan in → fused frame at a `map` watcher: {} frames in {watched_s:.1} s ({:.0}/s; {ended}), p50 {:.0} µs, p99 {:.0} µs, max {:.0} µs (target p99 ≤ 2000 µs)",
+        latencies_us.len(),
+        latencies_us.len() as f64 / watched_s.max(1e-9),
+        pct(0.5),
+        pct(0.99),
+        pct(1.0)
+    );
+    println!(
+        "  the watching client (this process) used {:.2} of a core while it watched",
+        client_cpu_s / watched_s.max(1e-9)
+    );
+    Ok(())
+}
+
+/// Watches `map` for `window_s`: each frame's receive time minus its stamp (µs), how long it
+/// watched, and how the watch ended.
+fn watch_frames(socket: &Path, window_s: f64) -> Result<(Vec<f64>, f64, String, f64), String> {
+    let stream = common::connect_when_up(socket).map_err(|e| e.to_string())?;
+    let err = |e: std::io::Error| e.to_string();
+    stream
+        .set_read_timeout(Some(Duration::from_secs(5)))
+        .map_err(err)?;
+    let mut writer = stream.try_clone().map_err(err)?;
+    let mut reader = BufReader::with_capacity(1 << 20, stream);
+    writer
+        .write_all(b"{\"cmd\":\"watch\",\"status\":false,\"map\":true}\n")
+        .map_err(err)?;
+    let t0 = Instant::now();
+    let mut latencies_us = Vec::new();
+    let mut line = Vec::new();
+    let key = b"\"stamp_ns\":";
+    let mut ended = "watched to the end".to_string();
+    while t0.elapsed().as_secs_f64() < window_s {
+        line.clear();
+        if reader.read_until(b'\n', &mut line).map_err(err)? == 0 {
+            ended = "dropped by the daemon: it fell behind the stream".into();
+            break;
+        }
+        let received_ns = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_err(|e| e.to_string())?
+            .as_nanos() as u64;
+        const FRAME: &[u8] = b"{\"class\":\"FRAME\"";
+        if !line.starts_with(FRAME) {
+            if line.starts_with(b"{\"class\":\"ERROR\"") {
+                ended = format!("dropped: {}", String::from_utf8_lossy(&line).trim());
+            }
+            continue;
+        }
+        let Some(at) = line.windows(key.len()).position(|w| w == key) else {
+            continue;
+        };
+        let digits: Vec<u8> = line[at + key.len()..]
+            .iter()
+            .copied()
+            .take_while(u8::is_ascii_digit)
+            .collect();
+        if let Some(stamp_ns) = std::str::from_utf8(&digits)
+            .ok()
+            .and_then(|d| d.parse::<u64>().ok())
+        {
+            latencies_us.push(received_ns.saturating_sub(stamp_ns) as f64 / 1e3);
+        }
+    }
+    Ok((latencies_us, t0.elapsed().as_secs_f64(), ended, own_cpu_s()))
+}
