@@ -75,6 +75,10 @@ pub struct Args {
     /// estimated overlap, violation) to this file, for choosing thresholds.
     #[arg(long)]
     pub csv: Option<PathBuf>,
+    /// Also solve every site registering all pairs, and print where pair selection differs
+    /// (sensors placed, poses in mm) and what all pairs cost.
+    #[arg(long)]
+    pub site_compare: bool,
 }
 
 pub fn run(args: Args) -> Result<()> {

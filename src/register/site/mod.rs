@@ -7,6 +7,7 @@
 //! the order of the stages.
 
 mod check;
+mod descriptor;
 mod groups;
 mod join;
 mod pairs;
@@ -16,7 +17,9 @@ mod solve;
 #[cfg(test)]
 mod tests;
 
+pub use descriptor::{ViewDescriptor, rank_partners};
 pub use groups::{bridges, consistent_edges, spanning_poses};
+pub use pairs::{Skip, SkippedPair};
 pub use solve::solve;
 
 use super::{PairResult, RegisterParams, ScanModel};
@@ -114,6 +117,10 @@ pub struct SiteParams {
     /// sets) placements on 1–2 pairs were wrong 5 times in 27, on 3 or more once in 536; all
     /// six wrong ones were in the held-out plans, where identical rooms repeat.
     pub confirming_pairs: usize,
+    /// Pairs registered first per sensor, its most alike views (`pairs`): the rest are
+    /// registered only where sensors stay unplaced or the site puts two sensors' views over
+    /// each other. A site of up to this many + 1 sensors registers every pair.
+    pub partners: usize,
 }
 
 impl Default for SiteParams {
@@ -130,6 +137,7 @@ impl Default for SiteParams {
             join_min_strength: 0.3,
             conflict_dz_m: 0.0,
             confirming_pairs: 3,
+            partners: 8,
         }
     }
 }
@@ -169,9 +177,13 @@ pub struct SiteResult {
     pub anchor: usize,
     pub sensors: Vec<Placement>,
     pub pairs: Vec<PairReport>,
+    /// Pairs not registered (pair selection), and why.
+    pub skipped: Vec<SkippedPair>,
+    /// Rounds of pair selection it took.
+    pub rounds: usize,
 }
 
-/// Registers the pairs of `sensors` and places all of them in the frame of `anchor`.
+/// Registers the pairs of `sensors` that matter (`pairs`) and places all of them in the frame of `anchor`.
 ///
 /// Edges that lie on a cycle of consistent registered pairs are trusted: they bind sensors into
 /// groups. Everything else — a registered pair no cycle checks (a bridge), an ambiguous pair's
@@ -185,15 +197,32 @@ pub fn register_site(
     sp: &SiteParams,
 ) -> SiteResult {
     let n = sensors.len();
-    let (pairs, results) = pairs::register_all(sensors, p);
-    let checked = groups::checked_edges(n, anchor, &pairs, &results, sp);
-    let (mut placed, mut groups) = groups::groups(n, anchor, &checked.edges);
-    let joined = join::join_groups(&mut placed, &mut groups, sensors, &pairs, &results, p, sp);
-    second_opinion::second_opinion(&mut placed, anchor, sensors, &pairs, &results, p, sp);
+    let mut selection = pairs::PairSelection::new(sensors, p, sp.partners);
+    let mut round = selection.first_round();
+    let mut rounds = 0;
+    // Register a round of pairs, place what they place, widen where that leaves gaps.
+    let placing = loop {
+        rounds += 1;
+        selection.register(&round);
+        let placing = place(n, anchor, sensors, selection.registered(), p, sp);
+        round = selection.widen(&placing.frame(), &placing.is_placed());
+        if round.is_empty() {
+            break placing;
+        }
+    };
+    let Placing {
+        pairs,
+        results,
+        checked,
+        placed,
+        groups,
+        joined,
+    } = placing;
+    let skipped = selection.skipped(&frames(&placed, &groups));
     let (edges, origin) =
         solve::solve_edges(&placed, &checked, &pairs, &results, &joined.sources, p, sp);
     let solved = check::solve_without_conflicts(n, anchor, edges, origin, sensors, p, sp);
-    report::site_result(
+    let mut site = report::site_result(
         sensors,
         anchor,
         pairs,
@@ -202,7 +231,72 @@ pub fn register_site(
         &joined.refusals,
         &solved,
         sp,
-    )
+    );
+    site.skipped = skipped;
+    site.rounds = rounds;
+    site
+}
+
+/// Where the stages before the solve put every sensor, from the pairs registered so far.
+struct Placing {
+    pairs: Vec<(usize, usize)>,
+    results: Vec<PairResult>,
+    checked: groups::Checked,
+    /// Anchor-frame pose of every placed sensor.
+    placed: Vec<Option<Pose2>>,
+    groups: Vec<Vec<(usize, Pose2)>>,
+    joined: join::Joined,
+}
+
+impl Placing {
+    fn frame(&self) -> Vec<Option<(usize, Pose2)>> {
+        frames(&self.placed, &self.groups)
+    }
+
+    fn is_placed(&self) -> Vec<bool> {
+        self.placed.iter().map(Option::is_some).collect()
+    }
+}
+
+/// Each sensor's frame and pose there: 0 the anchor's for a placed one, g + 1 for a member of
+/// unplaced group g (relative to its root).
+fn frames(placed: &[Option<Pose2>], groups: &[Vec<(usize, Pose2)>]) -> Vec<Option<(usize, Pose2)>> {
+    let mut frame: Vec<Option<(usize, Pose2)>> =
+        placed.iter().map(|p| p.map(|pose| (0, pose))).collect();
+    for (g, members) in groups.iter().enumerate() {
+        for &(m, pose) in members {
+            if let Some(f) = frame.get_mut(m)
+                && f.is_none()
+            {
+                *f = Some((g + 1, pose));
+            }
+        }
+    }
+    frame
+}
+
+/// The stages up to the second opinion, on `registered` pairs.
+fn place(
+    n: usize,
+    anchor: usize,
+    sensors: &[SensorInput],
+    registered: (Vec<(usize, usize)>, Vec<PairResult>),
+    p: &RegisterParams,
+    sp: &SiteParams,
+) -> Placing {
+    let (pairs, results) = registered;
+    let checked = groups::checked_edges(n, anchor, &pairs, &results, sp);
+    let (mut placed, mut groups) = groups::groups(n, anchor, &checked.edges);
+    let joined = join::join_groups(&mut placed, &mut groups, sensors, &pairs, &results, p, sp);
+    second_opinion::second_opinion(&mut placed, anchor, sensors, &pairs, &results, p, sp);
+    Placing {
+        pairs,
+        results,
+        checked,
+        placed,
+        groups,
+        joined,
+    }
 }
 
 /// The edge a pair's candidate `ci` makes (candidate 0 is the pair's own answer), with the

@@ -142,6 +142,8 @@ pub(super) fn site_result(
         anchor,
         sensors: placements,
         pairs: reports,
+        skipped: Vec::new(),
+        rounds: 0,
     }
 }
 

@@ -134,7 +134,12 @@ fn hall() -> Vec<Wall> {
 }
 
 /// The scan of a sensor at `site_from_sensor` over `fov_rad` centred ahead, 0.5° steps.
-fn sensor_at(walls: &[Wall], site_from_sensor: Pose2, fov_rad: f64, id: &str) -> SensorInput {
+pub(super) fn sensor_at(
+    walls: &[Wall],
+    site_from_sensor: Pose2,
+    fov_rad: f64,
+    id: &str,
+) -> SensorInput {
     let step = 0.5f64.to_radians();
     let beams = (fov_rad / step) as usize;
     let points: Vec<ScanPoint> = (0..beams)
