@@ -7,6 +7,8 @@ use super::{Edge, Prior, SensorInput, SiteParams, candidate_edge};
 use crate::geometry::{Pose2, pose_error, pose2, wrap_angle_rad, yaw_rad};
 use crate::register::{PairResult, RegisterParams};
 use nalgebra::{DMatrix, DVector, Matrix3};
+use nalgebra_sparse::factorization::CscCholesky;
+use nalgebra_sparse::{CooMatrix, CscMatrix};
 
 /// The solve's edges and, per edge, its (pair, candidate).
 #[allow(clippy::type_complexity)]
@@ -102,12 +104,16 @@ pub fn solve(
     let free: Vec<usize> = (0..n)
         .filter(|&i| i != anchor && poses[i].is_some())
         .collect();
-    let slot = |i: usize| free.iter().position(|&f| f == i);
+    let mut slots = vec![None; n];
+    for (s, &i) in free.iter().enumerate() {
+        slots[i] = Some(s);
+    }
+    let slot = |i: usize| slots.get(i).copied().flatten();
     let dim = 3 * free.len();
-    let mut h = DMatrix::<f64>::zeros(dim, dim);
+    let mut normal = Normal::new(dim);
     for _ in 0..10 {
-        h = DMatrix::<f64>::zeros(dim, dim);
-        let mut g = DVector::<f64>::zeros(dim);
+        normal = Normal::new(dim);
+        let Normal { h, g, .. } = &mut normal;
         let current = |i: usize, poses: &[Option<Pose2>]| poses[i].unwrap_or_else(Pose2::identity);
         // Each factor: residual r(x), information W, and the variables it touches.
         let mut add = |vars: &[usize],
@@ -147,12 +153,7 @@ pub fn solve(
                 }
                 for (s2, c2) in &jac {
                     let j2 = Matrix3::from_fn(|m, k| c2[k][m]);
-                    let block = j1.transpose() * w * j2;
-                    for m in 0..3 {
-                        for k in 0..3 {
-                            h[(3 * s1 + m, 3 * s2 + k)] += block[(m, k)];
-                        }
-                    }
+                    h.push((*s1, *s2, j1.transpose() * w * j2));
                 }
             }
         };
@@ -195,10 +196,7 @@ pub fn solve(
         if dim == 0 {
             break;
         }
-        let Some(step) = (&h + DMatrix::<f64>::identity(dim, dim) * 1e-9)
-            .lu()
-            .solve(&(-&g))
-        else {
+        let Some(step) = normal.step() else {
             break;
         };
         for (s, &i) in free.iter().enumerate() {
@@ -210,7 +208,7 @@ pub fn solve(
             break;
         }
     }
-    let cov = (&h + DMatrix::<f64>::identity(dim, dim) * 1e-12).try_inverse();
+    let cov = normal.covariance_blocks();
     (0..n)
         .map(|i| {
             let pose = poses[i]?;
@@ -218,7 +216,7 @@ pub fn solve(
                 (Some(s), Some(c)) => {
                     // The perturbation rotates about the anchor's origin, so the position moves by
                     // δt + δθ·perp(t): propagate through that Jacobian.
-                    let block = c.fixed_view::<3, 3>(3 * s, 3 * s).into_owned();
+                    let block = c[s];
                     let t = pose.translation.vector;
                     let j = nalgebra::Matrix2x3::new(1.0, 0.0, -t.y, 0.0, 1.0, t.x);
                     let pos = j * block * j.transpose();
@@ -233,4 +231,116 @@ pub fn solve(
             Some((pose, sigma))
         })
         .collect()
+}
+
+/// The normal equations H δ = −g of one Gauss–Newton step, H in 3 × 3 blocks per pair of
+/// sensors a factor links (an edge, or a survey on the diagonal): sparse, as a site's sensors
+/// each see a few neighbours.
+pub(super) struct Normal {
+    dim: usize,
+    /// (slot, slot, block) terms of H; repeated blocks add up.
+    h: Vec<(usize, usize, Matrix3<f64>)>,
+    g: DVector<f64>,
+}
+
+impl Normal {
+    fn new(dim: usize) -> Self {
+        Normal {
+            dim,
+            h: Vec::new(),
+            g: DVector::zeros(dim),
+        }
+    }
+
+    /// H + damping·I, factored (None when it is not positive definite).
+    fn factor(&self, damping: f64) -> Option<CscCholesky<f64>> {
+        let mut coo = CooMatrix::new(self.dim, self.dim);
+        for (s1, s2, block) in &self.h {
+            for m in 0..3 {
+                for k in 0..3 {
+                    coo.push(3 * s1 + m, 3 * s2 + k, block[(m, k)]);
+                }
+            }
+        }
+        for d in 0..self.dim {
+            coo.push(d, d, damping);
+        }
+        CscCholesky::factor(&CscMatrix::from(&coo)).ok()
+    }
+
+    /// The step δ (the damping keeps a flat direction from blowing it up).
+    fn step(&self) -> Option<DVector<f64>> {
+        let x =
+            self.factor(1e-9)?
+                .solve(&DMatrix::from_column_slice(self.dim, 1, self.g.as_slice()));
+        Some(-x.column(0).into_owned())
+    }
+
+    /// The 3 × 3 diagonal blocks of H⁻¹, each sensor's covariance, one sparse solve per sensor.
+    fn covariance_blocks(&self) -> Option<Vec<Matrix3<f64>>> {
+        let chol = self.factor(1e-12)?;
+        Some(
+            (0..self.dim / 3)
+                .map(|s| {
+                    let mut rhs = DMatrix::zeros(self.dim, 3);
+                    for k in 0..3 {
+                        rhs[(3 * s + k, k)] = 1.0;
+                    }
+                    let x = chol.solve(&rhs);
+                    Matrix3::from_fn(|m, k| x[(3 * s + m, k)])
+                })
+                .collect(),
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A chain of 40 sensors with chords, blocks from random SPD 3 × 3 informations: the
+    /// sparse step and covariances equal the dense solve of the same system.
+    #[test]
+    fn the_sparse_normal_equations_solve_as_the_dense_ones() {
+        let n = 40;
+        let mut normal = Normal::new(3 * n);
+        let mut seed = 7u64;
+        let mut rand = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let mut links: Vec<(usize, usize)> = (0..n - 1).map(|i| (i, i + 1)).collect();
+        links.extend((0..n - 7).step_by(5).map(|i| (i, i + 7)));
+        for (a, b) in links {
+            let j = Matrix3::from_fn(|_, _| rand());
+            let w = j * j.transpose() + Matrix3::identity();
+            // An edge a–b adds W to both diagonal blocks and −W off the diagonal.
+            normal
+                .h
+                .extend([(a, a, w), (b, b, w), (a, b, -w), (b, a, -w)]);
+        }
+        // The first sensor is tied down (as the anchor's edges tie its neighbours).
+        normal.h.push((0, 0, Matrix3::identity() * 10.0));
+        normal.g = DVector::from_fn(3 * n, |_, _| rand());
+        let mut dense = DMatrix::<f64>::zeros(3 * n, 3 * n);
+        for (s1, s2, block) in &normal.h {
+            let mut view = dense.fixed_view_mut::<3, 3>(3 * s1, 3 * s2);
+            view += block;
+        }
+        let damped = |d: f64| &dense + DMatrix::<f64>::identity(3 * n, 3 * n) * d;
+        let want = damped(1e-9).lu().solve(&(-&normal.g)).expect("dense solve");
+        let got = normal.step().expect("sparse solve");
+        assert!(
+            (&got - &want).amax() < 1e-9 * want.amax().max(1.0),
+            "step differs"
+        );
+        let inverse = damped(1e-12).try_inverse().expect("dense inverse");
+        let blocks = normal.covariance_blocks().expect("sparse covariance");
+        for (s, block) in blocks.iter().enumerate() {
+            let want = inverse.fixed_view::<3, 3>(3 * s, 3 * s).into_owned();
+            assert!((block - want).amax() < 1e-9 * want.amax(), "sensor {s}");
+        }
+    }
 }
