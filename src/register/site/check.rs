@@ -32,6 +32,7 @@ pub(super) fn solve_without_conflicts(
     let mut solution = super::solve(n, anchor, &edges, sensors, sp);
     let mut contradicted = vec![None::<usize>; n];
     let certain = certain_only(p, sp);
+    let reach = super::reach_m(sensors);
     loop {
         let placed: Vec<(usize, Pose2)> = solution
             .iter()
@@ -45,6 +46,11 @@ pub(super) fn solve_without_conflicts(
                     .iter()
                     .filter(move |(j, _)| *j > i)
                     .map(move |&(j, pj)| (i, pi, j, pj))
+                    // Out of each other's reach they cannot contradict each other.
+                    .filter(|&(i, pi, j, pj)| {
+                        (pi.translation.vector - pj.translation.vector).norm()
+                            <= reach[i] + reach[j]
+                    })
             })
             .find_first(|&(i, pi, j, pj)| {
                 contradicts(

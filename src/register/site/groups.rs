@@ -6,6 +6,8 @@
 use super::{Edge, SiteParams, candidate_edge};
 use crate::geometry::{Pose2, pose_error};
 use crate::register::PairResult;
+use std::collections::HashMap;
+use std::collections::hash_map::Entry;
 
 /// The checked edges and, per edge, its (pair index, candidate index).
 pub(super) struct Checked {
@@ -71,22 +73,37 @@ pub(super) fn groups(
 /// Drops edges that disagree around triangles (more failed than passed cycles), then edges
 /// that disagree with a spanning tree of the rest. Returns indices of kept edges.
 pub fn consistent_edges(n: usize, anchor: usize, edges: &[Edge], sp: &SiteParams) -> Vec<usize> {
+    // The first edge between each two sensors, and each sensor's neighbours: triangles are
+    // found along edges, not by trying every triple of sensors.
+    let mut first: HashMap<(usize, usize), usize> = HashMap::new();
+    let mut neighbours: Vec<Vec<usize>> = vec![Vec::new(); n];
+    for (k, e) in edges.iter().enumerate() {
+        if e.a >= n || e.b >= n || e.a == e.b {
+            continue;
+        }
+        if let Entry::Vacant(v) = first.entry((e.a.min(e.b), e.a.max(e.b))) {
+            v.insert(k);
+            neighbours[e.a].push(e.b);
+            neighbours[e.b].push(e.a);
+        }
+    }
+    for list in &mut neighbours {
+        list.sort_unstable();
+    }
     let find = |a: usize, b: usize| -> Option<(usize, Pose2)> {
-        edges.iter().enumerate().find_map(|(k, e)| {
-            if e.a == a && e.b == b {
-                Some((k, e.a_from_b))
-            } else if e.a == b && e.b == a {
-                Some((k, e.a_from_b.inverse()))
-            } else {
-                None
-            }
+        let &k = first.get(&(a.min(b), a.max(b)))?;
+        let e = &edges[k];
+        Some(if e.a == a {
+            (k, e.a_from_b)
+        } else {
+            (k, e.a_from_b.inverse())
         })
     };
     let mut good = vec![0usize; edges.len()];
     let mut bad = vec![0usize; edges.len()];
     for i in 0..n {
-        for j in i + 1..n {
-            for k in j + 1..n {
+        for &j in neighbours[i].iter().filter(|&&j| j > i) {
+            for &k in neighbours[j].iter().filter(|&&k| k > j) {
                 let (Some((e1, ij)), Some((e2, jk)), Some((e3, ik))) =
                     (find(i, j), find(j, k), find(i, k))
                 else {
@@ -123,6 +140,14 @@ pub fn consistent_edges(n: usize, anchor: usize, edges: &[Edge], sp: &SiteParams
 
 /// Indices of the edges that lie on no cycle: removing one disconnects its two sensors.
 pub fn bridges(n: usize, edges: &[Edge]) -> Vec<usize> {
+    // Each sensor's edges, so a search walks only the edges it reaches.
+    let mut incident: Vec<Vec<(usize, usize)>> = vec![Vec::new(); n];
+    for (k, e) in edges.iter().enumerate() {
+        if e.a < n && e.b < n {
+            incident[e.a].push((k, e.b));
+            incident[e.b].push((k, e.a));
+        }
+    }
     let connected_without = |skip: usize, from: usize, to: usize| {
         let mut seen = vec![false; n];
         let mut stack = vec![from];
@@ -133,14 +158,9 @@ pub fn bridges(n: usize, edges: &[Edge]) -> Vec<usize> {
             if std::mem::replace(&mut seen[u], true) {
                 continue;
             }
-            for (k, e) in edges.iter().enumerate() {
-                if k == skip {
-                    continue;
-                }
-                if e.a == u && !seen[e.b] {
-                    stack.push(e.b);
-                } else if e.b == u && !seen[e.a] {
-                    stack.push(e.a);
+            for &(k, v) in &incident[u] {
+                if k != skip && !seen[v] {
+                    stack.push(v);
                 }
             }
         }

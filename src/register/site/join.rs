@@ -48,6 +48,7 @@ pub(super) fn join_groups(
         }
     }
     let mut join_sources: Vec<(usize, usize)> = Vec::new();
+    let reach_m = super::reach_m(sensors);
     loop {
         let ctx = JoinContext {
             sensors,
@@ -60,6 +61,7 @@ pub(super) fn join_groups(
             results,
             p,
             sp,
+            reach_m: &reach_m,
         };
         let mut acceptable = Vec::new();
         let mut split = Vec::new();
@@ -242,6 +244,8 @@ pub(super) struct JoinContext<'a> {
     pub(super) results: &'a [PairResult],
     pub(super) p: &'a RegisterParams,
     pub(super) sp: &'a SiteParams,
+    /// Each sensor's reach (`reach_m`): the joint score skips placed sensors out of it.
+    pub(super) reach_m: &'a [f64],
 }
 
 impl JoinContext<'_> {
@@ -262,6 +266,11 @@ impl JoinContext<'_> {
                     continue;
                 };
                 let i_from_j = anchor_from_i.inverse() * anchor_from_root * root_from_j;
+                // Out of each other's reach: no hit, no contradiction, a score of nothing.
+                let reach = |k: usize| self.reach_m.get(k).copied().unwrap_or(f64::INFINITY);
+                if i_from_j.translation.vector.norm() > reach(i) + reach(j) {
+                    continue;
+                }
                 let s = crate::register::score::score(&si.model, &sj.model, &i_from_j, self.p);
                 joint.value += s.value;
                 joint.overlap += s.overlap();

@@ -81,13 +81,7 @@ impl<'a> PairSelection<'a> {
             ranking: rank_partners(&descriptors),
             tried: vec![0; sensors.len()],
             results: BTreeMap::new(),
-            reach_m: sensors
-                .iter()
-                .map(|s| {
-                    let pts = s.model.points();
-                    pts.iter().map(|q| q.coords.norm()).fold(0.0, f64::max)
-                })
-                .collect(),
+            reach_m: super::reach_m(sensors),
             partners: partners.max(1),
         }
     }

@@ -23,6 +23,7 @@ pub(super) fn second_opinion(
     sp: &SiteParams,
 ) {
     // The anchor first: were it wrong, every other opinion would be taken in its wrong frame.
+    let reach_m = super::reach_m(sensors);
     let order = std::iter::once(anchor).chain((0..placed.len()).filter(|&k| k != anchor));
     for k in order {
         let Some(current) = placed.get(k).copied().flatten() else {
@@ -40,6 +41,7 @@ pub(super) fn second_opinion(
             results,
             p,
             sp,
+            reach_m: &reach_m,
         };
         // Only a pair that could carry a placement alone may overrule (as in `weigh`): where
         // every such pair agrees with the current place, there is nothing to weigh.

@@ -290,6 +290,7 @@ fn truth_placed<'a>(
         results: &scene.results,
         p,
         sp,
+        reach_m: &[],
     }
 }
 
@@ -480,6 +481,7 @@ impl TwoSensors {
             results: &results,
             p,
             sp,
+            reach_m: &[],
         })
     }
 }
