@@ -1,10 +1,12 @@
 //! `scanfuse simulate --plan P.toml --seconds S --seed N --out X.mcap`: a floor plan, its
-//! sensors and people, ray-cast into a recording with ground truth.
+//! sensors and people, ray-cast into a recording with ground truth. `--generate concourse:N`
+//! makes the plan instead (`sim::generate`), and `--plan-out` writes it as TOML.
 
 use std::path::PathBuf;
 
 use anyhow::Context as _;
 use scanfuse::record::{self, RecordingWriter};
+use scanfuse::sim::generate::{FloorSpec, concourse};
 use scanfuse::sim::{Plan, SimEvent, Simulation};
 
 use super::BadInput;
@@ -12,17 +14,31 @@ use super::BadInput;
 #[derive(clap::Args)]
 pub struct Args {
     /// Floor plan (TOML), e.g. fixtures/plans/lab.toml.
+    #[arg(
+        long,
+        required_unless_present = "generate",
+        conflicts_with = "generate"
+    )]
+    plan: Option<PathBuf>,
+    /// Generate the floor instead: `concourse:N`, a concourse with N scanners (2–500) installed,
+    /// drawn from --seed.
     #[arg(long)]
-    plan: PathBuf,
+    generate: Option<FloorSpec>,
+    /// With --generate: people walking the concourse, in and out through the gates (0–100).
+    #[arg(long, default_value_t = 0, requires = "generate")]
+    crowd: u32,
+    /// With --generate: also write the plan made (TOML, as --plan reads it) to this file.
+    #[arg(long, requires = "generate")]
+    plan_out: Option<PathBuf>,
     /// Simulated time to record, s.
     #[arg(long, default_value_t = 10.0)]
     seconds: f64,
     /// Random seed: the same plan and seed give the same recording, bit for bit.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Recording to write (MCAP).
-    #[arg(long)]
-    out: PathBuf,
+    /// Recording to write (MCAP); may be left out when --plan-out is given.
+    #[arg(long, required_unless_present = "plan_out")]
+    out: Option<PathBuf>,
     /// zstd level, 1–22: higher is smaller and slower (fixtures use 19).
     #[arg(long, default_value_t = record::DEFAULT_ZSTD_LEVEL)]
     zstd_level: u32,
@@ -39,9 +55,35 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ))
         .into());
     }
-    let plan = Plan::load(&args.plan)?;
+    let (plan, source) = match (&args.plan, args.generate) {
+        (Some(path), _) => (Plan::load(path)?, path.display().to_string()),
+        (None, Some(spec)) => {
+            let plan =
+                concourse(spec, args.seed, args.crowd).map_err(|e| BadInput(e.to_string()))?;
+            if let Some(path) = &args.plan_out {
+                let text = plan.to_toml()?;
+                std::fs::write(path, text)
+                    .with_context(|| format!("{}: cannot write the plan", path.display()))?;
+                println!(
+                    "{}: {} ({} scanners, seed {})",
+                    path.display(),
+                    plan.name,
+                    plan.sensors.len(),
+                    args.seed
+                );
+            }
+            let source = plan.origin.clone();
+            (plan, source)
+        }
+        (None, None) => {
+            return Err(BadInput("give --plan P.toml or --generate concourse:N".into()).into());
+        }
+    };
+    let Some(out_path) = &args.out else {
+        return Ok(());
+    };
     let mut sim = Simulation::new(&plan, args.seed)?;
-    let mut out = RecordingWriter::create_with_level(&args.out, args.zstd_level)?;
+    let mut out = RecordingWriter::create_with_level(out_path, args.zstd_level)?;
     let sensors = sim.sensors().to_vec();
     for sensor in &sensors {
         out.add_sensor(sensor)?;
@@ -76,7 +118,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         anyhow::Ok(())
     })?;
     out.finish()?;
-    let bytes = std::fs::metadata(&args.out).map(|m| m.len()).unwrap_or(0);
+    let bytes = std::fs::metadata(out_path).map(|m| m.len()).unwrap_or(0);
     let truth = if truths > 0 {
         format!(
             ", {truths} people's truth messages on {}",
@@ -87,11 +129,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     println!(
         "{}: {} sensors, {} scans{truth}, {} s simulated from {} (seed {}), {} bytes",
-        args.out.display(),
+        out_path.display(),
         sensors.len(),
         scans,
         args.seconds,
-        args.plan.display(),
+        source,
         args.seed,
         bytes
     );

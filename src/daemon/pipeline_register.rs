@@ -537,9 +537,15 @@ impl Registrar {
             .collect();
         let mut refuted: BTreeMap<&str, Vec<(&str, MotionEvidence)>> = BTreeMap::new();
         let mut confirmed: BTreeMap<&str, Vec<(&str, usize)>> = BTreeMap::new();
+        // Only pairs whose views meet under their poses can see the same walkers: at 100
+        // sensors that is a few hundred pairs of the 4950.
         for (i, (a, pose_a, ma)) in placed.iter().enumerate() {
             for (b, pose_b, mb) in placed.iter().skip(i + 1) {
-                let e = co_motion(ma, mb, &(pose_a.inverse() * pose_b), &self.params.motion);
+                let a_from_b = pose_a.inverse() * pose_b;
+                if !ma.views_meet(mb, &a_from_b) {
+                    continue;
+                }
+                let e = co_motion(ma, mb, &a_from_b, &self.params.motion);
                 if e.refutes(&self.params.motion) {
                     refuted.entry(a).or_default().push((b, e));
                     refuted.entry(b).or_default().push((a, e));

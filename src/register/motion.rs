@@ -17,6 +17,9 @@ pub type SharedTick = (f64, Vec<Point2<f64>>, Vec<Point2<f64>>);
 
 /// How far a walker goes between two kept frames (0.1 s apart) at most (m).
 const STRIDE_M: f64 = 0.3;
+/// Where a still beam got nothing back, its free space is taken to reach this far (m): the
+/// longest range of the units scanfuse drives.
+const OPEN_M: f64 = 30.0;
 
 /// Thresholds of the motion check.
 #[derive(Debug, Clone, PartialEq)]
@@ -301,6 +304,53 @@ impl MotionTrack {
             .collect()
     }
 
+    /// Whether the two still views' free space (up to each beam's still return, or [`OPEN_M`]
+    /// where nothing came back) can hold a common spot under `self_from_other`. Where it cannot,
+    /// [`co_motion`] finds nothing: a walker lies in its own sensor's free space, and the other
+    /// sees it, or sees through it, only in its own. Sampled every ~2° and 1 m along the other's
+    /// beams, so a sliver of shared view can be missed. The daemon's walker check weighs only
+    /// the pairs whose views meet (issue 20: 100 sensors are 4950 pairs, most of them apart).
+    pub fn views_meet(&self, other: &MotionTrack, self_from_other: &Pose2) -> bool {
+        if self_from_other.translation.vector.norm() > self.reach_m() + other.reach_m() {
+            return false;
+        }
+        let every = ((2f64.to_radians() / other.step_rad.abs().max(1e-6)) as usize).max(1);
+        (0..other.beams).step_by(every).any(|k| {
+            let theta = other.first_rad + k as f64 * other.step_rad;
+            let dir = nalgebra::Vector2::new(theta.cos() * other.cos_pitch, theta.sin());
+            let dir = dir / dir.norm().max(1e-9);
+            let still = other.still_m[k];
+            let free = if still.is_nan() {
+                OPEN_M
+            } else {
+                f64::from(still)
+            };
+            (1..=free as usize)
+                .any(|d| self.free_at(&(self_from_other * Point2::from(dir * d as f64))))
+        })
+    }
+
+    /// Farthest the still view's free space reaches (m).
+    fn reach_m(&self) -> f64 {
+        self.still_m.iter().fold(0.0, |far, &r| {
+            far.max(if r.is_nan() { OPEN_M } else { f64::from(r) })
+        })
+    }
+
+    /// Whether `q` (this sensor's frame) lies in the still view's free space.
+    fn free_at(&self, q: &Point2<f64>) -> bool {
+        let theta = q.y.atan2(q.x / self.cos_pitch);
+        let k = ((theta - self.first_rad) / self.step_rad).round();
+        if !(0.0..self.beams as f64).contains(&k) {
+            return false;
+        }
+        let d = q.coords.norm();
+        match self.still_m[k as usize] {
+            r if r.is_nan() => d <= OPEN_M,
+            r => f64::from(r) > d,
+        }
+    }
+
     fn frame_at(&self, tick: i64, t_ns: u64, p: &MotionParams) -> Option<&Frame> {
         let k = self.frames.binary_search_by_key(&tick, |f| f.tick).ok()?;
         let f = self.frames.get(k)?;
@@ -469,6 +519,36 @@ mod tests {
         let truth = poses[0].inverse() * poses[1];
         let at_truth = co_motion(&t[0], &t[1], &truth, &p);
         assert_eq!(at_truth, MotionEvidence::default());
+    }
+
+    #[test]
+    fn views_meet_in_one_room_and_not_across_a_wall_or_far_apart() {
+        // Two 6 × 4 m rooms side by side, closed between them; a third far down a corridor.
+        let mut walls = polygon(&[(0.0, 0.0), (6.0, 0.0), (6.0, 4.0), (0.0, 4.0)]);
+        walls.extend(polygon(&[(6.0, 0.0), (12.0, 0.0), (12.0, 4.0), (6.0, 4.0)]));
+        walls.extend(polygon(&[
+            (70.0, 0.0),
+            (74.0, 0.0),
+            (74.0, 4.0),
+            (70.0, 4.0),
+        ]));
+        let poses = [
+            pose2(1.0, 1.0, 0.5),
+            pose2(5.0, 3.0, 3.5),
+            pose2(7.0, 1.0, 0.5),
+            pose2(72.0, 2.0, 0.0),
+        ];
+        let t = tracks(&walls, &poses, [2.0, 3.0], [5.0, 2.0]);
+        let meet = |i: usize, j: usize| t[i].views_meet(&t[j], &(poses[i].inverse() * poses[j]));
+        assert!(meet(0, 1) && meet(1, 0), "the same room");
+        assert!(
+            !meet(0, 2) && !meet(2, 0),
+            "the room next door, behind a wall"
+        );
+        assert!(!meet(0, 3) && !meet(3, 2), "66 m apart");
+        // Under a wrong pose that lays b's room over a's, they would meet: the test is the
+        // poses', not the walls'.
+        assert!(t[0].views_meet(&t[2], &pose2(0.0, 0.0, 0.0)));
     }
 
     #[test]

@@ -11,11 +11,13 @@
 //! - `crowd`, `walkable`: `[[crowd]]` and `[[queue]]` people, walking A* paths on an occupancy
 //!   grid of the plan; `people`: how their bodies (legs, torso ellipse, head) are ray-cast.
 //! - `overlap`: [`view_overlap`], how much two sensors see of the same walls.
+//! - [`generate`]: seeded large floors (a concourse of N scanners) made as plans.
 //!
 //! Same plan and seed give bit-identical scans. Speed: `cargo bench --bench sim_speed` prints
 //! how long a minute of `fixtures/plans/hall.toml` takes.
 
 mod crowd;
+pub mod generate;
 mod overlap;
 mod people;
 pub mod plan;

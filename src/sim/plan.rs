@@ -88,7 +88,7 @@ use std::collections::BTreeSet;
 use std::ops::Range;
 use std::path::Path;
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 use toml::Spanned;
 
 use super::PlanError;
@@ -104,7 +104,7 @@ pub const MAX_PITCH_DEG: f64 = 60.0;
 const MIN_LENGTH_M: f64 = 0.001;
 
 /// Which sensor a plan places.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
 pub enum Model {
     #[serde(rename = "UTM-30LX-EW")]
     Utm30lxEw,
@@ -195,7 +195,7 @@ pub struct Plan {
 }
 
 /// A wall polyline, extruded from `z_min_m` to `height_m`.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Wall {
     #[serde(skip)]
@@ -221,7 +221,7 @@ impl Wall {
 }
 
 /// A rectangular block: a desk, a shelf, a cabinet.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct BoxShape {
     #[serde(skip)]
@@ -239,7 +239,7 @@ pub struct BoxShape {
 }
 
 /// A vertical cylinder: a pillar, a bin.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Circle {
     #[serde(skip)]
@@ -255,7 +255,7 @@ pub struct Circle {
 }
 
 /// An opening cut into the nearest wall segment.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Door {
     #[serde(skip)]
@@ -266,7 +266,7 @@ pub struct Door {
 }
 
 /// A sensor placed in the plan.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct SensorPlan {
     #[serde(skip)]
@@ -294,7 +294,7 @@ impl SensorPlan {
 }
 
 /// A person: a disc that walks a closed loop through its waypoints.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Person {
     #[serde(skip)]
@@ -311,7 +311,7 @@ pub struct Person {
 }
 
 /// People who come and go: see the module docs for every key.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Crowd {
     #[serde(skip)]
@@ -347,6 +347,31 @@ pub struct Crowd {
     pub height_m: [f64; 2],
 }
 
+/// A crowd with every key at its documented default (10 people, 30 a minute, doors as
+/// entrances and exits), for plans made by a program.
+impl Default for Crowd {
+    fn default() -> Self {
+        Crowd {
+            line: None,
+            people: default_crowd_people(),
+            max_people: None,
+            rate_per_min: default_rate(),
+            entrances: Vec::new(),
+            exits: Vec::new(),
+            destinations: Vec::new(),
+            areas: Vec::new(),
+            visits: default_visits(),
+            speed_m_s: default_speeds(),
+            stop_share: default_stop_share(),
+            stop_s: default_stop_s(),
+            group_share: default_group_share(),
+            group_size: default_group_size(),
+            spacing_m: default_spacing(),
+            height_m: default_heights(),
+        }
+    }
+}
+
 impl Crowd {
     /// The cap on how many of this crowd are inside at once.
     pub fn cap(&self) -> u32 {
@@ -355,7 +380,7 @@ impl Crowd {
 }
 
 /// People standing in a line, served one at a time.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Queue {
     #[serde(skip)]
@@ -392,7 +417,7 @@ pub const MAX_CROWD: u32 = 100;
 pub const CROWD_SPEEDS_M_S: [f64; 2] = [0.5, 1.8];
 
 /// A sensor being moved during the recording.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Move {
     #[serde(skip)]
@@ -516,6 +541,39 @@ struct PlanFile {
     truth_people: Option<bool>,
 }
 
+/// The file as [`Plan::to_toml`] writes it: plain keys first, then the tables.
+#[derive(Serialize)]
+struct PlanOut<'a> {
+    name: &'a str,
+    start_unix_s: u64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    ceiling_m: Option<f64>,
+    floor_reflectivity: f64,
+    ceiling_reflectivity: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    truth_people: Option<bool>,
+    #[serde(skip_serializing_if = "<[_]>::is_empty")]
+    wall: &'a [Wall],
+    #[serde(rename = "box")]
+    #[serde(skip_serializing_if = "<[_]>::is_empty")]
+    boxes: &'a [BoxShape],
+    #[serde(skip_serializing_if = "<[_]>::is_empty")]
+    circle: &'a [Circle],
+    #[serde(skip_serializing_if = "<[_]>::is_empty")]
+    door: &'a [Door],
+    #[serde(skip_serializing_if = "<[_]>::is_empty")]
+    sensor: &'a [SensorPlan],
+    #[serde(skip_serializing_if = "<[_]>::is_empty")]
+    person: &'a [Person],
+    #[serde(rename = "move")]
+    #[serde(skip_serializing_if = "<[_]>::is_empty")]
+    moves: &'a [Move],
+    #[serde(skip_serializing_if = "<[_]>::is_empty")]
+    crowd: &'a [Crowd],
+    #[serde(skip_serializing_if = "<[_]>::is_empty")]
+    queue: &'a [Queue],
+}
+
 /// 1-based line of a byte offset.
 fn line_of(text: &str, offset: usize) -> usize {
     text.bytes().take(offset).filter(|&b| b == b'\n').count() + 1
@@ -602,6 +660,36 @@ impl Plan {
         };
         plan.validate().map_err(|e| refine_line(text, e))?;
         Ok(plan)
+    }
+
+    /// The plan as the TOML [`Plan::from_toml`] reads (every key written out), for plans made
+    /// by a program (`sim::generate`) that a person opens, edits or simulates again.
+    pub fn to_toml(&self) -> Result<String, PlanError> {
+        let out = PlanOut {
+            name: &self.name,
+            start_unix_s: self.start_unix_s,
+            ceiling_m: self.ceiling_m,
+            floor_reflectivity: self.floor_reflectivity,
+            ceiling_reflectivity: self.ceiling_reflectivity,
+            truth_people: self.truth_people,
+            wall: &self.walls,
+            boxes: &self.boxes,
+            circle: &self.circles,
+            door: &self.doors,
+            sensor: &self.sensors,
+            person: &self.people,
+            moves: &self.moves,
+            crowd: &self.crowds,
+            queue: &self.queues,
+        };
+        toml::to_string(&out).map_err(|e| {
+            PlanError::new(
+                &self.origin,
+                None,
+                None,
+                format!("cannot write as TOML: {e}"),
+            )
+        })
     }
 
     /// Whether recordings of this plan carry `/truth/people`.

@@ -50,9 +50,14 @@ pub struct Args {
     /// Sites to solve, per kind (installed, random, real).
     #[arg(long, default_value_t = 3)]
     pub sites: usize,
-    /// Sensors per site (at least 2).
+    /// Sensors per site (at least 2; at most 500 with --floor).
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u16).range(2..))]
     pub site_sensors: u16,
+    /// Draw the simulated sites on generated floors instead of the plans of --plans: `concourse`
+    /// makes a concourse of --site-sensors scanners per site (seeds --seed, --seed + 1, …);
+    /// "installed" sites keep the generator's scanners, "random" ones drop that many anywhere.
+    #[arg(long, value_enum)]
+    pub floor: Option<Floor>,
     /// Seconds of people walking each simulated sensor keeps beside its still view, for the
     /// check that both sensors saw the same walkers (0: walls only, as a single scan).
     #[arg(long, default_value_t = 10.0)]
@@ -79,6 +84,12 @@ pub struct Args {
     /// (sensors placed, poses in mm) and what all pairs cost.
     #[arg(long)]
     pub site_compare: bool,
+}
+
+/// A generated floor (`sim::generate`) for `--floor`.
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Floor {
+    Concourse,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -111,7 +122,18 @@ pub fn run(args: Args) -> Result<()> {
             );
             classes_on_off(&cases, &params, args.seed);
         }
-        if wants("site") {
+        if wants("site") && args.floor.is_some() {
+            println!(
+                "\n== Simulated concourses of {} scanners installed four per column bay (sim::generate, seeds from {}): every sensor within 10 cm / 1°? ==",
+                args.site_sensors, args.seed
+            );
+            sites(&plans, &args, &params, SiteDraw::Installed)?;
+            println!(
+                "\n== Simulated concourses for {} scanners, the scanners dropped at random (some share no view with any other): every sensor within 10 cm / 1°? ==",
+                args.site_sensors
+            );
+            sites(&plans, &args, &params, SiteDraw::Random)?;
+        } else if wants("site") {
             println!(
                 "\n== Simulated sites of {} installed sensors (each shares ≥ 30 % of its view with one placed before it): every sensor within 10 cm / 1°? ==",
                 args.site_sensors

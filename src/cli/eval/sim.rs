@@ -2,7 +2,7 @@
 //! simulated for a moment with people walking, each sensor's static view prepared.
 
 use super::site::{SiteTotals, solve_site};
-use super::{Args, BINS, Case, bin_of};
+use super::{Args, BINS, Case, Floor, bin_of};
 use anyhow::{Context, Result};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -11,6 +11,7 @@ use scanfuse::geometry::{Mount, Pose2, pose2, raycast};
 use scanfuse::register::site::SensorInput;
 use scanfuse::register::{RegisterParams, ScanModel};
 use scanfuse::scan::{Scan, SensorInfo};
+use scanfuse::sim::generate::{FloorSpec, concourse};
 use scanfuse::sim::plan::{Model, Plan, SensorPlan};
 use scanfuse::sim::{Simulation, view_overlap};
 
@@ -352,15 +353,24 @@ pub(super) fn sites(
     let (count, n) = (args.sites, usize::from(args.site_sensors));
     while done < count && attempts < count * 50 {
         attempts += 1;
-        let Some(base) = plans.get(attempts % plans.len()) else {
-            break;
+        let mut plan = match args.floor {
+            Some(Floor::Concourse) => {
+                let spec = FloorSpec { sensors: n };
+                concourse(spec, args.seed.wrapping_add(attempts as u64 - 1), 0)
+                    .with_context(|| format!("--floor concourse --site-sensors {n}"))?
+            }
+            None => match plans.get(attempts % plans.len()) {
+                Some(base) => base.clone(),
+                None => break,
+            },
         };
-        let mut plan = base.clone();
         plan.moves.clear();
         plan.sensors = match draw {
             SiteDraw::Random => (0..n)
                 .map(|k| random_sensor(&plan, &format!("s{k}"), None, &args.models, &mut rng))
                 .collect(),
+            // The generator installed them already.
+            SiteDraw::Installed if args.floor.is_some() => plan.sensors.clone(),
             SiteDraw::Installed => match installed_sensors(&plan, n, &args.models, &mut rng) {
                 Some(sensors) => sensors,
                 None => continue,
