@@ -1,9 +1,9 @@
 //! Pair selection: which pairs of sensors are registered. Most pairs of a large site share no
 //! view, and registering one is the dearest step, so a site starts from each sensor's most
 //! likely partners (`descriptor`'s ranking) and widens in rounds, after each of which the
-//! stages place what they can: a sensor still unplaced tries the next partners in its ranking
-//! (twice as many each round, down to every other sensor) and the partners of the sensors it
-//! already shares view with; two sensors that are placed (or in one group) are registered when
+//! stages place what they can: a sensor still unplaced tries the partners of the sensors it
+//! already shares view with, and when there are none left, the next partners in its ranking
+//! (twice as many each round, down to every other sensor); two sensors that are placed (or in one group) are registered when
 //! their scans overlap where the site puts them, which adds the cycles and pairs that check
 //! them. It stops when a round proposes nothing new. Every other pair is skipped, and why.
 
@@ -26,6 +26,14 @@ pub enum Skip {
 }
 
 impl Skip {
+    /// A short name of the reason, for counting and for JSON.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Skip::NoSharedView { .. } => "no_shared_view",
+            Skip::NotNeeded => "not_needed",
+        }
+    }
+
     pub fn describe(&self) -> String {
         match self {
             Skip::NoSharedView { predicted } => format!(
@@ -97,7 +105,7 @@ impl<'a> PairSelection<'a> {
         let mut pairs = Vec::new();
         for &i in sensors {
             let from = self.tried[i];
-            let to = (from + count).min(self.ranking[i].len());
+            let to = from.saturating_add(count).min(self.ranking[i].len());
             for &j in &self.ranking[i][from..to] {
                 pairs.push((i.min(j), i.max(j)));
             }
@@ -174,13 +182,18 @@ impl<'a> PairSelection<'a> {
         // the sensors each already shares view with.
         let unplaced: Vec<usize> = (0..n).filter(|&i| !placed[i]).collect();
         for &u in &unplaced {
-            let count = self.tried[u].max(self.partners);
-            pairs.extend(self.next_partners(&[u], count));
-            let neighbours = self.neighbours(u);
-            for v in neighbours {
+            let mut near = Vec::new();
+            for v in self.neighbours(u) {
                 for w in self.neighbours(v) {
-                    pairs.push((u.min(w), u.max(w)));
+                    near.push((u.min(w), u.max(w)));
                 }
+            }
+            let near = self.fresh(near);
+            if near.is_empty() {
+                let count = self.tried[u].max(self.partners);
+                pairs.extend(self.next_partners(&[u], count));
+            } else {
+                pairs.extend(near);
             }
         }
         self.fresh(pairs)

@@ -141,6 +141,18 @@ pub(super) fn sensor_at(
     id: &str,
 ) -> SensorInput {
     let step = 0.5f64.to_radians();
+    sensor_within(walls, site_from_sensor, fov_rad, step, f64::INFINITY, id)
+}
+
+/// `sensor_at` with beams `step` apart and returns only within `range_m`.
+fn sensor_within(
+    walls: &[Wall],
+    site_from_sensor: Pose2,
+    fov_rad: f64,
+    step: f64,
+    range_m: f64,
+    id: &str,
+) -> SensorInput {
     let beams = (fov_rad / step) as usize;
     let points: Vec<ScanPoint> = (0..beams)
         .filter_map(|k| {
@@ -148,7 +160,7 @@ pub(super) fn sensor_at(
             let dir_site =
                 site_from_sensor.rotation * nalgebra::Vector2::new(angle.cos(), angle.sin());
             let origin = nalgebra::Point2::from(site_from_sensor.translation.vector);
-            let range = cast(walls, origin, dir_site)?;
+            let range = cast(walls, origin, dir_site).filter(|r| *r <= range_m)?;
             Some(ScanPoint {
                 p: nalgebra::Point2::new(range * angle.cos(), range * angle.sin()),
                 beam: k,
@@ -597,4 +609,55 @@ fn the_last_check_drops_a_sensor_only_for_contradictions_it_is_sure_of() {
     // Mounts unknown: one plane, and the counter contradicts.
     let (far, near) = (facing(6.0, None), facing(3.0, None));
     assert!(contradicts(&far, &near, &same, &certain));
+}
+
+/// Two sensors in the hall and two in a room 40 m off it, placed at the truth: pair selection
+/// registers the pairs that share view where the site puts them, and skips the rest.
+#[test]
+fn placed_sensors_are_paired_where_their_views_meet_and_not_across_the_site() {
+    let mut walls = hall();
+    walls.extend(polygon(&[
+        (40.0, 0.0),
+        (52.0, 0.0),
+        (52.0, 5.0),
+        (40.0, 5.0),
+    ]));
+    let truth = [
+        pose2(-3.0, -1.0, 0.3),
+        pose2(1.0, -2.0, 2.6),
+        pose2(41.0, 1.5, 0.6),
+        pose2(50.0, 3.5, 2.9),
+    ];
+    let sensors: Vec<SensorInput> = truth
+        .iter()
+        .enumerate()
+        .map(|(i, t)| sensor_at(&walls, *t, 270f64.to_radians(), &format!("s{i}")))
+        .collect();
+    let p = RegisterParams::default();
+    let mut selection = pairs::PairSelection::new(&sensors, &p, 1);
+    let frame: Vec<Option<(usize, Pose2)>> = truth
+        .iter()
+        .map(|t| Some((0, truth[0].inverse() * t)))
+        .collect();
+    assert_eq!(selection.widen(&frame, &[true; 4]), vec![(0, 1), (2, 3)]);
+    let skipped = selection.skipped(&frame);
+    assert_eq!(skipped.len(), 6, "nothing registered yet: {skipped:?}");
+    let across = |k: &SkippedPair| (k.a < 2) != (k.b < 2);
+    for k in skipped.iter().filter(|k| across(k)) {
+        assert_eq!(k.why, Skip::NoSharedView { predicted: 0.0 }, "{k:?}");
+    }
+    // An unplaced sensor with no registered pair goes down its ranking: one partner, then two
+    // more, then the last.
+    let mut placed = [true; 4];
+    placed[3] = false;
+    let mut frame = frame;
+    frame[3] = None;
+    let first = selection.widen(&frame, &placed);
+    assert!(first.contains(&(0, 1)) && first.iter().filter(|k| k.1 == 3).count() == 1);
+    selection.register(&first);
+    let more: Vec<_> = selection.widen(&frame, &placed);
+    assert!(
+        more.iter().all(|k| k.1 == 3) && !more.is_empty(),
+        "{more:?}"
+    );
 }
