@@ -84,6 +84,10 @@ pub struct Args {
     /// (sensors placed, poses in mm) and what all pairs cost.
     #[arg(long)]
     pub site_compare: bool,
+    /// Pair selection for the sites: register each sensor's K most alike views first
+    /// (`SiteParams::partners`; default: every pair).
+    #[arg(long)]
+    pub partners: Option<usize>,
 }
 
 /// A generated floor (`sim::generate`) for `--floor`.

@@ -123,6 +123,7 @@ pub(super) fn real_sites(args: &Args, logs: &mut Logs) -> Result<()> {
             logs.params,
             (0.15, 1.5f64.to_radians()),
             args.site_compare,
+            args.partners,
         );
         outcome.print(totals.sites + 1, name);
         totals.add(&outcome);

@@ -399,6 +399,7 @@ pub(super) fn sites(
             params,
             (0.10, 1f64.to_radians()),
             args.site_compare,
+            args.partners,
         );
         done += 1;
         outcome.print(done, &plan.name);

@@ -160,9 +160,14 @@ pub(super) fn solve_site(
     params: &RegisterParams,
     tol: (f64, f64),
     compare: bool,
+    partners: Option<usize>,
 ) -> SiteOutcome {
     let t0 = Instant::now();
-    let site = register_site(inputs, 0, params, &SiteParams::default());
+    let selected = SiteParams {
+        partners: partners.unwrap_or(SiteParams::default().partners),
+        ..SiteParams::default()
+    };
+    let site = register_site(inputs, 0, params, &selected);
     let ms = t0.elapsed().as_secs_f64() * 1e3;
     let compared = compare.then(|| {
         let t0 = Instant::now();

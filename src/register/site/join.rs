@@ -347,8 +347,19 @@ impl JoinContext<'_> {
     /// sensor propose, scored jointly; the best is accepted when it contradicts no placed
     /// sensor, shares enough view, and no clearly different placement scores nearly as well.
     pub(super) fn weigh(&self, group: &[(usize, Pose2)]) -> Result<Join, Refusal> {
-        let pose_of = |s: usize| self.placed.iter().find(|(i, _)| *i == s).map(|(_, p)| *p);
-        let member = |s: usize| group.iter().find(|(m, _)| *m == s).map(|(_, p)| *p);
+        // Lookups by sensor, not searches: every group is weighed again after each join.
+        let by_sensor = |list: &[(usize, Pose2)]| {
+            let mut at = vec![None; self.sensors.len()];
+            for &(i, pose) in list {
+                if let Some(slot) = at.get_mut(i) {
+                    *slot = Some(pose);
+                }
+            }
+            at
+        };
+        let (placed_at, member_at) = (by_sensor(&self.placed), by_sensor(group));
+        let pose_of = |s: usize| placed_at.get(s).copied().flatten();
+        let member = |s: usize| member_at.get(s).copied().flatten();
         let mut proposals: Vec<(f64, Pose2, (usize, usize))> = Vec::new();
         for (k, (&(a, b), r)) in self.pairs.iter().zip(self.results).enumerate() {
             let (anchor_from_placed, root_from_member, member_is_b) =
