@@ -49,6 +49,17 @@ pub(super) fn join_groups(
     }
     let mut join_sources: Vec<(usize, usize)> = Vec::new();
     let reach_m = super::reach_m(sensors);
+    // Each sensor's partners in some pair: a join gives a group new proposals only through them.
+    let mut partners: Vec<Vec<usize>> = vec![Vec::new(); sensors.len()];
+    for &(a, b) in pairs {
+        if a < partners.len() && b < partners.len() {
+            partners[a].push(b);
+            partners[b].push(a);
+        }
+    }
+    // A group's last verdict (with its slide test, once run) and the placements it scored:
+    // kept until a join could change it (`changes`), since weighing is the dear part.
+    let mut cache: Vec<Option<Weighed>> = vec![None; groups.len()];
     loop {
         let ctx = JoinContext {
             sensors,
@@ -65,8 +76,17 @@ pub(super) fn join_groups(
         };
         let mut acceptable = Vec::new();
         let mut split = Vec::new();
+        cache.resize(groups.len(), None);
         for &g in &open {
-            match ctx.weigh(&groups[g]) {
+            let weighed = cache[g].get_or_insert_with(|| {
+                let (outcome, places) = ctx.weigh_at(&groups[g]);
+                Weighed {
+                    outcome,
+                    places,
+                    slid: None,
+                }
+            });
+            match weighed.outcome.clone() {
                 Ok(join) => acceptable.push((g, join)),
                 Err(Refusal::MemberContradicts { member }) => split.push((g, member)),
                 Err(why) => refusals[g] = Some(why),
@@ -76,6 +96,7 @@ pub(super) fn join_groups(
         // edges were wrong after all (or they see what the others do not); weigh them apart.
         if !split.is_empty() {
             for (g, member) in split {
+                cache[g] = None;
                 groups[g].retain(|(m, _)| *m != member);
                 groups.push(vec![(member, Pose2::identity())]);
                 refusals.push(None);
@@ -87,7 +108,14 @@ pub(super) fn join_groups(
         // The slide test is the dearest: run it on the front-runners only, in order.
         let mut joined = None;
         for (g, join) in acceptable {
-            match ctx.slides(&groups[g], &join) {
+            let slid = match cache[g].as_ref().and_then(|w| w.slid.clone()) {
+                Some(slid) => slid,
+                None => ctx.slides(&groups[g], &join),
+            };
+            if let Some(w) = cache[g].as_mut() {
+                w.slid = Some(slid.clone());
+            }
+            match slid {
                 Some(why) => refusals[g] = Some(why),
                 None => {
                     joined = Some((g, join));
@@ -102,10 +130,57 @@ pub(super) fn join_groups(
         join_sources.extend(join.sources);
         refusals[g] = None;
         open.retain(|&o| o != g);
+        let joined: Vec<(usize, Pose2)> = groups[g]
+            .iter()
+            .filter_map(|&(m, _)| Some((m, placed[m]?)))
+            .collect();
+        for &o in &open {
+            let stale = cache[o]
+                .as_ref()
+                .is_some_and(|w| w.changes(&groups[o], &joined, &partners, &reach_m));
+            if stale {
+                cache[o] = None;
+            }
+        }
     }
     Joined {
         refusals,
         sources: join_sources,
+    }
+}
+
+/// A group's verdict against the sensors placed so far.
+#[derive(Clone)]
+struct Weighed {
+    outcome: Result<Join, Refusal>,
+    /// Anchor-frame placements of the group's root that were scored.
+    places: Vec<Pose2>,
+    /// The slide test's verdict, once run on an acceptable outcome.
+    slid: Option<Option<Refusal>>,
+}
+
+impl Weighed {
+    /// Whether sensors just placed (`joined`, anchor-frame poses) could change the verdict: one
+    /// is in a pair with a member (a new proposal), or within reach of a member at some scored
+    /// placement (a new term of its joint score). Otherwise weighing again gives the same.
+    fn changes(
+        &self,
+        group: &[(usize, Pose2)],
+        joined: &[(usize, Pose2)],
+        partners: &[Vec<usize>],
+        reach_m: &[f64],
+    ) -> bool {
+        let reach = |k: usize| reach_m.get(k).copied().unwrap_or(f64::INFINITY);
+        joined.iter().any(|&(m, at_m)| {
+            group.iter().any(|&(j, root_from_j)| {
+                partners.get(m).is_some_and(|p| p.contains(&j))
+                    || self.places.iter().any(|place| {
+                        let at_j = place * root_from_j;
+                        (at_j.translation.vector - at_m.translation.vector).norm()
+                            <= reach(j) + reach(m)
+                    })
+            })
+        })
     }
 }
 
@@ -347,6 +422,18 @@ impl JoinContext<'_> {
     /// sensor propose, scored jointly; the best is accepted when it contradicts no placed
     /// sensor, shares enough view, and no clearly different placement scores nearly as well.
     pub(super) fn weigh(&self, group: &[(usize, Pose2)]) -> Result<Join, Refusal> {
+        self.weigh_at(group).0
+    }
+
+    /// `weigh`, and every placement (of the group's root) it scored.
+    fn weigh_at(&self, group: &[(usize, Pose2)]) -> (Result<Join, Refusal>, Vec<Pose2>) {
+        let scored = self.proposals(group);
+        let places = scored.iter().map(|c| c.anchor_from_root).collect();
+        (self.judge(group, &scored), places)
+    }
+
+    /// Every distinct placement the group's pairs with placed sensors propose, scored jointly.
+    fn proposals(&self, group: &[(usize, Pose2)]) -> Vec<Proposal> {
         // Lookups by sensor, not searches: every group is weighed again after each join.
         let by_sensor = |list: &[(usize, Pose2)]| {
             let mut at = vec![None; self.sensors.len()];
@@ -403,6 +490,11 @@ impl JoinContext<'_> {
                 sources,
             })
             .collect();
+        scored
+    }
+
+    /// The verdict on a group's scored placements (`weigh`).
+    fn judge(&self, group: &[(usize, Pose2)], scored: &[Proposal]) -> Result<Join, Refusal> {
         let by_value = |x: &&Proposal, y: &&Proposal| x.joint.value.total_cmp(&y.joint.value);
         // A minority of members contradicting the placed sensors where the rest fit best is
         // split off (one at a time); a majority contradicting means the placement is wrong.
