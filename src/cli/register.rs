@@ -67,12 +67,24 @@ pub(super) struct PairOut {
     reason: Option<String>,
 }
 
+/// A pair pair selection did not register, and why.
+#[derive(Serialize)]
+pub(super) struct SkippedOut {
+    a: String,
+    b: String,
+    /// `no_shared_view` or `not_needed`.
+    kind: &'static str,
+    reason: String,
+}
+
 #[derive(Serialize)]
 pub(super) struct Output {
     pub anchor: String,
     pub elapsed_ms: u64,
     pub sensors: Vec<SensorPose>,
     pub pairs: Vec<PairOut>,
+    /// Pairs not registered (most pairs of a large site share no view).
+    pub skipped: Vec<SkippedOut>,
 }
 
 /// Each sensor found, with its registration input when it had scans.
@@ -321,11 +333,22 @@ pub(super) fn to_output(
             reason: p.result.verdict.as_ref().err().map(|why| why.to_string()),
         })
         .collect();
+    let skipped = site
+        .skipped
+        .iter()
+        .map(|k| SkippedOut {
+            a: id(k.a),
+            b: id(k.b),
+            kind: k.why.kind(),
+            reason: k.why.describe(),
+        })
+        .collect();
     Output {
         anchor: anchor_id.to_string(),
         elapsed_ms,
         sensors,
         pairs,
+        skipped,
     }
 }
 
@@ -374,4 +397,40 @@ pub(super) fn print_table(o: &Output) {
             p.reason.as_deref().unwrap_or("")
         );
     }
+    if !o.skipped.is_empty() {
+        println!(
+            "\n{} of {} pairs not registered (pair selection):",
+            o.skipped.len(),
+            o.skipped.len() + o.pairs.len()
+        );
+        for line in skipped_summary(o) {
+            println!("{line}");
+        }
+    }
+}
+
+/// One line per sensor with skipped pairs: how many, for which reasons.
+fn skipped_summary(o: &Output) -> Vec<String> {
+    o.sensors
+        .iter()
+        .filter_map(|s| {
+            let mine = || o.skipped.iter().filter(|k| k.a == s.id || k.b == s.id);
+            let count = |kind: &str| mine().filter(|k| k.kind == kind).count();
+            let (apart, unneeded) = (count("no_shared_view"), count("not_needed"));
+            let mut said = Vec::new();
+            if apart > 0 {
+                said.push(format!(
+                    "{apart} with sensors it shares (almost) no view with where the site places them"
+                ));
+            }
+            if unneeded > 0 {
+                said.push(format!(
+                    "{unneeded} placed without them before their views ranked each other"
+                ));
+            }
+            (!said.is_empty()).then(|| {
+                format!("{:<12} {} skipped: {}", s.id, mine().count(), said.join("; "))
+            })
+        })
+        .collect()
 }

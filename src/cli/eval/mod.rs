@@ -85,6 +85,14 @@ pub struct Args {
     /// estimated overlap, violation) to this file, for choosing thresholds.
     #[arg(long)]
     pub csv: Option<PathBuf>,
+    /// Also solve every site registering all pairs, and print where pair selection differs
+    /// (sensors placed, poses in mm) and what all pairs cost.
+    #[arg(long)]
+    pub site_compare: bool,
+    /// Pair selection for the sites: register each sensor's K most alike views first
+    /// (`SiteParams::partners`; default: every pair).
+    #[arg(long)]
+    pub partners: Option<usize>,
 }
 
 /// A generated floor (`sim::generate`) for `--floor`.

@@ -117,7 +117,14 @@ pub(super) fn real_sites(args: &Args, logs: &mut Logs) -> Result<()> {
                 prior: None,
             })
             .collect();
-        let outcome = solve_site(&inputs, &truths, logs.params, (0.15, 1.5f64.to_radians()));
+        let outcome = solve_site(
+            &inputs,
+            &truths,
+            logs.params,
+            (0.15, 1.5f64.to_radians()),
+            args.site_compare,
+            args.partners,
+        );
         outcome.print(totals.sites + 1, name);
         totals.add(&outcome);
     }

@@ -393,7 +393,14 @@ pub(super) fn sites(
                 prior: None,
             })
             .collect();
-        let outcome = solve_site(&inputs, &truths, params, (0.10, 1f64.to_radians()));
+        let outcome = solve_site(
+            &inputs,
+            &truths,
+            params,
+            (0.10, 1f64.to_radians()),
+            args.site_compare,
+            args.partners,
+        );
         done += 1;
         outcome.print(done, &plan.name);
         totals.add(&outcome);

@@ -2,7 +2,10 @@
 
 use scanfuse::geometry::{Pose2, pose_error};
 use scanfuse::register::RegisterParams;
-use scanfuse::register::site::{SensorInput, SiteParams, register_site};
+use scanfuse::register::model::shared_view;
+use scanfuse::register::site::{
+    SensorInput, SiteParams, SiteResult, ViewDescriptor, rank_partners, register_site,
+};
 use std::time::Instant;
 
 /// How one site came out against its truth.
@@ -19,7 +22,20 @@ pub(super) struct SiteOutcome {
     flagged_wrong: usize,
     /// For each sensor not placed right: why, and whether the truth was among its candidates.
     why_wrong: Vec<String>,
+    /// Pairs registered, pairs in all, rounds of pair selection.
+    registered: usize,
+    all_pairs: usize,
+    rounds: usize,
+    /// Truly overlapping pairs (≥ 30 % shared view) and, per `RECALL_K`, how many of them
+    /// the ranking proposes within its first k partners of either end.
+    overlapping: usize,
+    recalled: [usize; RECALL_K.len()],
+    /// Against registering every pair (`--site-compare`): what differs, and its time.
+    compared: Option<String>,
 }
+
+/// The k of the pair-selection recall figure.
+const RECALL_K: [usize; 5] = [2, 4, 8, 16, 32];
 
 impl SiteOutcome {
     pub(super) fn print(&self, k: usize, name: &str) {
@@ -35,6 +51,13 @@ impl SiteOutcome {
             self.ms,
             self.reachable
         );
+        println!(
+            "    pairs registered: {} of {} ({} rounds of pair selection)",
+            self.registered, self.all_pairs, self.rounds
+        );
+        if let Some(c) = &self.compared {
+            println!("    {c}");
+        }
         for w in &self.why_wrong {
             println!("{w}");
         }
@@ -52,6 +75,10 @@ pub(super) struct SiteTotals {
     flagged: usize,
     flagged_wrong: usize,
     slowest_ms: f64,
+    registered: usize,
+    all_pairs: usize,
+    overlapping: usize,
+    recalled: [usize; RECALL_K.len()],
 }
 
 impl SiteTotals {
@@ -74,6 +101,12 @@ impl SiteTotals {
         self.flagged += o.flagged;
         self.flagged_wrong += o.flagged_wrong;
         self.slowest_ms = self.slowest_ms.max(o.ms);
+        self.registered += o.registered;
+        self.all_pairs += o.all_pairs;
+        self.overlapping += o.overlapping;
+        for (t, r) in self.recalled.iter_mut().zip(o.recalled) {
+            *t += r;
+        }
     }
 
     pub(super) fn print(&self, tol: &str) {
@@ -101,6 +134,21 @@ impl SiteTotals {
             self.placed - self.flagged,
             wrong - self.flagged_wrong
         );
+        println!(
+            "pairs registered: {} of {}; pair-selection recall (of {} pairs sharing ≥ 30 % of their view, the share a sensor's first k ranked partners include): {}",
+            self.registered,
+            self.all_pairs,
+            self.overlapping,
+            RECALL_K
+                .iter()
+                .zip(self.recalled)
+                .map(|(k, r)| format!(
+                    "k={k} {:.0} %",
+                    100.0 * r as f64 / self.overlapping.max(1) as f64
+                ))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
     }
 }
 
@@ -111,10 +159,26 @@ pub(super) fn solve_site(
     truths: &[Pose2],
     params: &RegisterParams,
     tol: (f64, f64),
+    compare: bool,
+    partners: Option<usize>,
 ) -> SiteOutcome {
     let t0 = Instant::now();
-    let site = register_site(inputs, 0, params, &SiteParams::default());
+    let selected = SiteParams {
+        partners: partners.unwrap_or(SiteParams::default().partners),
+        ..SiteParams::default()
+    };
+    let site = register_site(inputs, 0, params, &selected);
     let ms = t0.elapsed().as_secs_f64() * 1e3;
+    let compared = compare.then(|| {
+        let t0 = Instant::now();
+        let all = SiteParams {
+            partners: usize::MAX,
+            ..SiteParams::default()
+        };
+        let every = register_site(inputs, 0, params, &all);
+        differences(&site, &every, t0.elapsed().as_secs_f64() * 1e3)
+    });
+    let (overlapping, recalled) = recall(inputs, truths);
     let within = |e: (f64, f64)| e.0 <= tol.0 && e.1 <= tol.1;
     // Each placed sensor's error against the truth, relative to the anchor (m, rad).
     let errors: Vec<Option<(f64, f64)>> = site
@@ -254,5 +318,66 @@ pub(super) fn solve_site(
         flagged: flagged.len(),
         flagged_wrong: flagged.iter().filter(|w| **w).count(),
         why_wrong,
+        registered: site.pairs.len(),
+        all_pairs: site.pairs.len() + site.skipped.len(),
+        rounds: site.rounds,
+        overlapping,
+        recalled,
+        compared,
     }
+}
+
+/// How a site solved with pair selection differs from one registering every pair.
+fn differences(selected: &SiteResult, every: &SiteResult, every_ms: f64) -> String {
+    let mut only_selected = Vec::new();
+    let mut only_every = Vec::new();
+    let mut max_mm: f64 = 0.0;
+    let mut max_deg: f64 = 0.0;
+    for (s, e) in selected.sensors.iter().zip(&every.sensors) {
+        match (&s.pose, &e.pose) {
+            (Ok(a), Ok(b)) => {
+                let (dt, dyaw) = pose_error(&a.pose.planar(), &b.pose.planar());
+                max_mm = max_mm.max(dt * 1e3);
+                max_deg = max_deg.max(dyaw.to_degrees());
+            }
+            (Ok(_), Err(_)) => only_selected.push(s.id.as_str()),
+            (Err(_), Ok(_)) => only_every.push(s.id.as_str()),
+            _ => {}
+        }
+    }
+    format!(
+        "vs all pairs ({every_ms:.0} ms): placed only with selection [{}], only with all pairs [{}]; poses of both differ by ≤ {max_mm:.2} mm / {max_deg:.4}°",
+        only_selected.join(" "),
+        only_every.join(" ")
+    )
+}
+
+/// Pairs sharing ≥ 30 % of their view at the truth, and how many of them the ranking puts
+/// within each `RECALL_K` of either end's partners.
+fn recall(inputs: &[SensorInput], truths: &[Pose2]) -> (usize, [usize; RECALL_K.len()]) {
+    let descriptors: Vec<ViewDescriptor> = inputs
+        .iter()
+        .map(|s| ViewDescriptor::of(&s.model))
+        .collect();
+    let ranking = rank_partners(&descriptors);
+    let rank_of = |i: usize, j: usize| ranking[i].iter().position(|&x| x == j);
+    let (mut overlapping, mut recalled) = (0, [0; RECALL_K.len()]);
+    for a in 0..inputs.len() {
+        for b in a + 1..inputs.len() {
+            let (Some(ta), Some(tb)) = (truths.get(a), truths.get(b)) else {
+                continue;
+            };
+            if shared_view(&inputs[a].model, &inputs[b].model, &(ta.inverse() * tb)) < 0.3 {
+                continue;
+            }
+            overlapping += 1;
+            let first = rank_of(a, b).into_iter().chain(rank_of(b, a)).min();
+            for (r, k) in recalled.iter_mut().zip(RECALL_K) {
+                if first.is_some_and(|f| f < k) {
+                    *r += 1;
+                }
+            }
+        }
+    }
+    (overlapping, recalled)
 }

@@ -1,0 +1,632 @@
+//! Joins: each group not yet placed is weighed against every placed sensor jointly (the
+//! placements its pairs' candidates propose, scored against all placed scans; refused when
+//! ambiguous, weak, contradicted or free to slide), and the best-supported acceptable group
+//! joins first, one at a time, since each join is evidence for the rest. Owns `Refusal`, the
+//! reasons a group stays unplaced.
+
+use super::{SensorInput, SiteParams};
+use crate::geometry::{Pose2, pose_error, pose2};
+use crate::register::{Candidate, PairResult, RegisterParams};
+use rayon::prelude::*;
+
+/// What the joins leave: why each group is unplaced (None if joined or not weighed) and the
+/// (pair, candidate) proposals of every join.
+pub(super) struct Joined {
+    pub refusals: Vec<Option<Refusal>>,
+    pub sources: Vec<(usize, usize)>,
+}
+
+/// Places surveyed groups at their surveys, then joins the other groups one at a time, the
+/// best-supported first; splits off a member that contradicts where the rest of its group fits.
+pub(super) fn join_groups(
+    placed: &mut [Option<Pose2>],
+    groups: &mut Vec<Vec<(usize, Pose2)>>,
+    sensors: &[SensorInput],
+    pairs: &[(usize, usize)],
+    results: &[PairResult],
+    p: &RegisterParams,
+    sp: &SiteParams,
+) -> Joined {
+    // Join the groups one at a time, the best-supported first: each join adds evidence
+    // (placed sensors to check against) for the rest.
+    let mut refusals: Vec<Option<Refusal>> = vec![None; groups.len()];
+    // A group with a surveyed member stands where its best survey puts it (the solve weighs
+    // the survey against the edges later); from there it is evidence for the groups that join.
+    let mut open: Vec<usize> = Vec::new();
+    for (g, members) in groups.iter().enumerate() {
+        let surveyed = members
+            .iter()
+            .filter_map(|&(m, root_from_m)| Some((sensors.get(m)?.prior?, root_from_m)))
+            .min_by(|x, y| x.0.sigma_xy_m.total_cmp(&y.0.sigma_xy_m));
+        let Some((prior, root_from_m)) = surveyed else {
+            open.push(g);
+            continue;
+        };
+        let anchor_from_root = prior.anchor_from_sensor * root_from_m.inverse();
+        for &(m, root_from_member) in members {
+            placed[m] = Some(anchor_from_root * root_from_member);
+        }
+    }
+    let mut join_sources: Vec<(usize, usize)> = Vec::new();
+    let reach_m = super::reach_m(sensors);
+    // Each sensor's partners in some pair: a join gives a group new proposals only through them.
+    let mut partners: Vec<Vec<usize>> = vec![Vec::new(); sensors.len()];
+    for &(a, b) in pairs {
+        if a < partners.len() && b < partners.len() {
+            partners[a].push(b);
+            partners[b].push(a);
+        }
+    }
+    // A group's last verdict (with its slide test, once run) and the placements it scored:
+    // kept until a join could change it (`changes`), since weighing is the dear part.
+    let mut cache: Vec<Option<Weighed>> = vec![None; groups.len()];
+    loop {
+        let ctx = JoinContext {
+            sensors,
+            placed: placed
+                .iter()
+                .enumerate()
+                .filter_map(|(i, pose)| pose.map(|pose| (i, pose)))
+                .collect(),
+            pairs,
+            results,
+            p,
+            sp,
+            reach_m: &reach_m,
+        };
+        let mut acceptable = Vec::new();
+        let mut split = Vec::new();
+        cache.resize(groups.len(), None);
+        for &g in &open {
+            let weighed = cache[g].get_or_insert_with(|| {
+                let (outcome, places) = ctx.weigh_at(&groups[g]);
+                Weighed {
+                    outcome,
+                    places,
+                    slid: None,
+                }
+            });
+            match weighed.outcome.clone() {
+                Ok(join) => acceptable.push((g, join)),
+                Err(Refusal::MemberContradicts { member }) => split.push((g, member)),
+                Err(why) => refusals[g] = Some(why),
+            }
+        }
+        // A group whose best placement a minority of its members contradict: their checked
+        // edges were wrong after all (or they see what the others do not); weigh them apart.
+        if !split.is_empty() {
+            for (g, member) in split {
+                cache[g] = None;
+                groups[g].retain(|(m, _)| *m != member);
+                groups.push(vec![(member, Pose2::identity())]);
+                refusals.push(None);
+                open.push(groups.len() - 1);
+            }
+            continue;
+        }
+        acceptable.sort_by(|x, y| y.1.priority().total_cmp(&x.1.priority()));
+        // The slide test is the dearest: run it on the front-runners only, in order.
+        let mut joined = None;
+        for (g, join) in acceptable {
+            let slid = match cache[g].as_ref().and_then(|w| w.slid.clone()) {
+                Some(slid) => slid,
+                None => ctx.slides(&groups[g], &join),
+            };
+            if let Some(w) = cache[g].as_mut() {
+                w.slid = Some(slid.clone());
+            }
+            match slid {
+                Some(why) => refusals[g] = Some(why),
+                None => {
+                    joined = Some((g, join));
+                    break;
+                }
+            }
+        }
+        let Some((g, join)) = joined else { break };
+        for &(m, root_from_member) in &groups[g] {
+            placed[m] = Some(join.anchor_from_root * root_from_member);
+        }
+        join_sources.extend(join.sources);
+        refusals[g] = None;
+        open.retain(|&o| o != g);
+        let joined: Vec<(usize, Pose2)> = groups[g]
+            .iter()
+            .filter_map(|&(m, _)| Some((m, placed[m]?)))
+            .collect();
+        for &o in &open {
+            let stale = cache[o]
+                .as_ref()
+                .is_some_and(|w| w.changes(&groups[o], &joined, &partners, &reach_m));
+            if stale {
+                cache[o] = None;
+            }
+        }
+    }
+    Joined {
+        refusals,
+        sources: join_sources,
+    }
+}
+
+/// A group's verdict against the sensors placed so far.
+#[derive(Clone)]
+struct Weighed {
+    outcome: Result<Join, Refusal>,
+    /// Anchor-frame placements of the group's root that were scored.
+    places: Vec<Pose2>,
+    /// The slide test's verdict, once run on an acceptable outcome.
+    slid: Option<Option<Refusal>>,
+}
+
+impl Weighed {
+    /// Whether sensors just placed (`joined`, anchor-frame poses) could change the verdict: one
+    /// is in a pair with a member (a new proposal), or within reach of a member at some scored
+    /// placement (a new term of its joint score). Otherwise weighing again gives the same.
+    fn changes(
+        &self,
+        group: &[(usize, Pose2)],
+        joined: &[(usize, Pose2)],
+        partners: &[Vec<usize>],
+        reach_m: &[f64],
+    ) -> bool {
+        let reach = |k: usize| reach_m.get(k).copied().unwrap_or(f64::INFINITY);
+        joined.iter().any(|&(m, at_m)| {
+            group.iter().any(|&(j, root_from_j)| {
+                partners.get(m).is_some_and(|p| p.contains(&j))
+                    || self.places.iter().any(|place| {
+                        let at_j = place * root_from_j;
+                        (at_j.translation.vector - at_m.translation.vector).norm()
+                            <= reach(j) + reach(m)
+                    })
+            })
+        })
+    }
+}
+
+/// Why a group was not joined to the placed sensors.
+#[derive(Debug, Clone, PartialEq)]
+pub(super) enum Refusal {
+    /// No pair between it and a placed sensor has a candidate that respects free space.
+    NoProposal,
+    /// Every proposed placement puts a scan in space a placed sensor saw empty (or the
+    /// reverse); the best-scoring one contradicts `with` on this share of points.
+    Contradicts { with: usize, violation: f64 },
+    /// The best-scoring placement fits every placed sensor but for a few members' scans, which
+    /// contradict one's free space: the group is weighed again without this one.
+    MemberContradicts { member: usize },
+    /// The best placement is proposed only by pairs that share too little view or fit poorly.
+    NoPairStands,
+    /// The best placement shares too little view with the placed sensors.
+    TooLittle { overlap: f64 },
+    /// It shares view, but free-space violations outweigh the hits.
+    Outweighed { value: f64 },
+    /// Shared view and the rival's score together leave too thin a margin.
+    Weak { overlap: f64, ambiguity: f64 },
+    /// A clearly different placement fits the placed sensors nearly as well.
+    Ambiguous {
+        ratio: f64,
+        apart_m: f64,
+        apart_deg: f64,
+    },
+    /// Sliding the best placement along this direction costs almost nothing.
+    Slides { axis_deg: f64 },
+    /// Only placed sensor `with` shares its view, and that pair alone does not register.
+    LonePair { with: usize, why: String },
+}
+
+impl Refusal {
+    pub(super) fn describe<'a>(&self, id: &impl Fn(usize) -> &'a str) -> String {
+        const HELP: &str = "survey it, or add a sensor that sees both it and a placed one";
+        match self {
+            Refusal::MemberContradicts { member } => format!(
+                "its placement is contradicted where {} stands; {HELP}",
+                id(*member)
+            ),
+            Refusal::NoProposal => {
+                format!("it shares no usable view with any placed sensor; {HELP}")
+            }
+            Refusal::Contradicts { with, violation } => format!(
+                "every placement its pairs propose puts a scan in space {} saw empty ({:.0} % of points); {HELP}",
+                id(*with),
+                violation * 100.0
+            ),
+            Refusal::NoPairStands => format!(
+                "its best placement rests only on pairs with too little shared view or a poor fit; {HELP}"
+            ),
+            Refusal::TooLittle { overlap } => format!(
+                "its best placement shares only {:.0} % of its view with the placed sensors, too little to place it; {HELP}",
+                overlap * 100.0
+            ),
+            Refusal::Outweighed { value } => format!(
+                "at its best placement, points in the placed sensors' free space outweigh the shared view (score {value:.2}); {HELP}"
+            ),
+            // Without a rival the margin is the shared view alone: say so, not "0 % as well".
+            Refusal::Weak { overlap, ambiguity } if *ambiguity < 0.005 => format!(
+                "its best placement shares only {:.0} % of its view with the placed sensors, too little to rest a placement on; {HELP}",
+                overlap * 100.0
+            ),
+            Refusal::Weak { overlap, ambiguity } => format!(
+                "its best placement shares {:.0} % of its view with the placed sensors and another scores {:.0} % as well, too thin a margin to place it; {HELP}",
+                overlap * 100.0,
+                ambiguity * 100.0
+            ),
+            Refusal::Ambiguous {
+                ratio,
+                apart_m,
+                apart_deg,
+            } => format!(
+                "two placements fit the placed sensors about equally (the other, {apart_m:.2} m / {apart_deg:.0}° away, scores {:.0} % as well: a mirror image or repeated structure); {HELP}",
+                ratio * 100.0
+            ),
+            Refusal::LonePair { with, why } => format!(
+                "only {} of the placed sensors shares its view, and that pair alone is not registered ({why}); {HELP}",
+                id(*with)
+            ),
+            Refusal::Slides { axis_deg } => format!(
+                "its position along {axis_deg:.0}° is not fixed by what the placed sensors see (a corridor seen lengthwise); survey it, or add a sensor that sees across"
+            ),
+        }
+    }
+}
+
+/// Where a group stands, chosen jointly against every placed sensor.
+#[derive(Debug, Clone)]
+pub(super) struct Join {
+    pub(super) anchor_from_root: Pose2,
+    /// (pair, candidate) of every proposal of this placement.
+    pub(super) sources: Vec<(usize, usize)>,
+    pub(super) score: Joint,
+    /// The best rival placement's joint score over this one's (0 = none).
+    pub(super) ambiguity: f64,
+}
+
+impl Join {
+    pub(super) fn priority(&self) -> f64 {
+        self.score.value * (1.0 - self.ambiguity)
+    }
+}
+
+/// A placement's scores against every placed sensor, summed over those pairs.
+#[derive(Debug, Clone)]
+pub(super) struct Joint {
+    pub(super) value: f64,
+    pub(super) overlap: f64,
+    /// The worst pair's violation share, and the placed sensor of that pair.
+    pub(super) violation: f64,
+    pub(super) worst: usize,
+    /// Members in some pair over the violation limit.
+    pub(super) violating: Vec<usize>,
+    /// (placed, member) pairs that share at least `min_overlap` of their view here.
+    pub(super) witnesses: Vec<(usize, usize)>,
+}
+
+/// One placement the proposals agree on, with its joint score.
+#[derive(Debug, Clone)]
+pub(super) struct Proposal {
+    pub(super) anchor_from_root: Pose2,
+    /// (pair, candidate) of every proposal of this placement.
+    pub(super) sources: Vec<(usize, usize)>,
+    pub(super) joint: Joint,
+}
+
+/// What a join is weighed against.
+pub(super) struct JoinContext<'a> {
+    pub(super) sensors: &'a [SensorInput],
+    /// Placed sensors and their poses in the anchor's frame.
+    pub(super) placed: Vec<(usize, Pose2)>,
+    pub(super) pairs: &'a [(usize, usize)],
+    pub(super) results: &'a [PairResult],
+    pub(super) p: &'a RegisterParams,
+    pub(super) sp: &'a SiteParams,
+    /// Each sensor's reach (`reach_m`): the joint score skips placed sensors out of it.
+    pub(super) reach_m: &'a [f64],
+}
+
+impl JoinContext<'_> {
+    /// Scores a group (members with `root_from_member`) placed at `anchor_from_root` against
+    /// every placed sensor.
+    pub(super) fn joint(&self, group: &[(usize, Pose2)], anchor_from_root: &Pose2) -> Joint {
+        let mut joint = Joint {
+            value: 0.0,
+            overlap: 0.0,
+            violation: 0.0,
+            worst: 0,
+            violating: Vec::new(),
+            witnesses: Vec::new(),
+        };
+        for &(i, anchor_from_i) in &self.placed {
+            for &(j, root_from_j) in group {
+                let (Some(si), Some(sj)) = (self.sensors.get(i), self.sensors.get(j)) else {
+                    continue;
+                };
+                let i_from_j = anchor_from_i.inverse() * anchor_from_root * root_from_j;
+                // Out of each other's reach: no hit, no contradiction, a score of nothing.
+                let reach = |k: usize| self.reach_m.get(k).copied().unwrap_or(f64::INFINITY);
+                if i_from_j.translation.vector.norm() > reach(i) + reach(j) {
+                    continue;
+                }
+                let s = crate::register::score::score(&si.model, &sj.model, &i_from_j, self.p);
+                joint.value += s.value;
+                joint.overlap += s.overlap();
+                if s.violation() > joint.violation {
+                    joint.violation = s.violation();
+                    joint.worst = i;
+                }
+                if s.violation() > self.p.max_violation && !joint.violating.contains(&j) {
+                    joint.violating.push(j);
+                }
+                if s.overlap() >= self.p.min_overlap {
+                    joint.witnesses.push((i, j));
+                }
+            }
+        }
+        joint
+    }
+
+    /// The candidates of every pair between sensor `k` and a placed sensor, each with its pair
+    /// index, where it puts `k` (anchor's frame) and whether that is `anchor_from_k` (within
+    /// `confirm_m` / `confirm_rad`); candidates that contradict free space are left out.
+    pub(super) fn opinions_on(
+        &self,
+        k: usize,
+        anchor_from_k: Pose2,
+    ) -> impl Iterator<Item = (usize, &Candidate, Pose2, bool)> + '_ {
+        self.pairs
+            .iter()
+            .zip(self.results)
+            .enumerate()
+            .filter_map(move |(pair, (&(a, b), r))| {
+                let (other, k_is_b) = match (a == k, b == k) {
+                    (true, false) => (b, false),
+                    (false, true) => (a, true),
+                    _ => return None,
+                };
+                let (_, anchor_from_other) = self.placed.iter().find(|(i, _)| *i == other)?;
+                let other_from_k = anchor_from_other.inverse() * anchor_from_k;
+                Some(r.candidates.iter().filter_map(move |c| {
+                    let said = if k_is_b {
+                        c.a_from_b
+                    } else {
+                        c.a_from_b.inverse()
+                    };
+                    let (dt, dyaw) = pose_error(&said, &other_from_k);
+                    let agrees = dt <= self.sp.confirm_m && dyaw <= self.sp.confirm_rad;
+                    let proposed = anchor_from_other * said;
+                    (c.score.violation() <= self.p.max_violation)
+                        .then_some((pair, c, proposed, agrees))
+                }))
+            })
+            .flatten()
+    }
+
+    /// Whether a candidate with enough shared view and fit to stand alone puts `k` elsewhere
+    /// than `anchor_from_k`.
+    pub(super) fn standing_dissent(&self, k: usize, anchor_from_k: Pose2) -> bool {
+        self.opinions_on(k, anchor_from_k).any(|(_, c, _, agrees)| {
+            !agrees && c.score.overlap() >= self.p.min_overlap && c.score.value >= self.p.min_score
+        })
+    }
+
+    /// How many pairs have a candidate that puts `k` at `anchor_from_k`.
+    pub(super) fn support(&self, k: usize, anchor_from_k: Pose2) -> usize {
+        let mut pairs: Vec<usize> = self
+            .opinions_on(k, anchor_from_k)
+            .filter_map(|(pair, _, _, agrees)| agrees.then_some(pair))
+            .collect();
+        pairs.dedup();
+        pairs.len()
+    }
+
+    /// Every distinct placement the candidates of pairs between the group and a placed
+    /// sensor propose, scored jointly; the best is accepted when it contradicts no placed
+    /// sensor, shares enough view, and no clearly different placement scores nearly as well.
+    pub(super) fn weigh(&self, group: &[(usize, Pose2)]) -> Result<Join, Refusal> {
+        self.weigh_at(group).0
+    }
+
+    /// `weigh`, and every placement (of the group's root) it scored.
+    fn weigh_at(&self, group: &[(usize, Pose2)]) -> (Result<Join, Refusal>, Vec<Pose2>) {
+        let scored = self.proposals(group);
+        let places = scored.iter().map(|c| c.anchor_from_root).collect();
+        (self.judge(group, &scored), places)
+    }
+
+    /// Every distinct placement the group's pairs with placed sensors propose, scored jointly.
+    fn proposals(&self, group: &[(usize, Pose2)]) -> Vec<Proposal> {
+        // Lookups by sensor, not searches: every group is weighed again after each join.
+        let by_sensor = |list: &[(usize, Pose2)]| {
+            let mut at = vec![None; self.sensors.len()];
+            for &(i, pose) in list {
+                if let Some(slot) = at.get_mut(i) {
+                    *slot = Some(pose);
+                }
+            }
+            at
+        };
+        let (placed_at, member_at) = (by_sensor(&self.placed), by_sensor(group));
+        let pose_of = |s: usize| placed_at.get(s).copied().flatten();
+        let member = |s: usize| member_at.get(s).copied().flatten();
+        let mut proposals: Vec<(f64, Pose2, (usize, usize))> = Vec::new();
+        for (k, (&(a, b), r)) in self.pairs.iter().zip(self.results).enumerate() {
+            let (anchor_from_placed, root_from_member, member_is_b) =
+                match (pose_of(a), member(b), pose_of(b), member(a)) {
+                    (Some(pa), Some(rb), _, _) => (pa, rb, true),
+                    (_, _, Some(pb), Some(ra)) => (pb, ra, false),
+                    _ => continue,
+                };
+            for (ci, c) in r.candidates.iter().enumerate() {
+                if c.score.violation() > self.p.max_violation {
+                    continue;
+                }
+                let placed_from_member = if member_is_b {
+                    c.a_from_b
+                } else {
+                    c.a_from_b.inverse()
+                };
+                let anchor_from_root =
+                    anchor_from_placed * placed_from_member * root_from_member.inverse();
+                proposals.push((c.score.value, anchor_from_root, (k, ci)));
+            }
+        }
+        proposals.sort_by(|x, y| y.0.total_cmp(&x.0));
+        // One placement per cluster of proposals that agree (the best-scoring one stands for it).
+        let mut placements: Vec<(Pose2, Vec<(usize, usize)>)> = Vec::new();
+        for (_, pose, source) in proposals {
+            let same = placements.iter_mut().find(|(q, _)| {
+                let (dt, dyaw) = pose_error(q, &pose);
+                dt <= self.sp.confirm_m && dyaw <= self.sp.confirm_rad
+            });
+            match same {
+                Some((_, sources)) => sources.push(source),
+                None => placements.push((pose, vec![source])),
+            }
+        }
+        let scored: Vec<Proposal> = placements
+            .into_par_iter()
+            .map(|(anchor_from_root, sources)| Proposal {
+                joint: self.joint(group, &anchor_from_root),
+                anchor_from_root,
+                sources,
+            })
+            .collect();
+        scored
+    }
+
+    /// The verdict on a group's scored placements (`weigh`).
+    fn judge(&self, group: &[(usize, Pose2)], scored: &[Proposal]) -> Result<Join, Refusal> {
+        let by_value = |x: &&Proposal, y: &&Proposal| x.joint.value.total_cmp(&y.joint.value);
+        // A minority of members contradicting the placed sensors where the rest fit best is
+        // split off (one at a time); a majority contradicting means the placement is wrong.
+        if let Some(top) = scored.iter().max_by(by_value)
+            && let Some(&member) = top.joint.violating.first()
+            && top.joint.violating.len() * 2 < group.len()
+        {
+            return Err(Refusal::MemberContradicts { member });
+        }
+        let viable: Vec<&Proposal> = scored
+            .iter()
+            .filter(|c| c.joint.violation <= self.p.max_violation)
+            .collect();
+        let Some(best) = viable.iter().copied().max_by(by_value) else {
+            return Err(match scored.iter().max_by(by_value) {
+                Some(c) => Refusal::Contradicts {
+                    with: c.joint.worst,
+                    violation: c.joint.violation,
+                },
+                None => Refusal::NoProposal,
+            });
+        };
+        let joint = &best.joint;
+        // Third sensors settle which of a pair's answers is right; they do not make a placement
+        // out of scraps: one proposal must stand on its own pair's shared view and fit.
+        let stands_alone = best.sources.iter().any(|&(k, ci)| {
+            self.results
+                .get(k)
+                .and_then(|r| r.candidates.get(ci))
+                .is_some_and(|c| {
+                    c.score.overlap() >= self.p.min_overlap && c.score.value >= self.p.min_score
+                })
+        });
+        if !stands_alone {
+            return Err(Refusal::NoPairStands);
+        }
+        if let [_] = group
+            && let Some(refusal) = self.lone_witness_abstains(&best.joint, &best.sources)
+        {
+            return Err(refusal);
+        }
+        if joint.overlap < self.p.min_overlap {
+            return Err(Refusal::TooLittle {
+                overlap: joint.overlap,
+            });
+        }
+        if joint.value < self.p.min_score {
+            return Err(Refusal::Outweighed { value: joint.value });
+        }
+        // The strongest rival: any placement that is not the same answer. One that contradicts
+        // a placed sensor yet fits the rest so well that it nearly matches the best (its
+        // violations are already charged in its score) means the evidence conflicts.
+        let rival = scored
+            .iter()
+            .filter(|c| {
+                let (dt, dyaw) = pose_error(&c.anchor_from_root, &best.anchor_from_root);
+                dt >= self.p.same_pose_m || dyaw >= self.p.same_pose_rad
+            })
+            .max_by(by_value);
+        let ambiguity = rival.map_or(0.0, |r| (r.joint.value / joint.value).max(0.0));
+        if let Some(r) = rival
+            && ambiguity >= self.sp.join_max_ambiguity
+        {
+            let (apart_m, apart_rad) = pose_error(&r.anchor_from_root, &best.anchor_from_root);
+            return Err(Refusal::Ambiguous {
+                ratio: ambiguity,
+                apart_m,
+                apart_deg: apart_rad.to_degrees(),
+            });
+        }
+        if joint.overlap * (1.0 - ambiguity) < self.sp.join_min_strength {
+            return Err(Refusal::Weak {
+                overlap: joint.overlap,
+                ambiguity,
+            });
+        }
+        Ok(Join {
+            anchor_from_root: best.anchor_from_root,
+            sources: best.sources.clone(),
+            score: best.joint.clone(),
+            ambiguity,
+        })
+    }
+
+    /// A lone sensor that only one placed sensor shares view with is that pair's answer and
+    /// nothing more: no third sensor checks it. Then it stands only where the pair, registered
+    /// alone, would put it; otherwise the pair's own reason for abstaining is the refusal.
+    /// (Placing through such a pair's other candidates, or past its σ and corridor checks, made
+    /// a site of two sensors confidently wrong more often than the pair alone.) A group joining
+    /// is checked by its other members' views of the placed sensors' free space as well.
+    pub(super) fn lone_witness_abstains(
+        &self,
+        joint: &Joint,
+        sources: &[(usize, usize)],
+    ) -> Option<Refusal> {
+        let [(i, j)] = joint.witnesses.as_slice() else {
+            return None;
+        };
+        let k = self
+            .pairs
+            .iter()
+            .position(|&(a, b)| (a, b) == (*i, *j) || (a, b) == (*j, *i))?;
+        let r = self.results.get(k)?;
+        let why = match &r.verdict {
+            Err(why) => why.to_string(),
+            Ok(()) if !sources.contains(&(k, 0)) => {
+                "its best answer is another placement".to_string()
+            }
+            Ok(()) => return None,
+        };
+        Some(Refusal::LonePair { with: *i, why })
+    }
+
+    /// A slide of the placement (every 15°, by each of `join_slide_m` both ways) that keeps
+    /// the pair check's `slide_ratio` of the joint score: the position is not fixed along it.
+    pub(super) fn slides(&self, group: &[(usize, Pose2)], join: &Join) -> Option<Refusal> {
+        let shifts: Vec<(f64, f64)> = (0..12)
+            .flat_map(|k| {
+                let deg = 15.0 * k as f64;
+                self.sp
+                    .join_slide_m
+                    .iter()
+                    .flat_map(move |&d| [(deg, d), (deg, -d)])
+            })
+            .collect();
+        shifts
+            .par_iter()
+            .find_first(|&&(deg, d)| {
+                let rad = f64::to_radians(deg);
+                let moved = pose2(d * rad.cos(), d * rad.sin(), 0.0) * join.anchor_from_root;
+                self.joint(group, &moved).value > self.p.slide_ratio * join.score.value
+            })
+            .map(|&(deg, _)| Refusal::Slides { axis_deg: deg })
+    }
+}

@@ -1,0 +1,232 @@
+//! Pair selection: which pairs of sensors are registered. Most pairs of a large site share no
+//! view, and registering one is the dearest step, so a site starts from each sensor's most
+//! likely partners (`descriptor`'s ranking) and widens in rounds, after each of which the
+//! stages place what they can: a sensor still unplaced tries the partners of the sensors it
+//! already shares view with, and when there are none left, the next partners in its ranking
+//! (twice as many each round, down to every other sensor); two sensors that are placed (or in one group) are registered when
+//! their scans overlap where the site puts them, which adds the cycles and pairs that check
+//! them. It stops when a round proposes nothing new. Every other pair is skipped, and why.
+
+use super::SensorInput;
+use super::descriptor::{ViewDescriptor, rank_partners};
+use crate::geometry::Pose2;
+use crate::register::model::shared_view;
+use crate::register::{PairResult, RegisterParams, register_pair};
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+
+/// Why a pair was not registered.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Skip {
+    /// Both ends were placed (or bound in one group) and at those poses their scans share
+    /// this share of view, too little to register.
+    NoSharedView { predicted: f64 },
+    /// Both ends were placed before either's ranking reached the other.
+    NotNeeded,
+}
+
+impl Skip {
+    /// A short name of the reason, for counting and for JSON.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Skip::NoSharedView { .. } => "no_shared_view",
+            Skip::NotNeeded => "not_needed",
+        }
+    }
+
+    pub fn describe(&self) -> String {
+        match self {
+            Skip::NoSharedView { predicted } => format!(
+                "where the site places them they share {:.0} % of their view",
+                predicted * 100.0
+            ),
+            Skip::NotNeeded => {
+                "both were placed before their views ranked each other as likely partners"
+                    .to_string()
+            }
+        }
+    }
+}
+
+/// A pair that was not registered.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SkippedPair {
+    pub a: usize,
+    pub b: usize,
+    pub why: Skip,
+}
+
+/// Two sensors placed in one frame are registered when they are predicted to share at least
+/// this share of view: less cannot register (`min_overlap` 0.2) but a pair near it may still
+/// carry a candidate the joins and the second opinion weigh.
+const PREDICTED_SHARE: f64 = 0.05;
+
+/// The pairs registered so far, and the ranking that proposes more.
+pub(super) struct PairSelection<'a> {
+    sensors: &'a [SensorInput],
+    p: &'a RegisterParams,
+    /// Each sensor's other sensors, most alike first.
+    ranking: Vec<Vec<usize>>,
+    /// How far down its ranking each sensor has been tried.
+    tried: Vec<usize>,
+    results: BTreeMap<(usize, usize), PairResult>,
+    /// How far each sensor's points reach from it (m): two sensors farther apart than the sum
+    /// share no view.
+    reach_m: Vec<f64>,
+    /// `partners` is the first round's count per sensor.
+    partners: usize,
+}
+
+impl<'a> PairSelection<'a> {
+    pub fn new(sensors: &'a [SensorInput], p: &'a RegisterParams, partners: usize) -> Self {
+        let descriptors: Vec<ViewDescriptor> = sensors
+            .par_iter()
+            .map(|s| ViewDescriptor::of(&s.model))
+            .collect();
+        PairSelection {
+            sensors,
+            p,
+            ranking: rank_partners(&descriptors),
+            tried: vec![0; sensors.len()],
+            results: BTreeMap::new(),
+            reach_m: super::reach_m(sensors),
+            partners: partners.max(1),
+        }
+    }
+
+    /// The first round: every sensor's `partners` most alike.
+    pub fn first_round(&mut self) -> Vec<(usize, usize)> {
+        let all: Vec<usize> = (0..self.sensors.len()).collect();
+        self.next_partners(&all, self.partners)
+    }
+
+    /// The next `count` partners in each of `sensors`' rankings, as new pairs (a < b).
+    fn next_partners(&mut self, sensors: &[usize], count: usize) -> Vec<(usize, usize)> {
+        let mut pairs = Vec::new();
+        for &i in sensors {
+            let from = self.tried[i];
+            let to = from.saturating_add(count).min(self.ranking[i].len());
+            for &j in &self.ranking[i][from..to] {
+                pairs.push((i.min(j), i.max(j)));
+            }
+            self.tried[i] = to;
+        }
+        self.fresh(pairs)
+    }
+
+    /// `pairs` without duplicates and those already registered.
+    fn fresh(&self, mut pairs: Vec<(usize, usize)>) -> Vec<(usize, usize)> {
+        pairs.sort_unstable();
+        pairs.dedup();
+        pairs.retain(|k| k.0 != k.1 && !self.results.contains_key(k));
+        pairs
+    }
+
+    /// Registers `pairs` (in parallel).
+    pub fn register(&mut self, pairs: &[(usize, usize)]) {
+        let (sensors, p) = (self.sensors, self.p);
+        let done: Vec<PairResult> = pairs
+            .par_iter()
+            .map(|&(a, b)| register_pair(&sensors[a].model, &sensors[b].model, p))
+            .collect();
+        self.results.extend(pairs.iter().copied().zip(done));
+    }
+
+    /// The pairs registered so far, in (a, b) order, and their results.
+    #[allow(clippy::type_complexity)]
+    pub fn registered(&self) -> (Vec<(usize, usize)>, Vec<PairResult>) {
+        self.results.iter().map(|(&k, r)| (k, r.clone())).unzip()
+    }
+
+    /// Predicted shared view of `a` and `b` at `a_from_b` (0 when out of each other's reach).
+    fn predicted(&self, a: usize, b: usize, a_from_b: &Pose2) -> f64 {
+        if a_from_b.translation.vector.norm() > self.reach_m[a] + self.reach_m[b] {
+            return 0.0;
+        }
+        shared_view(&self.sensors[a].model, &self.sensors[b].model, a_from_b)
+    }
+
+    /// The next round, given where the stages put every sensor: `frame[i]` is the frame a
+    /// sensor was posed in (0 = the anchor's, g + 1 = group g's) and its pose there.
+    pub fn widen(
+        &mut self,
+        frame: &[Option<(usize, Pose2)>],
+        placed: &[bool],
+    ) -> Vec<(usize, usize)> {
+        let n = self.sensors.len();
+        let mut pairs = Vec::new();
+        // Posed in one frame: register where the scans overlap.
+        let posed: Vec<(usize, usize, Pose2)> = frame
+            .iter()
+            .enumerate()
+            .filter_map(|(i, f)| f.map(|(g, pose)| (i, g, pose)))
+            .collect();
+        let candidates: Vec<(usize, usize, Pose2)> = posed
+            .iter()
+            .flat_map(|&(i, gi, pi)| {
+                posed
+                    .iter()
+                    .filter(move |&&(j, gj, _)| j > i && gj == gi)
+                    .map(move |&(j, _, pj)| (i, j, pi.inverse() * pj))
+            })
+            .filter(|(i, j, _)| !self.results.contains_key(&(*i, *j)))
+            .collect();
+        pairs.extend(
+            candidates
+                .par_iter()
+                .filter(|(i, j, rel)| self.predicted(*i, *j, rel) >= PREDICTED_SHARE)
+                .map(|&(i, j, _)| (i, j))
+                .collect::<Vec<_>>(),
+        );
+        // Unplaced: further down the ranking (twice as far as before), and the partners of
+        // the sensors each already shares view with.
+        let unplaced: Vec<usize> = (0..n).filter(|&i| !placed[i]).collect();
+        for &u in &unplaced {
+            let mut near = Vec::new();
+            for v in self.neighbours(u) {
+                for w in self.neighbours(v) {
+                    near.push((u.min(w), u.max(w)));
+                }
+            }
+            let near = self.fresh(near);
+            if near.is_empty() {
+                let count = self.tried[u].max(self.partners);
+                pairs.extend(self.next_partners(&[u], count));
+            } else {
+                pairs.extend(near);
+            }
+        }
+        self.fresh(pairs)
+    }
+
+    /// Sensors whose pair with `i` found at least `min_overlap` of shared view.
+    fn neighbours(&self, i: usize) -> Vec<usize> {
+        self.results
+            .iter()
+            .filter(|(_, r)| r.overlap >= self.p.min_overlap)
+            .filter_map(|(&(a, b), _)| match (a == i, b == i) {
+                (true, _) => Some(b),
+                (_, true) => Some(a),
+                _ => None,
+            })
+            .collect()
+    }
+
+    /// Every pair not registered, and why.
+    pub fn skipped(&self, frame: &[Option<(usize, Pose2)>]) -> Vec<SkippedPair> {
+        let n = self.sensors.len();
+        (0..n)
+            .flat_map(|a| (a + 1..n).map(move |b| (a, b)))
+            .filter(|k| !self.results.contains_key(k))
+            .map(|(a, b)| {
+                let why = match (frame[a], frame[b]) {
+                    (Some((ga, pa)), Some((gb, pb))) if ga == gb => Skip::NoSharedView {
+                        predicted: self.predicted(a, b, &(pa.inverse() * pb)),
+                    },
+                    _ => Skip::NotNeeded,
+                };
+                SkippedPair { a, b, why }
+            })
+            .collect()
+    }
+}

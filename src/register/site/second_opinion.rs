@@ -1,0 +1,91 @@
+//! The second opinion: every placed sensor weighed alone against all the others after the
+//! joins, moved where the rest of the site clearly and jointly puts it.
+
+use super::SensorInput;
+use super::SiteParams;
+use super::join::JoinContext;
+use crate::geometry::{Pose2, pose_error};
+use crate::register::{PairResult, RegisterParams};
+
+/// A second opinion on every placement: each placed sensor weighed alone against all the
+/// others, as a group joining them would be. Two wrong edges that agree with each other (a
+/// mirror image of the sensor's view, seen the same way by two neighbours) close a cycle and
+/// bind it into a group; its pairs with the rest of the site may still say, jointly and
+/// clearly, that it stands elsewhere. Then it moves there; when it is the anchor, everyone
+/// else moves instead, so the anchor keeps the frame.
+pub(super) fn second_opinion(
+    placed: &mut [Option<Pose2>],
+    anchor: usize,
+    sensors: &[SensorInput],
+    pairs: &[(usize, usize)],
+    results: &[PairResult],
+    p: &RegisterParams,
+    sp: &SiteParams,
+) {
+    // The anchor first: were it wrong, every other opinion would be taken in its wrong frame.
+    let reach_m = super::reach_m(sensors);
+    let order = std::iter::once(anchor).chain((0..placed.len()).filter(|&k| k != anchor));
+    for k in order {
+        let Some(current) = placed.get(k).copied().flatten() else {
+            continue;
+        };
+        let ctx = JoinContext {
+            sensors,
+            placed: placed
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| *i != k)
+                .filter_map(|(i, pose)| pose.map(|pose| (i, pose)))
+                .collect(),
+            pairs,
+            results,
+            p,
+            sp,
+            reach_m: &reach_m,
+        };
+        // Only a pair that could carry a placement alone may overrule (as in `weigh`): where
+        // every such pair agrees with the current place, there is nothing to weigh.
+        if !ctx.standing_dissent(k, current) {
+            continue;
+        }
+        // Overrule the group only on more evidence: the current place contradicts a placed
+        // sensor, or more pairs propose the new one than the current one. (In a symmetric
+        // scene a correctly placed sensor that shares little view with the rest would
+        // otherwise be pulled onto a mirror image that overlaps them more.) `weigh` picks one
+        // of the places the pairs propose, so when none has more support than the current
+        // one, weighing them (the dear part) could not move `k`: count first.
+        let alone = [(k, Pose2::identity())];
+        let contradicted = ctx.joint(&alone, &current).violation > p.max_violation;
+        let current_support = ctx.support(k, current);
+        let outvoted = |place: &Pose2| ctx.support(k, *place) > current_support;
+        if !contradicted
+            && !ctx
+                .opinions_on(k, current)
+                .any(|(_, _, place, agrees)| !agrees && outvoted(&place))
+        {
+            continue;
+        }
+        let Ok(join) = ctx.weigh(&alone) else {
+            continue;
+        };
+        let (dt, dyaw) = pose_error(&join.anchor_from_root, &current);
+        if (dt <= sp.confirm_m && dyaw <= sp.confirm_rad) || ctx.slides(&alone, &join).is_some() {
+            continue;
+        }
+        if !contradicted && !outvoted(&join.anchor_from_root) {
+            continue;
+        }
+        if k == anchor {
+            let anchor_from_new = join.anchor_from_root.inverse() * current;
+            for (i, pose) in placed.iter_mut().enumerate() {
+                if let Some(pose) = pose.as_mut()
+                    && i != k
+                {
+                    *pose = anchor_from_new * *pose;
+                }
+            }
+        } else {
+            placed[k] = Some(join.anchor_from_root);
+        }
+    }
+}
