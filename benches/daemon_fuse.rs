@@ -14,10 +14,8 @@ use std::io::{BufRead, BufReader, Write};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use scanfuse::daemon::config::Config;
-use scanfuse::daemon::protocol::{Message, PoseSource, SensorPose};
+use scanfuse::daemon::protocol::Message;
 use scanfuse::daemon::run::{RunOptions, run_daemon};
-use scanfuse::daemon::state::{PosesFile, SavedPose};
-use scanfuse::geometry::{pose2, yaw_rad};
 
 type Error = Box<dyn std::error::Error>;
 
@@ -36,53 +34,12 @@ fn main() -> Result<(), Error> {
     let socket = dir.path().join("s.sock");
 
     // The config, and poses.toml with the true poses in the anchor's frame.
-    let mut text = format!(
-        "[site]\nname = \"bench\"\nstate_dir = \"{}\"\nsocket = \"{}\"\nanchor = \"{ANCHOR}\"\n",
-        state.display(),
-        socket.display()
-    );
-    let truth = |id: &str| -> Result<_, Error> {
-        let t = rec
-            .sensor(id)
-            .and_then(|s| s.truth)
-            .ok_or("the fixture has truth")?;
-        Ok(pose2(t.x_m, t.y_m, t.yaw_deg.to_radians()))
-    };
-    let world_from_anchor = truth(ANCHOR)?;
-    let mut saved = Vec::new();
-    for info in &rec.sensors {
-        text.push_str(&format!(
-            "\n[[sensor]]\nid = \"{}\"\nconnect = \"replay:{}#{}\"\nmode = \"MD\"\nheight_m = {:?}\npitch_deg = {:?}\n",
-            info.id,
-            fixture.display(),
-            info.id,
-            info.height_m.unwrap_or(1.0),
-            info.pitch_deg.unwrap_or(0.0)
-        ));
-        let p = world_from_anchor.inverse() * truth(&info.id)?;
-        let mut pose = SensorPose::unregistered(info.id.clone(), "");
-        pose.registered = true;
-        pose.reason = None;
-        pose.x_m = Some(p.translation.x);
-        pose.y_m = Some(p.translation.y);
-        pose.yaw_deg = Some(yaw_rad(&p).to_degrees());
-        pose.z_m = Some(info.height_m.unwrap_or(1.0));
-        pose.pitch_deg = Some(info.pitch_deg.unwrap_or(0.0));
-        saved.push(SavedPose::from_pose(
-            &pose,
-            PoseSource::Registered,
-            SystemTime::now(),
-        ));
-    }
+    let mut text = common::site_of_true_poses(&rec, "bench", ANCHOR, &state, &socket, |id| {
+        format!("replay:{}#{id}", fixture.display())
+    })?;
     text.push_str("\n[publish]\nsave_interval_s = 0\n");
     let config_path = dir.path().join("site.toml");
     std::fs::write(&config_path, text)?;
-    PosesFile {
-        anchor: ANCHOR.into(),
-        sensors: saved,
-        building_from_site: None,
-    }
-    .save(&state)?;
     let config = Config::load(&config_path)?;
 
     let runtime = tokio::runtime::Builder::new_multi_thread()

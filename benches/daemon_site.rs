@@ -23,10 +23,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use scanfuse::daemon::protocol::{Message, PoseSource, SensorPose};
-use scanfuse::daemon::state::{PosesFile, SavedPose};
+use scanfuse::daemon::protocol::Message;
 use scanfuse::emulator::{Emulator, EmulatorConfig};
-use scanfuse::geometry::{pose2, yaw_rad};
 
 type Error = Box<dyn std::error::Error>;
 
@@ -235,42 +233,15 @@ fn main() -> Result<(), Error> {
         .ok_or("the recording has no sensors")?
         .id
         .clone();
-    let mut text = format!(
-        "[site]\nname = \"concourse\"\nstate_dir = \"{}\"\nsocket = \"{}\"\nanchor = \"{anchor}\"\n",
-        state.display(),
-        socket.display()
-    );
-    let truth = |id: &str| -> Result<_, Error> {
-        let t = rec
-            .sensor(id)
-            .and_then(|s| s.truth)
-            .ok_or("the recording has truth")?;
-        Ok(pose2(t.x_m, t.y_m, t.yaw_deg.to_radians()))
-    };
-    let world_from_anchor = truth(&anchor)?;
-    let mut saved = Vec::new();
-    for (info, port) in rec.sensors.iter().zip(&ports) {
-        text.push_str(&format!(
-            "\n[[sensor]]\nid = \"{}\"\nconnect = \"tcp://127.0.0.1:{port}\"\nmode = \"MD\"\nheight_m = {:?}\npitch_deg = {:?}\n",
-            info.id,
-            info.height_m.unwrap_or(1.0),
-            info.pitch_deg.unwrap_or(0.0)
-        ));
-        let p = world_from_anchor.inverse() * truth(&info.id)?;
-        let mut pose = SensorPose::unregistered(info.id.clone(), "");
-        pose.registered = true;
-        pose.reason = None;
-        pose.x_m = Some(p.translation.x);
-        pose.y_m = Some(p.translation.y);
-        pose.yaw_deg = Some(yaw_rad(&p).to_degrees());
-        pose.z_m = Some(info.height_m.unwrap_or(1.0));
-        pose.pitch_deg = Some(info.pitch_deg.unwrap_or(0.0));
-        saved.push(SavedPose::from_pose(
-            &pose,
-            PoseSource::Registered,
-            SystemTime::now(),
-        ));
-    }
+    let port_of: std::collections::BTreeMap<&str, u16> = rec
+        .sensors
+        .iter()
+        .map(|i| i.id.as_str())
+        .zip(ports.iter().copied())
+        .collect();
+    let mut text = common::site_of_true_poses(&rec, "concourse", &anchor, &state, &socket, |id| {
+        format!("tcp://127.0.0.1:{}", port_of.get(id).copied().unwrap_or(0))
+    })?;
     text.push_str("\n[publish]\nsave_interval_s = 5\nwatch_backlog = 4096\n");
     // `SCANFUSE_BENCH_QUEUE`: the registration queue's size (the daemon's default otherwise).
     if let Ok(queue) = std::env::var("SCANFUSE_BENCH_QUEUE") {
@@ -278,12 +249,6 @@ fn main() -> Result<(), Error> {
     }
     let config = dir.path().join("site.toml");
     std::fs::write(&config, text)?;
-    PosesFile {
-        anchor: anchor.clone(),
-        sensors: saved,
-        building_from_site: None,
-    }
-    .save(&state)?;
     let log = dir.path().join("daemon.log");
     let daemon = Daemon(
         Command::new(&bin)

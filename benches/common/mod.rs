@@ -17,3 +17,65 @@ pub fn connect_when_up(socket: &Path) -> Result<UnixStream, Box<dyn std::error::
         }
     }
 }
+
+/// A site file's `[site]` and `[[sensor]]` tables for a recording's sensors (each reached at
+/// `connect(id)`), and the `poses.toml` of their true poses in the anchor's frame, written to
+/// `state`, so that the daemon fuses from its first scan. Returns the config text; a bench
+/// appends its own tables.
+#[allow(dead_code)] // not every bench starts a site of true poses
+pub fn site_of_true_poses(
+    rec: &scanfuse::record::Recording,
+    name: &str,
+    anchor: &str,
+    state: &Path,
+    socket: &Path,
+    connect: impl Fn(&str) -> String,
+) -> Result<String, Box<dyn std::error::Error>> {
+    use scanfuse::daemon::protocol::{PoseSource, SensorPose};
+    use scanfuse::daemon::state::{PosesFile, SavedPose};
+    use scanfuse::geometry::{pose2, yaw_rad};
+
+    let mut text = format!(
+        "[site]\nname = \"{name}\"\nstate_dir = \"{}\"\nsocket = \"{}\"\nanchor = \"{anchor}\"\n",
+        state.display(),
+        socket.display()
+    );
+    let truth = |id: &str| -> Result<_, Box<dyn std::error::Error>> {
+        let t = rec
+            .sensor(id)
+            .and_then(|s| s.truth)
+            .ok_or_else(|| format!("the recording has no truth for {id}"))?;
+        Ok(pose2(t.x_m, t.y_m, t.yaw_deg.to_radians()))
+    };
+    let world_from_anchor = truth(anchor)?;
+    let mut saved = Vec::new();
+    for info in &rec.sensors {
+        let (height_m, pitch_deg) = (info.height_m.unwrap_or(1.0), info.pitch_deg.unwrap_or(0.0));
+        text.push_str(&format!(
+            "\n[[sensor]]\nid = \"{}\"\nconnect = \"{}\"\nmode = \"MD\"\nheight_m = {height_m:?}\npitch_deg = {pitch_deg:?}\n",
+            info.id,
+            connect(&info.id),
+        ));
+        let p = world_from_anchor.inverse() * truth(&info.id)?;
+        let mut pose = SensorPose::unregistered(info.id.clone(), "");
+        pose.registered = true;
+        pose.reason = None;
+        pose.x_m = Some(p.translation.x);
+        pose.y_m = Some(p.translation.y);
+        pose.yaw_deg = Some(yaw_rad(&p).to_degrees());
+        pose.z_m = Some(height_m);
+        pose.pitch_deg = Some(pitch_deg);
+        saved.push(SavedPose::from_pose(
+            &pose,
+            PoseSource::Registered,
+            std::time::SystemTime::now(),
+        ));
+    }
+    PosesFile {
+        anchor: anchor.into(),
+        sensors: saved,
+        building_from_site: None,
+    }
+    .save(state)?;
+    Ok(text)
+}

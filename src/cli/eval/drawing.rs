@@ -16,9 +16,9 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use scanfuse::drawing::align::{AlignSensor, Alignment, align};
 use scanfuse::drawing::{Drawing, WallSegment};
-use scanfuse::geometry::{Mount, Pose2, pose_error};
+use scanfuse::geometry::{Pose2, pose_error};
 use scanfuse::register::RegisterParams;
-use scanfuse::register::site::{SensorInput, SiteParams, register_site};
+use scanfuse::register::site::{SiteParams, register_site};
 use scanfuse::sim::plan::Plan;
 use std::collections::BTreeMap;
 use std::time::Instant;
@@ -337,18 +337,7 @@ fn solve(
     if truths.len() != models.len() {
         return Ok(None);
     }
-    let inputs: Vec<SensorInput> = models
-        .into_iter()
-        .map(|(info, model)| SensorInput {
-            id: info.id.clone(),
-            mount: Mount {
-                height_m: info.height_m,
-                pitch_rad: info.pitch_deg.unwrap_or(0.0).to_radians(),
-            },
-            model,
-            prior: None,
-        })
-        .collect();
+    let inputs = super::sim::site_inputs(models);
     let site = register_site(&inputs, 0, params, &SiteParams::default());
     let placed: Vec<(usize, Pose2)> = site
         .sensors

@@ -165,6 +165,22 @@ fn enclosed(walls: &[raycast::Wall], (x, y): (f64, f64)) -> bool {
         .all(|&(dx, dy)| raycast::cast(walls, at, nalgebra::Vector2::new(dx, dy)).is_some())
 }
 
+/// The simulated sensors as a site's inputs, with no prior.
+pub(super) fn site_inputs(models: Vec<(SensorInfo, ScanModel)>) -> Vec<SensorInput> {
+    models
+        .into_iter()
+        .map(|(info, model)| SensorInput {
+            id: info.id.clone(),
+            mount: Mount {
+                height_m: info.height_m,
+                pitch_rad: info.pitch_deg.unwrap_or(0.0).to_radians(),
+            },
+            model,
+            prior: None,
+        })
+        .collect()
+}
+
 /// Simulates `plan` and prepares every sensor's static view (over the first `SIM_SECONDS`)
 /// and the people it saw walk (over `motion_seconds`, when longer); `None` when a sensor
 /// stands somewhere useless (inside furniture, outside the building).
@@ -381,18 +397,7 @@ pub(super) fn sites(
             continue;
         };
         let truths: Vec<Pose2> = models.iter().filter_map(|(i, _)| truth_pose(i)).collect();
-        let inputs: Vec<SensorInput> = models
-            .into_iter()
-            .map(|(info, model)| SensorInput {
-                id: info.id.clone(),
-                mount: Mount {
-                    height_m: info.height_m,
-                    pitch_rad: info.pitch_deg.unwrap_or(0.0).to_radians(),
-                },
-                model,
-                prior: None,
-            })
-            .collect();
+        let inputs = site_inputs(models);
         let outcome = solve_site(
             &inputs,
             &truths,
