@@ -408,6 +408,8 @@ pub struct Survey {
 #[serde(deny_unknown_fields, default)]
 pub struct RegistrationConfig {
     /// Scans queued for the registration worker; when full the oldest is dropped and counted.
+    /// The queue holds at least [`QUEUE_SCANS_PER_SENSOR`] per sensor whatever this says (see
+    /// [`RegistrationConfig::queue_len`]).
     pub queue_scans: usize,
     /// Seconds of scans whose per-beam median is a sensor's static view (people walking by
     /// drop out); registration and moved detection wait for this much.
@@ -425,6 +427,20 @@ pub struct RegistrationConfig {
     /// accrue, and placed ones that walkers contradict are withdrawn. 0 turns it off (the
     /// static view's window alone, where walkers only refute).
     pub motion_buffer_s: f64,
+}
+
+/// The registration queue holds at least this many scans per sensor: 1.6 s of a 40 Hz unit,
+/// longer than the worker's walker check stalls it (~1.5 s at 100 units), so that a large
+/// site does not lose scans to it.
+pub const QUEUE_SCANS_PER_SENSOR: usize = 64;
+
+impl RegistrationConfig {
+    /// The registration queue's length for a site of `sensors` (at start): `queue_scans`,
+    /// or [`QUEUE_SCANS_PER_SENSOR`] per sensor when that is more.
+    pub fn queue_len(&self, sensors: usize) -> usize {
+        self.queue_scans
+            .max(QUEUE_SCANS_PER_SENSOR.saturating_mul(sensors))
+    }
 }
 
 impl Default for RegistrationConfig {
@@ -1811,6 +1827,18 @@ map_cell_m = 0.1
         let (_, key, message) = invalid(&with.replace("0.001", "-1"));
         assert_eq!(key, "site.drawing_scale");
         assert!(message.contains("positive"), "{message}");
+    }
+
+    #[test]
+    fn the_registration_queue_grows_with_the_site() {
+        let r = RegistrationConfig::default();
+        assert_eq!(r.queue_len(3), 256);
+        assert_eq!(r.queue_len(100), 6400);
+        let big = RegistrationConfig {
+            queue_scans: 16384,
+            ..RegistrationConfig::default()
+        };
+        assert_eq!(big.queue_len(100), 16384);
     }
 
     #[test]

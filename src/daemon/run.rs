@@ -203,7 +203,7 @@ impl Emulators {
         // Two scans of the slowest unit ahead, less if the queue could not hold that much.
         let lead_s = (2.0 * longest_period_s)
             .min(
-                REPLAY_LEAD_OF_QUEUE * config.registration.queue_scans as f64
+                REPLAY_LEAD_OF_QUEUE * config.registration.queue_len(config.sensors.len()) as f64
                     / scans_per_s.max(1.0),
             )
             .max(1.2 * longest_period_s);
@@ -492,7 +492,7 @@ async fn start_foxglove(
 /// Runs the daemon on `config` until a stop (see the module doc), then saves.
 pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSummary, RunError> {
     let notifier = Notifier::from_env();
-    let (queue_tx, queue_rx) = drop_oldest(config.registration.queue_scans);
+    let (queue_tx, queue_rx) = drop_oldest(config.registration.queue_len(config.sensors.len()));
     let (command_tx, command_rx) = crossbeam_channel::unbounded();
     let publisher = Publisher::new(config.publish.watch_backlog);
     let pipeline = Arc::new(Pipeline::new(
