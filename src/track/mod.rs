@@ -66,8 +66,9 @@ pub struct TrackParams {
     pub birth_sigma_v_m_s: f64,
     /// No track is born within 0.6 m of another.
     pub birth_clear_m: f64,
-    /// Two confirmed tracks that keep within 0.3 m of each other, their velocities within
-    /// 0.5 m/s, for 0.5 s are one person: the younger ends.
+    /// Two confirmed tracks within 0.3 m are one person (the younger ends): at once when their
+    /// velocities are within 0.5 m/s, else once they have kept that close for 0.5 s (people
+    /// crossing are that close only for a moment).
     pub same_track_m: f64,
     pub same_track_s: f64,
     pub same_track_v_m_s: f64,

@@ -64,7 +64,7 @@ struct TrackState {
     born_ns: u64,
     last_seen_ns: u64,
     hits: u32,
-    /// How long it has kept together with an older track, at one velocity: the same person.
+    /// How long it has kept within `same_track_m` of an older track.
     together_ns: u64,
     /// Sensors that updated the track in the latest step.
     sensors: Vec<String>,
@@ -363,12 +363,12 @@ impl Tracker {
             }
         }
         let (detections, _) = self.merged();
-        // Two tracks on one person: the younger goes (the older keeps its id). Two people who
-        // cross or brush past each other are close only for a moment, and walk differently:
-        // tracks count as one only when they have kept together, at one velocity, for
-        // `same_track_s`.
+        // Two tracks on one person: the younger goes (the older keeps its id). Within
+        // `same_track_m` and walking alike (a leg, a second track on one body) they are one at
+        // once; walking differently (two people crossing or brushing past) only once they have
+        // kept that close for `same_track_s`, which a crossing never lasts.
         let mut duplicate = vec![false; self.tracks.len()];
-        let mut together = vec![false; self.tracks.len()];
+        let mut alike = vec![false; self.tracks.len()];
         for i in 0..self.tracks.len() {
             for j in i + 1..self.tracks.len() {
                 let (a, b) = (&self.tracks[i], &self.tracks[j]);
@@ -380,7 +380,7 @@ impl Tracker {
                     let younger = if a.born_ns <= b.born_ns { j } else { i };
                     let dv = (a.filter.velocity() - b.filter.velocity()).norm();
                     duplicate[younger] = true;
-                    together[younger] = dv <= p.same_track_v_m_s;
+                    alike[younger] = dv <= p.same_track_v_m_s;
                 }
             }
         }
@@ -393,7 +393,7 @@ impl Tracker {
             } else {
                 0
             };
-            gone[k] = duplicate[k] && (together[k] || t.together_ns >= same_ns);
+            gone[k] = duplicate[k] && (alike[k] || t.together_ns >= same_ns);
         }
         let mut k = 0;
         self.tracks.retain(|_| {
