@@ -501,59 +501,22 @@ mod tests {
             .min_by(|a, b| a.1.total_cmp(&b.1))
     }
 
-    #[test]
-    fn two_people_crossing_keep_their_ids() {
+    /// The ids (and distances) of the tracks nearest two walkers on `paths`, first within 2 s
+    /// and last, as two sensors half a tick apart report them; walkers closer than
+    /// `one_body_below_m` are seen as one body between them.
+    type Ids = [Option<(u64, f64)>; 2];
+    fn two_walkers(
+        paths: impl Fn(f64) -> [Point2<f64>; 2],
+        one_body_below_m: f64,
+        seed: u64,
+    ) -> (Ids, Ids) {
         let mut tracker = Tracker::new(TrackParams::default());
-        let mut rng = ChaCha8Rng::seed_from_u64(7);
-        let mut start = None;
-        let mut last = None;
-        for k in 0..(7 * S / TICK) {
-            let t_ns = k * TICK;
-            let truth = crossing(t_ns as f64 * 1e-9);
-            // Two sensors, half a tick apart, each seeing both.
-            for (i, sensor) in ["a", "b"].iter().enumerate() {
-                let t = t_ns + i as u64 * TICK / 2;
-                let seen: Vec<Point2<f64>> = truth.iter().map(|p| noisy(&mut rng, *p)).collect();
-                if let Some(out) = tracker.push_detections(sensor, t, &seen) {
-                    let truth = crossing(out.t_ns as f64 * 1e-9);
-                    if out.tracks.len() == 2 {
-                        let ids = truth.map(|p| id_near(&out, p));
-                        if start.is_none() && out.t_ns < 2 * S {
-                            start = Some(ids);
-                        }
-                        last = Some(ids);
-                    }
-                }
-            }
-        }
-        let (Some(start), Some(last)) = (start, last) else {
-            panic!("never two confirmed tracks");
-        };
-        let ids = |v: [Option<(u64, f64)>; 2]| v.map(|x| x.map(|(id, _)| id));
-        assert_eq!(ids(start), ids(last), "{start:?} → {last:?}");
-        assert_ne!(ids(start)[0], ids(start)[1]);
-        for (_, d) in last.iter().flatten() {
-            assert!(*d < 0.05, "{last:?}");
-        }
-    }
-
-    /// Two walkers who pass through each other (seen as one body while they overlap) keep
-    /// their ids: tracks that meet only for a moment, walking different ways, are two people.
-    #[test]
-    fn people_who_brush_past_each_other_keep_their_ids() {
-        let mut tracker = Tracker::new(TrackParams::default());
-        let mut rng = ChaCha8Rng::seed_from_u64(11);
-        let paths = |t_s: f64| {
-            [
-                Point2::new(1.2 * t_s, 3.0),
-                Point2::new(8.0 - 1.2 * t_s, 3.1),
-            ]
-        };
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let (mut start, mut last) = (None, None);
         for k in 0..(7 * S / TICK) {
             let t_ns = k * TICK;
             let [a, b] = paths(t_ns as f64 * 1e-9);
-            let seen = if (a - b).norm() < 0.4 {
+            let seen = if (a - b).norm() < one_body_below_m {
                 vec![Point2::from((a.coords + b.coords) / 2.0)]
             } else {
                 vec![a, b]
@@ -576,9 +539,31 @@ mod tests {
         let (Some(start), Some(last)) = (start, last) else {
             panic!("never two confirmed tracks");
         };
-        let ids = |v: [Option<(u64, f64)>; 2]| v.map(|x| x.map(|(id, _)| id));
+        let ids = |v: Ids| v.map(|x| x.map(|(id, _)| id));
         assert_eq!(ids(start), ids(last), "{start:?} → {last:?}");
         assert_ne!(ids(start)[0], ids(start)[1]);
+        (start, last)
+    }
+
+    #[test]
+    fn two_people_crossing_keep_their_ids() {
+        let (_, last) = two_walkers(crossing, 0.0, 7);
+        for (_, d) in last.iter().flatten() {
+            assert!(*d < 0.05, "{last:?}");
+        }
+    }
+
+    /// Two walkers who pass through each other (seen as one body while they overlap) keep
+    /// their ids: tracks that meet only for a moment, walking different ways, are two people.
+    #[test]
+    fn people_who_brush_past_each_other_keep_their_ids() {
+        let paths = |t_s: f64| {
+            [
+                Point2::new(1.2 * t_s, 3.0),
+                Point2::new(8.0 - 1.2 * t_s, 3.1),
+            ]
+        };
+        two_walkers(paths, 0.4, 11);
     }
 
     #[test]
