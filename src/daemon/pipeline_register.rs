@@ -969,7 +969,8 @@ fn walk_hint(site: &SiteResult, i: usize) -> Option<String> {
                     | Abstain::Unconfirmed { .. }
                     | Abstain::WalkersDisagree { .. }
                     | Abstain::PeopleDisagree { .. }
-                    | Abstain::Degenerate { .. })
+                    | Abstain::Degenerate { .. }
+                    | Abstain::Generic { .. })
             )
         })
         .filter_map(|p| match (p.a == i, p.b == i) {

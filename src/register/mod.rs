@@ -12,6 +12,7 @@ pub mod pair;
 pub mod params;
 pub mod score;
 pub mod site;
+pub mod telling;
 pub mod walkers;
 
 pub use model::ScanModel;

@@ -99,6 +99,11 @@ impl PolarRanges {
         PolarRanges { bin_rad, ranges_m }
     }
 
+    /// The bearing bin: the beam spacing, at least 0.25°.
+    pub fn bin_rad(&self) -> f64 {
+        self.bin_rad
+    }
+
     fn bin_of(bin_rad: f64, bins: usize, bearing_rad: f64) -> usize {
         (((bearing_rad + PI) / bin_rad) as usize).min(bins - 1)
     }

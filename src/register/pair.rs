@@ -7,6 +7,7 @@ use super::icp::{IcpResult, refine_guarded};
 use super::matching::match_score;
 use super::motion::{MotionEvidence, co_motion};
 use super::score::{PoseScore, score, score_coarse};
+use super::telling::generic_match;
 use super::walkers::{WalkerFit, fit_walkers};
 use super::{RegisterParams, ScanModel};
 use crate::geometry::{Pose2, pose_error, pose2};
@@ -40,6 +41,9 @@ pub enum Abstain {
     /// The sensors watched together this long (s), people walked, but none where both look:
     /// the walls alone cannot rule out a look-alike place.
     Unconfirmed { watched_s: f64 },
+    /// The match rests on fewer than `telling::TELLING` structures (one corner, one wall):
+    /// any other place with as much matches as well.
+    Generic { structures: usize },
 }
 
 impl fmt::Display for Abstain {
@@ -84,6 +88,15 @@ impl fmt::Display for Abstain {
             Abstain::Unconfirmed { watched_s } => write!(
                 f,
                 "not confirmed: in {watched_s:.0} s people walked, but none where both sensors look, and walls alone can match a look-alike place; walk through their shared view while recording"
+            ),
+            Abstain::Generic { structures } => write!(
+                f,
+                "what both see is {}: any other place with as much matches as well; needs a third wall or a column both see, or people walking through both views",
+                match structures {
+                    0 => "no wall and nothing else",
+                    1 => "only one wall",
+                    _ => "only two walls (a corner)",
+                }
             ),
             Abstain::Degenerate { weak_axis_deg } => {
                 write!(
@@ -290,6 +303,8 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         })
     } else if by_walkers.is_some() {
         Ok(())
+    } else if let Some(structures) = generic_match(a, b, &best.a_from_b, &best.score, p) {
+        Err(Abstain::Generic { structures })
     } else if ambiguity > p.max_ambiguity {
         let other = runner_up.map_or(Pose2::identity(), |r| best.a_from_b.inverse() * r.a_from_b);
         Err(Abstain::Ambiguous {

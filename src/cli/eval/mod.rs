@@ -93,6 +93,10 @@ pub struct Args {
     /// (`SiteParams::partners`; default: every pair).
     #[arg(long)]
     pub partners: Option<usize>,
+    /// Write each simulated site's plan (TOML, as `simulate --plan` reads it) to this folder as
+    /// `<kind>-<k>.toml`, so a site that went wrong can be simulated and registered on its own.
+    #[arg(long)]
+    pub site_plans_out: Option<PathBuf>,
 }
 
 /// A generated floor (`sim::generate`) for `--floor`.

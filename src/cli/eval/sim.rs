@@ -239,8 +239,8 @@ const LONG_RANGE_DMAX_MM: u32 = 20_000;
 /// Seconds simulated per placement; the static view is the median over them.
 const SIM_SECONDS: f64 = 0.5;
 
-/// "UTM-30LX-EW at (24.2 15.6) 1.2 m", with " pitched −12°" for a tilted unit: enough to find
-/// the sensor on the plan and see whether it was tilted.
+/// "UTM-30LX-EW at (24.2 15.6) 35° 1.2 m", with " pitched −12°" for a tilted unit: enough to
+/// put the sensor back on the plan and simulate the pair again.
 fn describe(info: &SensorInfo, site_from_sensor: &Pose2) -> String {
     let t = site_from_sensor.translation.vector;
     let pitch = match info.pitch_deg {
@@ -250,7 +250,11 @@ fn describe(info: &SensorInfo, site_from_sensor: &Pose2) -> String {
     let height = info
         .height_m
         .map_or(String::new(), |h| format!(" {h:.1} m"));
-    format!("{} at ({:.1} {:.1}){height}{pitch}", info.model, t.x, t.y)
+    let yaw = site_from_sensor.rotation.angle().to_degrees();
+    format!(
+        "{} at ({:.1} {:.1}) {yaw:.0}°{height}{pitch}",
+        info.model, t.x, t.y
+    )
 }
 
 pub(super) fn truth_pose(info: &SensorInfo) -> Option<Pose2> {
@@ -396,6 +400,17 @@ pub(super) fn sites(
         else {
             continue;
         };
+        if let Some(dir) = &args.site_plans_out {
+            let kind = match draw {
+                SiteDraw::Random => "random",
+                SiteDraw::Installed => "installed",
+            };
+            let path = dir.join(format!("{kind}-{}.toml", done + 1));
+            let text = plan.to_toml()?;
+            std::fs::create_dir_all(dir)
+                .and_then(|()| std::fs::write(&path, text))
+                .with_context(|| format!("--site-plans-out: writing {}", path.display()))?;
+        }
         let truths: Vec<Pose2> = models.iter().filter_map(|(i, _)| truth_pose(i)).collect();
         let inputs = site_inputs(models);
         let outcome = solve_site(
