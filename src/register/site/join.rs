@@ -63,6 +63,7 @@ pub(super) fn join_groups(
     // A group's last verdict (with its slide test, once run) and the placements it scored:
     // kept until a join could change it (`changes`), since weighing is the dear part.
     let mut cache: Vec<Option<Weighed>> = vec![None; groups.len()];
+    let (mut weighs, mut weighed_places, mut joins) = (0usize, 0usize, 0usize);
     loop {
         let ctx = JoinContext {
             sensors,
@@ -84,6 +85,8 @@ pub(super) fn join_groups(
         for &g in &open {
             let weighed = cache[g].get_or_insert_with(|| {
                 let (outcome, places) = ctx.weigh_at(&groups[g]);
+                weighs += 1;
+                weighed_places += places.len();
                 Weighed {
                     outcome,
                     places,
@@ -128,6 +131,7 @@ pub(super) fn join_groups(
             }
         }
         let Some((g, join)) = joined else { break };
+        joins += 1;
         for &(m, root_from_member) in &groups[g] {
             placed[m] = Some(join.anchor_from_root * root_from_member);
         }
@@ -147,6 +151,7 @@ pub(super) fn join_groups(
             }
         }
     }
+    tracing::debug!("joins: {joins} joins, {weighs} groups weighed at {weighed_places} placements");
     Joined {
         refusals,
         sources: join_sources,
