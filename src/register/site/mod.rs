@@ -125,7 +125,9 @@ pub struct SiteParams {
     /// dropped at random, selection (8) placed two sensors wrong that every pair refused (a
     /// sensor joined at a look-alike place is never tried against its true neighbours, whose
     /// pairs would have shown the rival place). Sites of up to this many + 1 sensors register
-    /// every pair either way.
+    /// every pair either way. On the installed concourse of 100 (eval seed 1) selection (8)
+    /// registered 2418 of 4950 pairs and placed exactly what every pair placed, but took 16
+    /// rounds whose joins cost more than the pairs saved (concourse-50: 25.9 s against 17.8 s).
     pub partners: usize,
 }
 
