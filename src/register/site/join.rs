@@ -4,6 +4,7 @@
 //! joins first, one at a time, since each join is evidence for the rest. Owns `Refusal`, the
 //! reasons a group stays unplaced.
 
+use super::memo::ScoreMemo;
 use super::{SensorInput, SiteParams};
 use crate::geometry::{Pose2, pose_error, pose2};
 use crate::register::{Candidate, PairResult, RegisterParams};
@@ -18,6 +19,7 @@ pub(super) struct Joined {
 
 /// Places surveyed groups at their surveys, then joins the other groups one at a time, the
 /// best-supported first; splits off a member that contradicts where the rest of its group fits.
+#[allow(clippy::too_many_arguments)] // the stage inputs, as `second_opinion` and `site_result`
 pub(super) fn join_groups(
     placed: &mut [Option<Pose2>],
     groups: &mut Vec<Vec<(usize, Pose2)>>,
@@ -26,6 +28,7 @@ pub(super) fn join_groups(
     results: &[PairResult],
     p: &RegisterParams,
     sp: &SiteParams,
+    memo: &ScoreMemo,
 ) -> Joined {
     // Join the groups one at a time, the best-supported first: each join adds evidence
     // (placed sensors to check against) for the rest.
@@ -60,6 +63,7 @@ pub(super) fn join_groups(
     // A group's last verdict (with its slide test, once run) and the placements it scored:
     // kept until a join could change it (`changes`), since weighing is the dear part.
     let mut cache: Vec<Option<Weighed>> = vec![None; groups.len()];
+    let (mut weighs, mut weighed_places, mut joins) = (0usize, 0usize, 0usize);
     loop {
         let ctx = JoinContext {
             sensors,
@@ -73,6 +77,7 @@ pub(super) fn join_groups(
             p,
             sp,
             reach_m: &reach_m,
+            memo: Some(memo),
         };
         let mut acceptable = Vec::new();
         let mut split = Vec::new();
@@ -80,6 +85,8 @@ pub(super) fn join_groups(
         for &g in &open {
             let weighed = cache[g].get_or_insert_with(|| {
                 let (outcome, places) = ctx.weigh_at(&groups[g]);
+                weighs += 1;
+                weighed_places += places.len();
                 Weighed {
                     outcome,
                     places,
@@ -124,6 +131,7 @@ pub(super) fn join_groups(
             }
         }
         let Some((g, join)) = joined else { break };
+        joins += 1;
         for &(m, root_from_member) in &groups[g] {
             placed[m] = Some(join.anchor_from_root * root_from_member);
         }
@@ -143,6 +151,7 @@ pub(super) fn join_groups(
             }
         }
     }
+    tracing::debug!("joins: {joins} joins, {weighs} groups weighed at {weighed_places} placements");
     Joined {
         refusals,
         sources: join_sources,
@@ -321,12 +330,44 @@ pub(super) struct JoinContext<'a> {
     pub(super) sp: &'a SiteParams,
     /// Each sensor's reach (`reach_m`): the joint score skips placed sensors out of it.
     pub(super) reach_m: &'a [f64],
+    /// Pair scores computed before (None: score every term afresh).
+    pub(super) memo: Option<&'a ScoreMemo>,
 }
 
 impl JoinContext<'_> {
     /// Scores a group (members with `root_from_member`) placed at `anchor_from_root` against
     /// every placed sensor.
     pub(super) fn joint(&self, group: &[(usize, Pose2)], anchor_from_root: &Pose2) -> Joint {
+        let reach = |k: usize| self.reach_m.get(k).copied().unwrap_or(f64::INFINITY);
+        // Every (placed, member) pair within reach, in this order (the worst and the witnesses
+        // are the first found): out of each other's reach, no hit, no contradiction, nothing.
+        let mut terms: Vec<(usize, usize, Pose2)> = Vec::new();
+        for &(i, anchor_from_i) in &self.placed {
+            for &(j, root_from_j) in group {
+                if i >= self.sensors.len() || j >= self.sensors.len() {
+                    continue;
+                }
+                let i_from_j = anchor_from_i.inverse() * anchor_from_root * root_from_j;
+                if i_from_j.translation.vector.norm() <= reach(i) + reach(j) {
+                    terms.push((i, j, i_from_j));
+                }
+            }
+        }
+        let score = |i: usize, j: usize, i_from_j: &Pose2| {
+            crate::register::score::score(
+                &self.sensors[i].model,
+                &self.sensors[j].model,
+                i_from_j,
+                self.p,
+            )
+        };
+        let scores = match self.memo {
+            Some(memo) => memo.scores(&terms, score),
+            None => terms
+                .iter()
+                .map(|(i, j, pose)| score(*i, *j, pose))
+                .collect(),
+        };
         let mut joint = Joint {
             value: 0.0,
             overlap: 0.0,
@@ -335,30 +376,18 @@ impl JoinContext<'_> {
             violating: Vec::new(),
             witnesses: Vec::new(),
         };
-        for &(i, anchor_from_i) in &self.placed {
-            for &(j, root_from_j) in group {
-                let (Some(si), Some(sj)) = (self.sensors.get(i), self.sensors.get(j)) else {
-                    continue;
-                };
-                let i_from_j = anchor_from_i.inverse() * anchor_from_root * root_from_j;
-                // Out of each other's reach: no hit, no contradiction, a score of nothing.
-                let reach = |k: usize| self.reach_m.get(k).copied().unwrap_or(f64::INFINITY);
-                if i_from_j.translation.vector.norm() > reach(i) + reach(j) {
-                    continue;
-                }
-                let s = crate::register::score::score(&si.model, &sj.model, &i_from_j, self.p);
-                joint.value += s.value;
-                joint.overlap += s.overlap();
-                if s.violation() > joint.violation {
-                    joint.violation = s.violation();
-                    joint.worst = i;
-                }
-                if s.violation() > self.p.max_violation && !joint.violating.contains(&j) {
-                    joint.violating.push(j);
-                }
-                if s.overlap() >= self.p.min_overlap {
-                    joint.witnesses.push((i, j));
-                }
+        for (&(i, j, _), s) in terms.iter().zip(scores) {
+            joint.value += s.value;
+            joint.overlap += s.overlap();
+            if s.violation() > joint.violation {
+                joint.violation = s.violation();
+                joint.worst = i;
+            }
+            if s.violation() > self.p.max_violation && !joint.violating.contains(&j) {
+                joint.violating.push(j);
+            }
+            if s.overlap() >= self.p.min_overlap {
+                joint.witnesses.push((i, j));
             }
         }
         joint

@@ -10,6 +10,7 @@ mod check;
 mod descriptor;
 mod groups;
 mod join;
+mod memo;
 mod pairs;
 mod report;
 mod second_opinion;
@@ -25,6 +26,7 @@ pub use solve::solve;
 use super::{PairResult, RegisterParams, ScanModel};
 use crate::geometry::{Mount, Pose2, Pose3};
 use nalgebra::Matrix3;
+use std::time::Instant;
 
 /// How a caveat begins when walls alone placed a sensor and nobody walked to confirm it (the
 /// daemon clears it once people do).
@@ -123,7 +125,9 @@ pub struct SiteParams {
     /// dropped at random, selection (8) placed two sensors wrong that every pair refused (a
     /// sensor joined at a look-alike place is never tried against its true neighbours, whose
     /// pairs would have shown the rival place). Sites of up to this many + 1 sensors register
-    /// every pair either way.
+    /// every pair either way. On the installed concourse of 100 (eval seed 1) selection (8)
+    /// registered 2418 of 4950 pairs and placed exactly what every pair placed, but took 16
+    /// rounds of joins (concourse-50: 25.9 s, load 7, against 17.8 s for every pair, load 5).
     pub partners: usize,
 }
 
@@ -204,11 +208,19 @@ pub fn register_site(
     let mut selection = pairs::PairSelection::new(sensors, p, sp.partners);
     let mut round = selection.first_round();
     let mut rounds = 0;
+    // Scores of placements stay valid from round to round: pairs added propose new ones.
+    let memo = memo::ScoreMemo::default();
     // Register a round of pairs, place what they place, widen where that leaves gaps.
     let placing = loop {
         rounds += 1;
+        let started = Instant::now();
         selection.register(&round);
-        let placing = place(n, anchor, sensors, selection.registered(), p, sp);
+        tracing::debug!(
+            "site round {rounds}: {} pairs registered in {:.2} s",
+            round.len(),
+            started.elapsed().as_secs_f64()
+        );
+        let placing = place(n, anchor, sensors, selection.registered(), p, sp, &memo);
         round = selection.widen(&placing.frame(), &placing.is_placed());
         if round.is_empty() {
             break placing;
@@ -223,9 +235,14 @@ pub fn register_site(
         joined,
     } = placing;
     let skipped = selection.skipped(&frames(&placed, &groups));
+    let started = Instant::now();
     let (edges, origin) =
         solve::solve_edges(&placed, &checked, &pairs, &results, &joined.sources, p, sp);
     let solved = check::solve_without_conflicts(n, anchor, edges, origin, sensors, p, sp);
+    tracing::debug!(
+        "site solve and free-space check: {:.2} s",
+        started.elapsed().as_secs_f64()
+    );
     let mut site = report::site_result(
         sensors,
         anchor,
@@ -287,12 +304,31 @@ fn place(
     registered: (Vec<(usize, usize)>, Vec<PairResult>),
     p: &RegisterParams,
     sp: &SiteParams,
+    memo: &memo::ScoreMemo,
 ) -> Placing {
     let (pairs, results) = registered;
+    let started = Instant::now();
     let checked = groups::checked_edges(n, anchor, &pairs, &results, sp);
     let (mut placed, mut groups) = groups::groups(n, anchor, &checked.edges);
-    let joined = join::join_groups(&mut placed, &mut groups, sensors, &pairs, &results, p, sp);
-    second_opinion::second_opinion(&mut placed, anchor, sensors, &pairs, &results, p, sp);
+    let grouped = started.elapsed().as_secs_f64();
+    let joined = join::join_groups(
+        &mut placed,
+        &mut groups,
+        sensors,
+        &pairs,
+        &results,
+        p,
+        sp,
+        memo,
+    );
+    let joins = started.elapsed().as_secs_f64() - grouped;
+    second_opinion::second_opinion(&mut placed, anchor, sensors, &pairs, &results, p, sp, memo);
+    tracing::debug!(
+        "site stages: groups {grouped:.2} s ({} groups), joins {joins:.2} s, second opinion {:.2} s; {} pair scores kept",
+        groups.len(),
+        started.elapsed().as_secs_f64() - grouped - joins,
+        memo.len()
+    );
     Placing {
         pairs,
         results,

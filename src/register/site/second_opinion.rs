@@ -4,6 +4,7 @@
 use super::SensorInput;
 use super::SiteParams;
 use super::join::JoinContext;
+use super::memo::ScoreMemo;
 use crate::geometry::{Pose2, pose_error};
 use crate::register::{PairResult, RegisterParams};
 
@@ -13,6 +14,7 @@ use crate::register::{PairResult, RegisterParams};
 /// bind it into a group; its pairs with the rest of the site may still say, jointly and
 /// clearly, that it stands elsewhere. Then it moves there; when it is the anchor, everyone
 /// else moves instead, so the anchor keeps the frame.
+#[allow(clippy::too_many_arguments)] // the stage inputs, as `join_groups` and `site_result`
 pub(super) fn second_opinion(
     placed: &mut [Option<Pose2>],
     anchor: usize,
@@ -21,6 +23,7 @@ pub(super) fn second_opinion(
     results: &[PairResult],
     p: &RegisterParams,
     sp: &SiteParams,
+    memo: &ScoreMemo,
 ) {
     // The anchor first: were it wrong, every other opinion would be taken in its wrong frame.
     let reach_m = super::reach_m(sensors);
@@ -42,6 +45,7 @@ pub(super) fn second_opinion(
             p,
             sp,
             reach_m: &reach_m,
+            memo: Some(memo),
         };
         // Only a pair that could carry a placement alone may overrule (as in `weigh`): where
         // every such pair agrees with the current place, there is nothing to weigh.

@@ -303,6 +303,7 @@ fn truth_placed<'a>(
         p,
         sp,
         reach_m: &[],
+        memo: None,
     }
 }
 
@@ -404,7 +405,8 @@ fn a_second_opinion_moves_a_sensor_placed_at_a_mirror_image_to_where_the_rest_fi
     };
     let opinion = |placed: &mut [Option<Pose2>], anchor: usize| {
         let (sensors, pairs, results) = (&scene.sensors, &scene.pairs, &scene.results);
-        second_opinion(placed, anchor, sensors, pairs, results, &p, &sp);
+        let memo = super::memo::ScoreMemo::default();
+        second_opinion(placed, anchor, sensors, pairs, results, &p, &sp, &memo);
     };
     // s3 placed at its mirror image (as two agreeing wrong edges would put it): s2's free
     // space rules that out, and s0's and s1's pairs also propose the truth.
@@ -494,6 +496,7 @@ impl TwoSensors {
             p,
             sp,
             reach_m: &[],
+            memo: None,
         })
     }
 }
