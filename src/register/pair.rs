@@ -7,7 +7,7 @@ use super::icp::{IcpResult, refine_guarded};
 use super::matching::match_score;
 use super::motion::{MotionEvidence, co_motion};
 use super::score::{PoseScore, score, score_coarse};
-use super::walkers::{WalkerFit, fit_walkers};
+use super::walkers::{WalkerFit, fit_walkers, walkers_keep};
 use super::{RegisterParams, ScanModel};
 use crate::geometry::{Pose2, pose_error, pose2};
 use nalgebra::Matrix3;
@@ -324,7 +324,7 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         ambiguity,
         overlap,
         score: best.score,
-        candidates: distinct
+        candidates: walkers_keep(distinct, by_walkers, |(c, _)| &c.a_from_b, &p.walkers)
             .into_iter()
             .enumerate()
             .map(|(k, (c, _))| Candidate {

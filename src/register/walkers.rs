@@ -109,6 +109,25 @@ impl WalkerFit {
     }
 }
 
+/// The candidates left once decisive walkers chose one (`fit`): only those in their basin.
+/// The others are poses the walls liked and the people both sensors saw walk ruled out (a
+/// pilaster pitch off, the corridor turned end for end); left in, the site would weigh them
+/// by the walls alone and prefer the look-alike the walkers refused. Without a fit, all stay.
+pub fn walkers_keep<T>(
+    candidates: Vec<T>,
+    fit: Option<&WalkerFit>,
+    pose: impl Fn(&T) -> &Pose2,
+    p: &WalkerParams,
+) -> Vec<T> {
+    match fit {
+        Some(f) => candidates
+            .into_iter()
+            .filter(|c| f.near(pose(c), p))
+            .collect(),
+        None => candidates,
+    }
+}
+
 /// Agreeing sightings: A's centre, B's, and when (s).
 type Matched = Vec<(Point2<f64>, Point2<f64>, f64)>;
 
