@@ -373,7 +373,10 @@ fn nobody_walked(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> Option<f64
 
 /// The pair placed by people alone (`"evidence":"walkers"`): where the fit passes the
 /// stricter `alone_*` thresholds, the walls see no free space violated at its pose, and no
-/// more than `max_through_share` of the walkers both saw are seen through there.
+/// more than `max_through_share` of the walkers both saw are seen through there. Where the
+/// walls share a view at the walkers' pose (`min_overlap`), they polish it (a walker pose is
+/// biased 10–20 cm by bodies' shapes) and must keep it in the walkers' basin; if they pull it
+/// away, walls and walkers disagree and nothing is placed.
 fn placed_by_walkers(
     a: &ScanModel,
     b: &ScanModel,
@@ -385,7 +388,13 @@ fn placed_by_walkers(
     if !fit.places_alone(&p.walkers) {
         return None;
     }
-    let pose = fit.a_from_b;
+    let mut pose = fit.a_from_b;
+    if score(a, b, &pose, p).overlap() >= p.min_overlap {
+        pose = polish(a, b, &pose, p);
+        if !fit.near(&pose, &p.walkers) {
+            return None;
+        }
+    }
     let at = score(a, b, &pose, p);
     let e = co_motion(ma, mb, &pose, &p.motion);
     if at.violation() > p.max_violation

@@ -112,7 +112,7 @@ pub fn run(args: Args) -> Result<()> {
                 .with_context(|| format!("{}: cannot create", path.display()))?;
             writeln!(
                 f,
-                "set,pair,overlap,registered,reason,err_m,err_deg,ambiguity,score,est_overlap,violation,match,sigma_m,sigma_yaw_deg,ms,walkers_seen,walkers_through"
+                "set,pair,overlap,registered,reason,err_m,err_deg,ambiguity,score,est_overlap,violation,match,sigma_m,sigma_yaw_deg,ms,walkers_seen,walkers_through,evidence"
             )?;
             Some(f)
         }
@@ -351,7 +351,7 @@ pub fn evaluate(
                 .unwrap_or_default();
             writeln!(
                 f,
-                "{set},\"{}\",{:.3},{},\"{}\",{:.3},{:.2},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.2},{:.1},{},{}",
+                "{set},\"{}\",{:.3},{},\"{}\",{:.3},{:.2},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.2},{:.1},{},{},{}",
                 case.label,
                 case.overlap,
                 r.registered(),
@@ -369,6 +369,7 @@ pub fn evaluate(
                 r.motion.map_or(String::new(), |m| m.seen.to_string()),
                 r.motion
                     .map_or(String::new(), |m| m.seen_through.to_string()),
+                scanfuse::register::walkers::evidence(r.walkers.as_ref()),
             )?;
         }
         if case.overlap >= 0.3 {
