@@ -173,8 +173,9 @@ fn site(plan: &str, seconds: f64) -> Result<(usize, usize, usize), Error> {
     let (mut placed, mut wrong, mut late) = (0, 0, 0);
     for (id, u) in &units {
         let fmt = |v: Option<f64>| v.map_or("—".to_string(), |s| format!("{s:.1}"));
+        // The anchor is placed by definition, people or not.
         let after = match (u.placed_s, u.walk_s) {
-            (Some(p), Some(w)) => Some(p - w),
+            (Some(p), Some(w)) if *id != anchor => Some(p - w),
             _ => None,
         };
         let error = u.error.map_or("—".to_string(), |(m, d)| {
