@@ -13,6 +13,7 @@ use scanfuse::geometry::Mount;
 use scanfuse::record;
 use scanfuse::register::clocks::{Clock, MAX_CLOCK_OFFSET_S, align_clocks};
 use scanfuse::register::site::{SensorInput, SiteParams, SiteResult, register_site};
+use scanfuse::register::walkers::evidence;
 use scanfuse::register::{RegisterParams, ScanModel};
 use scanfuse::scan::{Scan, SensorInfo};
 use serde::Serialize;
@@ -65,6 +66,20 @@ pub(super) struct PairOut {
     used: bool,
     #[serde(skip_serializing_if = "Option::is_none")]
     reason: Option<String>,
+    /// What registered the pair: `walls`, `walls+walkers` or `walkers` (people alone);
+    /// absent when it was not registered.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    evidence: Option<&'static str>,
+    /// The walkers behind it, when they chose or placed it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    walkers: Option<WalkersOut>,
+}
+
+/// How many walker sightings both sensors shared at the pair's pose, over how long.
+#[derive(Serialize)]
+pub(super) struct WalkersOut {
+    sightings: usize,
+    seconds: f64,
 }
 
 /// A pair pair selection did not register, and why.
@@ -167,6 +182,33 @@ pub(super) fn register_files(
     Ok((anchor_id, prepared, site))
 }
 
+/// One sensor's registration input from its scans (stamp order), as `register` makes it: its
+/// static view through a crowd over the first [`VIEW_WINDOW_S`], and, unless `walls_only`,
+/// the people it saw walk. `None` without a usable scan.
+pub(super) fn prepare_sensor(
+    info: &SensorInfo,
+    scans: &[Scan],
+    walls_only: bool,
+    params: &RegisterParams,
+) -> Option<SensorInput> {
+    let view = crowd_proof_view(scans, VIEW_WINDOW_S, STATIC_WINDOW_S)?;
+    let mount = Mount {
+        height_m: info.height_m,
+        pitch_rad: info.pitch_deg.unwrap_or(0.0).to_radians(),
+    };
+    let geometry = info.geometry.as_ref();
+    let mut model = ScanModel::from_scan(&view, geometry, &mount, params);
+    if !walls_only {
+        model = model.with_motion(scans, &view, geometry, &mount, params);
+    }
+    Some(SensorInput {
+        id: info.id.clone(),
+        model,
+        mount,
+        prior: None,
+    })
+}
+
 /// The sensors found in `files`, each with its registration input (its static view's model)
 /// when it had usable scans: what `register_files` registers and what `replay --drawing`
 /// aligns to a drawing at the daemon's final poses.
@@ -218,23 +260,7 @@ pub(super) fn prepare_files(
     let prepared: Vec<(SensorInfo, Option<SensorInput>)> = found
         .into_par_iter()
         .map(|(info, scans, _)| {
-            let input = crowd_proof_view(&scans, VIEW_WINDOW_S, STATIC_WINDOW_S).map(|view| {
-                let mount = Mount {
-                    height_m: info.height_m,
-                    pitch_rad: info.pitch_deg.unwrap_or(0.0).to_radians(),
-                };
-                let geometry = info.geometry.as_ref();
-                let mut model = ScanModel::from_scan(&view, geometry, &mount, &params);
-                if !walls_only {
-                    model = model.with_motion(&scans, &view, geometry, &mount, &params);
-                }
-                SensorInput {
-                    id: info.id.clone(),
-                    model,
-                    mount,
-                    prior: None,
-                }
-            });
+            let input = prepare_sensor(&info, &scans, walls_only, &params);
             (info, input)
         })
         .collect();
@@ -331,6 +357,14 @@ pub(super) fn to_output(
             overlap: p.result.overlap,
             used: p.used,
             reason: p.result.verdict.as_ref().err().map(|why| why.to_string()),
+            evidence: p
+                .result
+                .registered()
+                .then(|| evidence(p.result.walkers.as_ref())),
+            walkers: p.result.walkers.as_ref().map(|f| WalkersOut {
+                sightings: f.inliers,
+                seconds: f.span_s,
+            }),
         })
         .collect();
     let skipped = site
@@ -394,7 +428,14 @@ pub(super) fn print_table(o: &Output) {
             p.ambiguity,
             p.overlap * 100.0,
             if p.used { "yes" } else { "no" },
-            p.reason.as_deref().unwrap_or("")
+            match (&p.reason, &p.walkers) {
+                (Some(why), _) => why.clone(),
+                (None, Some(w)) if p.evidence == Some("walkers") => format!(
+                    "placed by people alone: {} sightings both saw over {:.0} s",
+                    w.sightings, w.seconds
+                ),
+                _ => String::new(),
+            }
         );
     }
     if !o.skipped.is_empty() {

@@ -8,7 +8,7 @@ use super::matching::match_score;
 use super::motion::{MotionEvidence, co_motion};
 use super::score::{PoseScore, score, score_coarse};
 use super::telling::generic_match;
-use super::walkers::{WalkerFit, fit_walkers};
+use super::walkers::{WalkerFit, fit_walkers, walkers_keep};
 use super::{RegisterParams, ScanModel};
 use crate::geometry::{Pose2, pose_error, pose2};
 use nalgebra::Matrix3;
@@ -239,6 +239,13 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         }
     }
     let Some((best, icp)) = distinct.first().cloned() else {
+        if let Some(placed) = walkers
+            .as_ref()
+            .or(disputed.as_ref())
+            .and_then(|f| placed_by_walkers(a, b, f, hypotheses_count, p))
+        {
+            return placed;
+        }
         let (verdict, a_from_b, score, motion) = match refuted {
             Some((c, e)) => (
                 Err(Abstain::PeopleDisagree {
@@ -284,6 +291,7 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
     let by_walkers = walkers
         .as_ref()
         .filter(|f| f.near(&best.a_from_b, &p.walkers));
+    let any_fit = walkers.clone().or_else(|| disputed.clone());
     let verdict = if overlap < p.min_overlap {
         Err(Abstain::TooLittleOverlap { overlap })
     } else if best.score.value < p.min_score {
@@ -331,6 +339,17 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         }
         (verdict, _) => verdict,
     };
+    // The walls gave no answer of their own (not one the walkers contradict): people both
+    // sensors saw walk may place the pair alone.
+    if verdict
+        .as_ref()
+        .is_err_and(|why| !matches!(why, Abstain::WalkersDisagree { .. }))
+        && let Some(placed) = any_fit
+            .as_ref()
+            .and_then(|f| placed_by_walkers(a, b, f, hypotheses_count, p))
+    {
+        return placed;
+    }
     PairResult {
         verdict,
         a_from_b: best.a_from_b,
@@ -339,7 +358,7 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         ambiguity,
         overlap,
         score: best.score,
-        candidates: distinct
+        candidates: walkers_keep(distinct, by_walkers, |(c, _)| &c.a_from_b, &p.walkers)
             .into_iter()
             .enumerate()
             .map(|(k, (c, _))| Candidate {
@@ -365,6 +384,63 @@ fn nobody_walked(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> Option<f64
     let (ma, mb) = (a.motion.as_ref()?, b.motion.as_ref()?);
     let watched_s = ma.watched_with(mb);
     (watched_s >= p.motion.confirm_after_s && ma.walkers() + mb.walkers() == 0).then_some(watched_s)
+}
+
+/// The pair placed by people alone (`"evidence":"walkers"`): where the fit passes the
+/// stricter `alone_*` thresholds, the walls see no free space violated at its pose, and no
+/// more than `max_through_share` of the walkers both saw are seen through there. Where the
+/// walls share a view at the walkers' pose (`min_overlap`), they polish it (a walker pose is
+/// biased 10–20 cm by bodies' shapes) and must keep it in the walkers' basin; if they pull it
+/// away, walls and walkers disagree and nothing is placed.
+fn placed_by_walkers(
+    a: &ScanModel,
+    b: &ScanModel,
+    fit: &WalkerFit,
+    hypotheses: usize,
+    p: &RegisterParams,
+) -> Option<PairResult> {
+    let (ma, mb) = (a.motion.as_ref()?, b.motion.as_ref()?);
+    if !fit.places_alone(&p.walkers) {
+        return None;
+    }
+    let mut pose = fit.a_from_b;
+    if score(a, b, &pose, p).overlap() >= p.min_overlap {
+        pose = polish(a, b, &pose, p);
+        if !fit.near(&pose, &p.walkers) {
+            return None;
+        }
+    }
+    let at = score(a, b, &pose, p);
+    let e = co_motion(ma, mb, &pose, &p.motion);
+    if at.violation() > p.max_violation
+        || e.refutes(&p.motion)
+        || e.seen_through as f64 > p.walkers.max_through_share * e.seen as f64
+    {
+        return None;
+    }
+    let covariance = fit.alone_covariance(&p.walkers);
+    Some(PairResult {
+        verdict: Ok(()),
+        a_from_b: pose,
+        covariance,
+        match_score: match_score(a, b, &pose, p),
+        ambiguity: fit.runner_up as f64 / fit.inliers.max(1) as f64,
+        overlap: at.overlap(),
+        score: at,
+        candidates: vec![Candidate {
+            a_from_b: pose,
+            score: at,
+            covariance,
+        }],
+        hypotheses,
+        icp_iterations: 0,
+        motion: Some(e),
+        walkers: Some(WalkerFit {
+            alone: true,
+            ..fit.clone()
+        }),
+        nobody_walked_s: None,
+    })
 }
 
 /// The walker fit, when it decides the pose.

@@ -49,6 +49,20 @@ pub struct WalkerParams {
     /// Consecutive sightings of one walker are not independent: the residual variance is
     /// inflated by this much in the covariance.
     pub correlation: f64,
+    /// Walkers place a pair alone (no wall candidate in their basin, the walls undecided) only
+    /// past all of these, stricter than a fit that merely chooses: this many agreeing
+    /// sightings over this long and this much floor, a residual and a rival this small, and
+    /// their own σ within these (m, rad).
+    pub alone_min_inliers: usize,
+    pub alone_min_span_s: f64,
+    pub alone_min_spread_m: f64,
+    pub alone_max_rms_m: f64,
+    pub alone_max_ambiguity: f64,
+    pub alone_max_sigma_m: f64,
+    pub alone_max_sigma_rad: f64,
+    /// A walker-only pose is biased by a body's shape and the time between two scans; this
+    /// much (m) is added in quadrature to its position σ so that the site weighs it honestly.
+    pub alone_bias_m: f64,
 }
 
 impl Default for WalkerParams {
@@ -70,6 +84,14 @@ impl Default for WalkerParams {
             same_rad: 3f64.to_radians(),
             max_through_share: 0.1,
             correlation: 4.0,
+            alone_min_inliers: 150,
+            alone_min_span_s: 5.0,
+            alone_min_spread_m: 3.0,
+            alone_max_rms_m: 0.1,
+            alone_max_ambiguity: 0.25,
+            alone_max_sigma_m: 0.03,
+            alone_max_sigma_rad: 0.3f64.to_radians(),
+            alone_bias_m: 0.05,
         }
     }
 }
@@ -89,6 +111,9 @@ pub struct WalkerFit {
     pub runner_up: usize,
     /// Of (x, y, yaw).
     pub covariance: Matrix3<f64>,
+    /// The pair's pose is this fit's own, placed by the walkers alone (the walls had no
+    /// answer there), not a wall candidate they chose.
+    pub alone: bool,
 }
 
 impl WalkerFit {
@@ -101,11 +126,68 @@ impl WalkerFit {
             && (self.runner_up as f64) < p.max_ambiguity * self.inliers as f64
     }
 
+    /// Whether the fit is strong enough to place a pair by itself (`alone_*` thresholds):
+    /// many simultaneous correspondences, spread over time and floor, with no rival.
+    pub fn places_alone(&self, p: &WalkerParams) -> bool {
+        let sigma_m = self.covariance[(0, 0)]
+            .max(self.covariance[(1, 1)])
+            .max(0.0)
+            .sqrt();
+        let sigma_rad = self.covariance[(2, 2)].max(0.0).sqrt();
+        self.decisive(p)
+            && self.inliers >= p.alone_min_inliers
+            && self.span_s >= p.alone_min_span_s
+            && self.spread_m >= p.alone_min_spread_m
+            && self.rms_m <= p.alone_max_rms_m
+            && (self.runner_up as f64) < p.alone_max_ambiguity * self.inliers as f64
+            && sigma_m <= p.alone_max_sigma_m
+            && sigma_rad <= p.alone_max_sigma_rad
+    }
+
+    /// The covariance to report for a walker-only placement: the fit's, its position
+    /// widened by the bias a body's shape leaves (`alone_bias_m`).
+    pub fn alone_covariance(&self, p: &WalkerParams) -> Matrix3<f64> {
+        let mut c = self.covariance;
+        c[(0, 0)] += p.alone_bias_m * p.alone_bias_m;
+        c[(1, 1)] += p.alone_bias_m * p.alone_bias_m;
+        c
+    }
+
     /// Whether `pose` lies in the walkers' basin: the walls refine within it what the walkers,
     /// biased by a body's shape and by time, only locate.
     pub fn near(&self, pose: &Pose2, p: &WalkerParams) -> bool {
         let (dt, dyaw) = pose_error(pose, &self.a_from_b);
         dt < p.same_m && dyaw < p.same_rad
+    }
+}
+
+/// What placed a pair, in the vocabulary of `register --json` and the status socket:
+/// `"walls"`, `"walls+walkers"` (walkers chose among the walls' candidates) or `"walkers"`
+/// (people alone).
+pub fn evidence(fit: Option<&WalkerFit>) -> &'static str {
+    match fit {
+        None => "walls",
+        Some(f) if f.alone => "walkers",
+        Some(_) => "walls+walkers",
+    }
+}
+
+/// The candidates left once decisive walkers chose one (`fit`): only those in their basin.
+/// The others are poses the walls liked and the people both sensors saw walk ruled out (a
+/// pilaster pitch off, the corridor turned end for end); left in, the site would weigh them
+/// by the walls alone and prefer the look-alike the walkers refused. Without a fit, all stay.
+pub fn walkers_keep<T>(
+    candidates: Vec<T>,
+    fit: Option<&WalkerFit>,
+    pose: impl Fn(&T) -> &Pose2,
+    p: &WalkerParams,
+) -> Vec<T> {
+    match fit {
+        Some(f) => candidates
+            .into_iter()
+            .filter(|c| f.near(pose(c), p))
+            .collect(),
+        None => candidates,
     }
 }
 
@@ -324,6 +406,7 @@ pub fn fit_walkers(
         rms_m,
         runner_up,
         covariance: covariance(&pose, &pairs, rms_m, p),
+        alone: false,
     })
 }
 
@@ -652,20 +735,61 @@ mod tests {
         assert!(clock_offset(&ta, &alone, &p.0, &p.1, 0.5).is_none());
     }
 
+    /// Open floor: the only structure is a short post near each sensor, out of the other's
+    /// sight lines; they share nothing static, only the people. Two sensors' models over 20 s
+    /// of `people_at`, built once for the tests that use them.
+    fn no_wall_pair() -> &'static (
+        Pose2,
+        crate::register::ScanModel,
+        crate::register::ScanModel,
+    ) {
+        static PAIR: std::sync::OnceLock<(
+            Pose2,
+            crate::register::ScanModel,
+            crate::register::ScanModel,
+        )> = std::sync::OnceLock::new();
+        PAIR.get_or_init(|| {
+            let mut walls = polygon(&[(-1.0, -1.0), (-0.8, -1.0), (-0.8, -0.8), (-1.0, -0.8)]);
+            walls.extend(polygon(&[
+                (15.0, 11.0),
+                (15.2, 11.0),
+                (15.2, 11.2),
+                (15.0, 11.2),
+            ]));
+            let (pa, pb) = (pose2(0.0, 0.0, 0.6), pose2(14.0, 10.0, -2.4));
+            (
+                pa.inverse() * pb,
+                model_with_people(&walls, &pa, 20.0),
+                model_with_people(&walls, &pb, 20.0),
+            )
+        })
+    }
+
+    /// A sensor's registration model of `walls` from `pose`, with the people of `people_at`
+    /// it saw over `seconds`.
+    fn model_with_people(walls: &[Wall], pose: &Pose2, seconds: f64) -> crate::register::ScanModel {
+        let p = crate::register::RegisterParams::default();
+        let frames = (seconds * 40.0) as u64;
+        let scans: Vec<Scan> = (0..frames)
+            .map(|k| scan(walls, &people_at(k as f64 / 40.0), pose, k * 25_000_000))
+            .collect();
+        let still = scan(walls, &[], pose, 0);
+        crate::register::ScanModel::from_scan(&still, None, &Mount::default(), &p).with_motion(
+            &scans,
+            &still,
+            None,
+            &Mount::default(),
+            &p,
+        )
+    }
+
     #[test]
     fn people_alone_fix_the_pose_of_two_sensors_that_share_no_wall() {
-        // Open floor: the only structure is a short post near each sensor, out of the
-        // other's sight lines; they share nothing static, only the people.
-        let walls_a = polygon(&[(-1.0, -1.0), (-0.8, -1.0), (-0.8, -0.8), (-1.0, -0.8)]);
-        let walls_b = polygon(&[(15.0, 11.0), (15.2, 11.0), (15.2, 11.2), (15.0, 11.2)]);
-        let mut walls = walls_a;
-        walls.extend(walls_b);
-        let (pa, pb) = (pose2(0.0, 0.0, 0.6), pose2(14.0, 10.0, -2.4));
-        let (ta, tb) = (track(&walls, &pa, 20.0), track(&walls, &pb, 20.0));
+        let (truth, a, b) = no_wall_pair();
+        let (ta, tb) = (a.motion.as_ref().unwrap(), b.motion.as_ref().unwrap());
         let p = WalkerParams::default();
-        let fit = fit_walkers(&ta, &tb, &p, &MotionParams::default()).expect("a fit");
-        let truth = pa.inverse() * pb;
-        let (dt, dyaw) = pose_error(&fit.a_from_b, &truth);
+        let fit = fit_walkers(ta, tb, &p, &MotionParams::default()).expect("a fit");
+        let (dt, dyaw) = pose_error(&fit.a_from_b, truth);
         assert!(
             dt < 0.10 && dyaw.to_degrees() < 1.0,
             "{dt:.3} m {:.2}°: {fit:?}",
@@ -674,6 +798,36 @@ mod tests {
         assert!(fit.decisive(&p), "{fit:?}");
         let sigma_m = fit.covariance[(0, 0)].max(fit.covariance[(1, 1)]).sqrt();
         assert!(sigma_m < 0.1, "σ {sigma_m:.3} m");
+    }
+
+    #[test]
+    fn a_pair_that_shares_no_wall_is_placed_by_people_alone_and_says_so() {
+        let (truth, a, b) = no_wall_pair();
+        let p = crate::register::RegisterParams::default();
+        let r = crate::register::register_pair(a, b, &p);
+        assert!(r.registered(), "{:?}", r.verdict);
+        let (dt, dyaw) = pose_error(&r.a_from_b, truth);
+        assert!(
+            dt < 0.10 && dyaw.to_degrees() < 1.0,
+            "{dt:.3} m {:.2}°",
+            dyaw.to_degrees()
+        );
+        let fit = r.walkers.as_ref().expect("the walkers' fit");
+        assert!(fit.alone && fit.places_alone(&p.walkers), "{fit:?}");
+        assert_eq!(evidence(r.walkers.as_ref()), "walkers");
+        // Its σ includes the bias a body's shape leaves, so the site weighs it as it is.
+        assert!(r.covariance[(0, 0)].sqrt() >= p.walkers.alone_bias_m);
+        // The same walkers held to a stricter count than they reach: not placed alone, and
+        // with no wall to place it, not registered.
+        let strict = crate::register::RegisterParams {
+            walkers: WalkerParams {
+                alone_min_inliers: fit.inliers + 1,
+                ..WalkerParams::default()
+            },
+            ..p.clone()
+        };
+        let r = crate::register::register_pair(a, b, &strict);
+        assert!(!r.registered(), "placed: {:?}", r.walkers);
     }
 
     #[test]

@@ -18,6 +18,7 @@ use std::io::Write;
 use std::path::PathBuf;
 use std::time::Instant;
 
+mod crowd;
 mod drawing;
 mod real;
 mod sim;
@@ -66,11 +67,12 @@ pub struct Args {
     /// Simulated seconds of each tracking scene (`--only tracking`).
     #[arg(long, default_value_t = 30.0)]
     pub track_seconds: f64,
-    /// Folder of the crowd plans tracking is scored in (`--only tracking`).
+    /// Folder of the crowd plans tracking and the crowded sites are scored in (`--only
+    /// tracking`, `--only crowd`).
     #[arg(long, default_value = "fixtures/plans-crowd")]
     pub track_plans: PathBuf,
-    /// Parts to run: sim, site, real, classes (comma separated; default all), and tracking and
-    /// drawing (only when named).
+    /// Parts to run: sim, site, real, classes (comma separated; default all), and tracking,
+    /// crowd and drawing (only when named).
     #[arg(long, value_delimiter = ',')]
     pub only: Vec<String>,
     /// Desks of clutter added to each building drawing (`--only drawing`): entities no scanner
@@ -114,7 +116,7 @@ pub fn run(args: Args) -> Result<()> {
                 .with_context(|| format!("{}: cannot create", path.display()))?;
             writeln!(
                 f,
-                "set,pair,overlap,registered,reason,err_m,err_deg,ambiguity,score,est_overlap,violation,match,sigma_m,sigma_yaw_deg,ms,walkers_seen,walkers_through"
+                "set,pair,overlap,registered,reason,err_m,err_deg,ambiguity,score,est_overlap,violation,match,sigma_m,sigma_yaw_deg,ms,walkers_seen,walkers_through,evidence"
             )?;
             Some(f)
         }
@@ -161,6 +163,9 @@ pub fn run(args: Args) -> Result<()> {
     }
     if args.only.iter().any(|o| o == "drawing") {
         drawing::run(&load_plans(&args.plans)?, &args, &params)?;
+    }
+    if args.only.iter().any(|o| o == "crowd") {
+        crowd::run(&args.track_plans, args.seed, &params)?;
     }
     if args.only.iter().any(|o| o == "tracking") {
         tracking::run(&args.track_plans, args.track_seconds, args.seed)?;
@@ -350,7 +355,7 @@ pub fn evaluate(
                 .unwrap_or_default();
             writeln!(
                 f,
-                "{set},\"{}\",{:.3},{},\"{}\",{:.3},{:.2},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.2},{:.1},{},{}",
+                "{set},\"{}\",{:.3},{},\"{}\",{:.3},{:.2},{:.3},{:.3},{:.3},{:.3},{:.3},{:.3},{:.2},{:.1},{},{},{}",
                 case.label,
                 case.overlap,
                 r.registered(),
@@ -368,6 +373,7 @@ pub fn evaluate(
                 r.motion.map_or(String::new(), |m| m.seen.to_string()),
                 r.motion
                     .map_or(String::new(), |m| m.seen_through.to_string()),
+                scanfuse::register::walkers::evidence(r.walkers.as_ref()),
             )?;
         }
         if case.overlap >= 0.3 {
