@@ -72,13 +72,7 @@ fn site(plan: &str, seconds: f64) -> Result<(usize, usize, usize), Error> {
     let path = recording(plan, seconds)?;
     let rec = record::read(&path)?;
     let anchor = rec.sensors.first().ok_or("no sensors")?.id.clone();
-    let start_ns = rec
-        .scans
-        .values()
-        .filter_map(|s| s.first())
-        .map(|s| s.stamp_ns)
-        .min()
-        .ok_or("no scans")?;
+    let start_ns = rec.first_stamp_ns().ok_or("no scans")?;
     let stream_s = |ns: u64| ns.saturating_sub(start_ns) as f64 / 1e9;
     let people = record::read_truth_people(&path)?;
     let mut units: Vec<(String, Unit)> = Vec::new();

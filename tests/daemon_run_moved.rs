@@ -25,13 +25,7 @@ fn fixture(name: &str) -> Recording {
 /// Every scan of the recording as a work item, in stamp order; `passes` plays it again with
 /// stamps shifted by its length (as the looping emulator does).
 fn items(rec: &Recording, passes: u64) -> Vec<WorkItem> {
-    let first = rec
-        .scans
-        .values()
-        .filter_map(|s| s.first())
-        .map(|s| s.stamp_ns)
-        .min()
-        .unwrap();
+    let first = rec.first_stamp_ns().unwrap();
     let last = rec
         .scans
         .values()

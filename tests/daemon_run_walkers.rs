@@ -52,13 +52,7 @@ fn people_walking_place_the_unit_walls_leave_ambiguous_and_nothing_before() {
         let t = rec.sensor(id).and_then(|s| s.truth).expect("truth");
         pose2(t.x_m, t.y_m, t.yaw_deg.to_radians())
     };
-    let start_ns = rec
-        .scans
-        .values()
-        .filter_map(|s| s.first())
-        .map(|s| s.stamp_ns)
-        .min()
-        .unwrap();
+    let start_ns = rec.first_stamp_ns().unwrap();
     // When the first person comes within reach of either unit.
     let units: Vec<_> = ["s0", "s1"].iter().map(|id| truth(id)).collect();
     let walk_s = record::read_truth_people(&recording)

@@ -54,6 +54,15 @@ impl Recording {
         self.sensors.iter().find(|s| s.id == id)
     }
 
+    /// The stamp of the earliest first scan of any sensor: where stream time starts.
+    pub fn first_stamp_ns(&self) -> Option<u64> {
+        self.scans
+            .values()
+            .filter_map(|s| s.first())
+            .map(|s| s.stamp_ns)
+            .min()
+    }
+
     /// The scans of sensor `id`, empty when it has none.
     pub fn scans_of(&self, id: &str) -> &[Scan] {
         self.scans.get(id).map(Vec::as_slice).unwrap_or(&[])
