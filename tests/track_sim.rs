@@ -201,6 +201,44 @@ fn scanfuse_track_writes_tracks_lines_on_the_recordings_clock() {
         with_tracks * 2 >= lines,
         "{with_tracks} of {lines} lines hold tracks"
     );
+
+    // A site file's [track] sets the tracker; a bad one is refused with its file, line and key.
+    let site = |track: &str| {
+        let path = dir.path().join("site.toml");
+        std::fs::write(
+            &path,
+            format!(
+                "[site]\nname = \"room6\"\nstate_dir = \"state\"\nsocket = \"s.sock\"\nanchor = \"sw\"\n\n\
+                 [[sensor]]\nid = \"sw\"\nconnect = \"tcp://127.0.0.1:10940\"\n\n[track]\n{track}\n"
+            ),
+        )
+        .expect("site file written");
+        Command::new(bin)
+            .arg("track")
+            .arg(&mcap)
+            .arg("--poses")
+            .arg(&poses)
+            .arg("--out")
+            .arg(&out)
+            .arg("--config")
+            .arg(&path)
+            .output()
+            .expect("track runs")
+    };
+    let with = site("death_s = 0.3\nbackground_s = 120");
+    let stderr = String::from_utf8_lossy(&with.stderr);
+    assert!(with.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("background after 120 s still, a track ends 0.3 s unseen ([track] of"),
+        "{stderr}"
+    );
+    let bad = site("background_s = 20");
+    let stderr = String::from_utf8_lossy(&bad.stderr);
+    assert_eq!(bad.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("site.toml") && stderr.contains("track.background_s"),
+        "{stderr}"
+    );
 }
 
 #[test]

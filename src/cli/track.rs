@@ -1,5 +1,5 @@
-//! `scanfuse track FILE.mcap… [--poses poses.toml] [--out tracks.ndjson]`: the people tracker
-//! on recordings. The sensors are registered first, as `scanfuse register` does (unless a
+//! `scanfuse track FILE.mcap… [--poses poses.toml] [--out tracks.ndjson] [--config site.toml]`:
+//! the people tracker on recordings, with a site file's `[track]` times when given. The sensors are registered first, as `scanfuse register` does (unless a
 //! `poses.toml` as the daemon writes it is given); each sensor's background starts from its
 //! persistent view; then every scan goes through the tracker in stamp order and each fused
 //! step is one `TRACKS` line (NDJSON, `t_ns` the recording's clock). A summary on stderr.
@@ -9,6 +9,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use rayon::prelude::*;
+use scanfuse::daemon::config::Config;
 use scanfuse::daemon::protocol::Message;
 use scanfuse::daemon::state::PosesFile;
 use scanfuse::features::{crowd_proof_view, persistent_view};
@@ -40,6 +41,10 @@ pub struct Args {
     /// The sensor whose frame is the site frame when registering (default: the first found).
     #[arg(long)]
     anchor: Option<String>,
+    /// A site file (as `scanfuse run` reads it) whose `[track]` section sets the tracker, so a
+    /// recording is tracked as the daemon would track it (default: the built-in times).
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
 }
 
 struct Sensor {
@@ -49,6 +54,28 @@ struct Sensor {
 }
 
 pub fn run(args: Args) -> Result<()> {
+    // A bad site file fails before minutes of registering.
+    let params = match &args.config {
+        Some(path) => {
+            let config = Config::load(path).map_err(|e| BadInput(e.to_string()))?;
+            if !config.track.enabled {
+                eprintln!(
+                    "note: {} has [track] enabled = false (the daemon runs no tracker); tracking with its times anyway",
+                    path.display()
+                );
+            }
+            config.track.params()
+        }
+        None => TrackParams::default(),
+    };
+    eprintln!(
+        "tracker: background after {:.0} s still, a track ends {:.1} s unseen{}",
+        params.background.absorb_s,
+        params.death_s,
+        args.config
+            .as_ref()
+            .map_or(String::new(), |p| format!(" ([track] of {})", p.display()))
+    );
     let mut sensors: Vec<Sensor> = Vec::new();
     for path in &args.files {
         let mut recording = record::read(path)?;
@@ -96,7 +123,6 @@ pub fn run(args: Args) -> Result<()> {
         }
     }
 
-    let params = TrackParams::default();
     let mut tracker = Tracker::new(params.clone());
     for s in &sensors {
         if let Some(view) = persistent_view(&s.scans, VIEW_WINDOW_S, 0.15, 0.05) {
