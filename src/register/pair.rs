@@ -95,7 +95,7 @@ impl fmt::Display for Abstain {
                 match structures {
                     0 => "no wall and nothing else",
                     1 => "only one wall",
-                    _ => "only two walls (a corner)",
+                    _ => "only two walls (a corner), or one wall and one thing by it",
                 }
             ),
             Abstain::Degenerate { weak_axis_deg } => {
