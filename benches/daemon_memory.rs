@@ -27,13 +27,6 @@ const HALL: [(&str, &str); 5] = [
     ("tilt", "height_m = 2.5\npitch_deg = -20.0"),
 ];
 
-fn env_f64(name: &str, default: f64) -> f64 {
-    std::env::var(name)
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(default)
-}
-
 /// (VmRSS, VmHWM) of this process, MiB.
 fn rss_mib() -> Result<(f64, f64), Error> {
     let status = std::fs::read_to_string("/proc/self/status")?;
@@ -70,9 +63,9 @@ fn scans(stream: &mut BufReader<UnixStream>) -> Result<(u64, u64, usize), Error>
 }
 
 fn main() -> Result<(), Error> {
-    let seconds = env_f64("SCANFUSE_BENCH_S", 360.0);
-    let every_s = env_f64("SCANFUSE_BENCH_EVERY_S", 20.0);
-    let speed = env_f64("SCANFUSE_BENCH_SPEED", 10.0);
+    let seconds = common::env_f64("SCANFUSE_BENCH_S", 360.0);
+    let every_s = common::env_f64("SCANFUSE_BENCH_EVERY_S", 20.0);
+    let speed = common::env_f64("SCANFUSE_BENCH_SPEED", 10.0);
     let fixture = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/hall.mcap");
     let dir = tempfile::tempdir()?;
     let socket = dir.path().join("s.sock");

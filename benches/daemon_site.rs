@@ -20,40 +20,13 @@ mod common;
 
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use scanfuse::daemon::protocol::Message;
 use scanfuse::emulator::{Emulator, EmulatorConfig};
 
 type Error = Box<dyn std::error::Error>;
-
-fn env_f64(name: &str, default: f64) -> f64 {
-    std::env::var(name)
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(default)
-}
-
-/// Kills the daemon when the bench ends, however it ends.
-struct Daemon(Child);
-
-impl Drop for Daemon {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-/// utime + stime of a process, in clock ticks.
-fn cpu_ticks(pid: u32) -> Result<u64, Error> {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat"))?;
-    // Fields after the command name (which may hold spaces) start after the last ')'.
-    let rest = stat.rsplit_once(')').ok_or("malformed stat")?.1;
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    Ok(f.get(11).ok_or("short stat")?.parse::<u64>()?
-        + f.get(12).ok_or("short stat")?.parse::<u64>()?)
-}
 
 /// CPU ticks of each thread of a process, by thread name (threads of one name added up).
 fn thread_ticks(pid: u32) -> Result<std::collections::BTreeMap<String, u64>, Error> {
@@ -80,16 +53,6 @@ fn own_cpu_s() -> f64 {
         .ok()
         .and_then(|s| s.split_whitespace().next()?.parse::<f64>().ok())
         .map_or(0.0, |ns| ns * 1e-9)
-}
-
-fn ticks_per_s() -> f64 {
-    Command::new("getconf")
-        .arg("CLK_TCK")
-        .output()
-        .ok()
-        .and_then(|o| String::from_utf8(o.stdout).ok())
-        .and_then(|s| s.trim().parse().ok())
-        .unwrap_or(100.0)
 }
 
 /// (VmRSS, VmHWM) of a process, MiB.
@@ -190,10 +153,10 @@ fn recording(bin: &str, sensors: usize, seconds: f64, crowd: u32) -> Result<Path
 }
 
 fn main() -> Result<(), Error> {
-    let n = env_f64("SCANFUSE_BENCH_SENSORS", 100.0) as usize;
-    let window_s = env_f64("SCANFUSE_BENCH_S", 20.0);
-    let rec_s = env_f64("SCANFUSE_BENCH_REC_S", 10.0);
-    let crowd = env_f64("SCANFUSE_BENCH_CROWD", 30.0) as u32;
+    let n = common::env_f64("SCANFUSE_BENCH_SENSORS", 100.0) as usize;
+    let window_s = common::env_f64("SCANFUSE_BENCH_S", 20.0);
+    let rec_s = common::env_f64("SCANFUSE_BENCH_REC_S", 10.0);
+    let crowd = common::env_f64("SCANFUSE_BENCH_CROWD", 30.0) as u32;
     let bin = std::env::var("SCANFUSE_BIN")
         .unwrap_or_else(|_| env!("CARGO_BIN_EXE_scanfuse").to_string());
     println!("daemon_site: {bin}, a concourse of {n} sensors, {crowd} people, looped at ×1");
@@ -250,7 +213,7 @@ fn main() -> Result<(), Error> {
     let config = dir.path().join("site.toml");
     std::fs::write(&config, text)?;
     let log = dir.path().join("daemon.log");
-    let daemon = Daemon(
+    let daemon = common::Daemon(
         Command::new(&bin)
             .args([
                 "run",
@@ -296,7 +259,7 @@ fn main() -> Result<(), Error> {
         std::thread::spawn(move || watch_frames(&socket, window_s))
     });
     let (before, drops0, _) = site_state(&socket)?;
-    let ticks0 = cpu_ticks(pid)?;
+    let ticks0 = common::cpu_ticks(pid)?;
     let threads0 = thread_ticks(pid)?;
     let t0 = Instant::now();
     let mut rss_max: f64 = 0.0;
@@ -305,12 +268,15 @@ fn main() -> Result<(), Error> {
         std::thread::sleep(Duration::from_millis(500));
     }
     let elapsed = t0.elapsed().as_secs_f64();
-    let cpu = (cpu_ticks(pid)? - ticks0) as f64 / ticks_per_s() / elapsed;
+    let cpu = (common::cpu_ticks(pid)? - ticks0) as f64 / common::ticks_per_s() / elapsed;
     let mut threads: Vec<(f64, String)> = thread_ticks(pid)?
         .into_iter()
         .map(|(name, t)| {
             let was = threads0.get(&name).copied().unwrap_or(0);
-            (t.saturating_sub(was) as f64 / ticks_per_s() / elapsed, name)
+            (
+                t.saturating_sub(was) as f64 / common::ticks_per_s() / elapsed,
+                name,
+            )
         })
         .filter(|(c, _)| *c >= 0.005)
         .collect();

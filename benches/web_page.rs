@@ -21,7 +21,7 @@ mod common;
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
@@ -42,43 +42,9 @@ const HALL: [(&str, &str); 5] = [
     ("tilt", "height_m = 2.5\npitch_deg = -20.0"),
 ];
 
-fn env_f64(name: &str, default: f64) -> f64 {
-    std::env::var(name)
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(default)
-}
-
-/// Kills the daemon when the bench ends, however it ends.
-struct Daemon(Child);
-
-impl Drop for Daemon {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 /// CPU seconds (user + system) the process `pid` has used.
 fn cpu_s(pid: u32, ticks_per_s: f64) -> Result<f64, Error> {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat"))?;
-    // Fields after the command name (which may hold spaces) in parentheses.
-    let rest = stat.rsplit_once(')').ok_or("malformed stat")?.1;
-    let fields: Vec<&str> = rest.split_whitespace().collect();
-    // utime and stime are fields 14 and 15 of stat, 12 and 13 after the name.
-    let utime: f64 = fields.get(11).ok_or("no utime")?.parse()?;
-    let stime: f64 = fields.get(12).ok_or("no stime")?.parse()?;
-    Ok((utime + stime) / ticks_per_s)
-}
-
-fn ticks_per_s() -> f64 {
-    Command::new("getconf")
-        .arg("CLK_TCK")
-        .output()
-        .ok()
-        .and_then(|o| String::from_utf8(o.stdout).ok())
-        .and_then(|s| s.trim().parse().ok())
-        .unwrap_or(100.0)
+    Ok(common::cpu_ticks(pid)? as f64 / ticks_per_s)
 }
 
 /// `(placed, streaming)` sensors, from one `status` and one `poses` request.
@@ -233,8 +199,8 @@ async fn foxglove_client(port: u16, window: Duration) -> Result<BTreeMap<String,
 }
 
 fn main() -> Result<(), Error> {
-    let window_s = env_f64("SCANFUSE_BENCH_S", 20.0);
-    let clients = env_f64("SCANFUSE_BENCH_CLIENTS", 10.0) as usize;
+    let window_s = common::env_f64("SCANFUSE_BENCH_S", 20.0);
+    let clients = common::env_f64("SCANFUSE_BENCH_CLIENTS", 10.0) as usize;
     let bin = std::env::var("SCANFUSE_BIN")
         .unwrap_or_else(|_| env!("CARGO_BIN_EXE_scanfuse").to_string());
     let fixture = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/hall.mcap");
@@ -267,7 +233,7 @@ fn main() -> Result<(), Error> {
     let config = dir.path().join("site.toml");
     std::fs::write(&config, text)?;
     let run_s = 3.0 * window_s + 120.0;
-    let daemon = Daemon(
+    let daemon = common::Daemon(
         Command::new(&bin)
             .args(["run", "--for", &format!("{run_s:.0}s"), "--config"])
             .arg(&config)
@@ -276,7 +242,7 @@ fn main() -> Result<(), Error> {
             .spawn()?,
     );
     let pid = daemon.0.id();
-    let ticks = ticks_per_s();
+    let ticks = common::ticks_per_s();
     println!("web_page: {bin}, hall × 5 sensors looped at ×1, page on 127.0.0.1:{port}");
 
     // Registered and streaming before anything is measured.

@@ -1,8 +1,59 @@
-//! What the daemon benchmarks share: reaching the socket of a daemon that is starting.
+//! What the daemon benchmarks share: their knobs from the environment, a daemon that is
+//! killed when the bench ends, its CPU time, and reaching its socket while it starts.
 
 use std::os::unix::net::UnixStream;
 use std::path::Path;
+use std::process::{Child, Command};
 use std::time::{Duration, Instant};
+
+/// A bench's knob from the environment (`SCANFUSE_BENCH_…`), or `default`.
+#[allow(dead_code)] // not every bench has knobs
+pub fn env_f64(name: &str, default: f64) -> f64 {
+    std::env::var(name)
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(default)
+}
+
+/// Kills the daemon when the bench ends, however it ends.
+#[allow(dead_code)] // not every bench starts a daemon process
+pub struct Daemon(pub Child);
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// utime + stime of a process, in clock ticks (`ticks_per_s` of them a second).
+#[allow(dead_code)] // not every bench measures a daemon's CPU
+pub fn cpu_ticks(pid: u32) -> Result<u64, String> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).map_err(|e| e.to_string())?;
+    // Fields after the command name (which may hold spaces) start after the last ')'; utime
+    // and stime are fields 14 and 15 of stat, 12 and 13 after the name.
+    let rest = stat.rsplit_once(')').ok_or("malformed stat")?.1;
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let field = |k: usize| -> Result<u64, String> {
+        f.get(k)
+            .ok_or("short stat")?
+            .parse::<u64>()
+            .map_err(|e| e.to_string())
+    };
+    Ok(field(11)? + field(12)?)
+}
+
+/// Clock ticks per second (`getconf CLK_TCK`; 100 where it cannot say).
+#[allow(dead_code)]
+pub fn ticks_per_s() -> f64 {
+    Command::new("getconf")
+        .arg("CLK_TCK")
+        .output()
+        .ok()
+        .and_then(|o| String::from_utf8(o.stdout).ok())
+        .and_then(|s| s.trim().parse().ok())
+        .unwrap_or(100.0)
+}
 
 /// Connects to the daemon's socket, retrying while it starts (up to 10 s).
 pub fn connect_when_up(socket: &Path) -> Result<UnixStream, Box<dyn std::error::Error>> {
