@@ -20,7 +20,7 @@ use std::time::{Duration, Instant, SystemTime};
 
 use scanfuse::daemon::config::RegistrationConfig;
 use scanfuse::daemon::pipeline_register::{Command as RegCommand, Registrar, Verdict, WorkItem};
-use scanfuse::geometry::{Mount, Pose2, pose_error, pose2};
+use scanfuse::geometry::{Pose2, pose_error, pose2};
 use scanfuse::record::{self, Recording};
 
 type Error = Box<dyn std::error::Error>;
@@ -101,10 +101,7 @@ fn site(plan: &str, seconds: f64) -> Result<(usize, usize, usize), Error> {
         r.command(
             RegCommand::Add {
                 id: info.id.clone(),
-                mount: Mount {
-                    height_m: info.height_m,
-                    pitch_rad: info.pitch_deg.unwrap_or(0.0).to_radians(),
-                },
+                mount: info.mount(),
                 survey: None,
                 pose: None,
             },

@@ -86,13 +86,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let warm_ns = start_ns + (WARMUP_S * 1e9) as u64;
 
     let params = TrackParams::default();
-    let mounts: Vec<Mount> = infos
-        .iter()
-        .map(|i| Mount {
-            height_m: i.height_m,
-            pitch_rad: i.pitch_deg.unwrap_or(0.0).to_radians(),
-        })
-        .collect();
+    let mounts: Vec<Mount> = infos.iter().map(|i| i.mount()).collect();
     let poses: Vec<Option<Pose2>> = infos
         .iter()
         .map(|i| i.truth.map(|t| pose2(t.x_m, t.y_m, t.yaw_deg.to_radians())))

@@ -199,6 +199,14 @@ impl SensorInfo {
             truth: None,
         }
     }
+
+    /// How it is mounted, as projection and registration take it (level when not stated).
+    pub fn mount(&self) -> crate::geometry::Mount {
+        crate::geometry::Mount {
+            height_m: self.height_m,
+            pitch_rad: self.pitch_deg.unwrap_or(0.0).to_radians(),
+        }
+    }
 }
 
 /// A pose in the site frame, as ground truth states it.

@@ -41,10 +41,7 @@ fn stream(rec: &Recording) -> Stream {
     for (i, info) in rec.sensors.iter().enumerate() {
         let t = info.truth.unwrap();
         ids.push(info.id.clone());
-        mounts.push(Mount {
-            height_m: info.height_m,
-            pitch_rad: info.pitch_deg.unwrap_or(0.0).to_radians(),
-        });
+        mounts.push(info.mount());
         poses.push(anchor_from_world * truth(t.x_m, t.y_m, t.yaw_deg));
         scans.extend(rec.scans_of(&info.id).iter().map(|s| (i, s.clone())));
     }

@@ -10,7 +10,7 @@ use std::time::{Duration, SystemTime};
 use scanfuse::daemon::config::RegistrationConfig;
 use scanfuse::daemon::pipeline_register::{Command, Method, Registrar, WorkItem};
 use scanfuse::daemon::protocol::PoseSource;
-use scanfuse::geometry::{Mount, pose_error, pose2};
+use scanfuse::geometry::{pose_error, pose2};
 use scanfuse::record::{self, Recording};
 
 fn fixture(name: &str) -> Recording {
@@ -62,10 +62,7 @@ fn registrar_with(rec: &Recording, anchor: &str, config: &RegistrationConfig) ->
         r.command(
             Command::Add {
                 id: info.id.clone(),
-                mount: Mount {
-                    height_m: info.height_m,
-                    pitch_rad: info.pitch_deg.unwrap_or(0.0).to_radians(),
-                },
+                mount: info.mount(),
                 survey: None,
                 pose: None,
             },

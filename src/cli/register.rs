@@ -9,7 +9,6 @@ use anyhow::Result;
 use rayon::prelude::*;
 use scanfuse::daemon::protocol::SensorPose;
 use scanfuse::features::crowd_proof_view;
-use scanfuse::geometry::Mount;
 use scanfuse::record;
 use scanfuse::register::clocks::{Clock, MAX_CLOCK_OFFSET_S, align_clocks};
 use scanfuse::register::site::{SensorInput, SiteParams, SiteResult, register_site};
@@ -192,10 +191,7 @@ pub(super) fn prepare_sensor(
     params: &RegisterParams,
 ) -> Option<SensorInput> {
     let view = crowd_proof_view(scans, VIEW_WINDOW_S, STATIC_WINDOW_S)?;
-    let mount = Mount {
-        height_m: info.height_m,
-        pitch_rad: info.pitch_deg.unwrap_or(0.0).to_radians(),
-    };
+    let mount = info.mount();
     let geometry = info.geometry.as_ref();
     let mut model = ScanModel::from_scan(&view, geometry, &mount, params);
     if !walls_only {

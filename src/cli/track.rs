@@ -96,10 +96,7 @@ pub fn run(args: Args) -> Result<()> {
                 .into());
             }
             let scans = recording.scans.remove(&info.id).unwrap_or_default();
-            let mount = Mount {
-                height_m: info.height_m,
-                pitch_rad: info.pitch_deg.unwrap_or(0.0).to_radians(),
-            };
+            let mount = info.mount();
             sensors.push(Sensor { info, scans, mount });
         }
     }

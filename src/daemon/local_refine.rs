@@ -218,7 +218,6 @@ fn best_fit(
 mod tests {
     use super::*;
     use crate::features::static_view;
-    use crate::geometry::Mount;
     use crate::record::{self, Recording};
 
     fn lab() -> Recording {
@@ -238,10 +237,7 @@ mod tests {
             .map(|info| {
                 let scans: Vec<_> = rec.scans_of(&info.id).to_vec();
                 let view = static_view(&scans, 1.0).unwrap();
-                let mount = Mount {
-                    height_m: info.height_m,
-                    pitch_rad: info.pitch_deg.unwrap_or(0.0).to_radians(),
-                };
+                let mount = info.mount();
                 let model = ScanModel::from_scan(&view, info.geometry.as_ref(), &mount, p);
                 (
                     info.id.clone(),

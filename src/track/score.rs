@@ -384,13 +384,7 @@ pub fn score_plan(
     let mut sim = Simulation::new(plan, o.seed)?;
     let infos = sim.sensors().to_vec();
     let start_ns = sim.start_ns();
-    let mounts: Vec<Mount> = infos
-        .iter()
-        .map(|i| Mount {
-            height_m: i.height_m,
-            pitch_rad: i.pitch_deg.unwrap_or(0.0).to_radians(),
-        })
-        .collect();
+    let mounts: Vec<Mount> = infos.iter().map(|i| i.mount()).collect();
     let poses: Vec<Option<Pose2>> = infos
         .iter()
         .map(|i| {

@@ -7,7 +7,7 @@ use anyhow::{Context, Result};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use scanfuse::features::static_view;
-use scanfuse::geometry::{Mount, Pose2, pose2, raycast};
+use scanfuse::geometry::{Pose2, pose2, raycast};
 use scanfuse::register::site::SensorInput;
 use scanfuse::register::{RegisterParams, ScanModel};
 use scanfuse::scan::{Scan, SensorInfo};
@@ -171,10 +171,7 @@ pub(super) fn site_inputs(models: Vec<(SensorInfo, ScanModel)>) -> Vec<SensorInp
         .into_iter()
         .map(|(info, model)| SensorInput {
             id: info.id.clone(),
-            mount: Mount {
-                height_m: info.height_m,
-                pitch_rad: info.pitch_deg.unwrap_or(0.0).to_radians(),
-            },
+            mount: info.mount(),
             model,
             prior: None,
         })
@@ -220,10 +217,7 @@ pub(super) fn simulate_models(
         {
             return Ok(None);
         }
-        let mount = Mount {
-            height_m: info.height_m,
-            pitch_rad: info.pitch_deg.unwrap_or(0.0).to_radians(),
-        };
+        let mount = info.mount();
         let mut model = ScanModel::from_scan(&view, info.geometry.as_ref(), &mount, params);
         if motion_seconds > SIM_SECONDS {
             model = model.with_motion(&scans, &view, info.geometry.as_ref(), &mount, params);
