@@ -80,20 +80,7 @@ type SiteState = (Vec<(String, u64)>, u64, usize);
 /// the daemon has placed.
 fn site_state(socket: &Path) -> Result<SiteState, Error> {
     let mut stream = BufReader::new(common::connect_when_up(socket)?);
-    let mut ask = |req: &str| -> Result<Message, Error> {
-        stream.get_mut().write_all(req.as_bytes())?;
-        let mut line = String::new();
-        loop {
-            line.clear();
-            if stream.read_line(&mut line)? == 0 {
-                return Err("the daemon closed the socket".into());
-            }
-            match serde_json::from_str::<Message>(&line) {
-                Ok(Message::Version(_)) | Err(_) => continue,
-                Ok(m) => return Ok(m),
-            }
-        }
-    };
+    let mut ask = |req: &str| common::ask(&mut stream, req);
     let (scans, drops) = match ask("{\"cmd\":\"status\"}\n")? {
         Message::Status(s) => (
             s.sensors.iter().map(|x| (x.id.clone(), x.scans)).collect(),

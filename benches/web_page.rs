@@ -19,7 +19,7 @@
 mod common;
 
 use std::collections::BTreeMap;
-use std::io::{BufRead, BufReader, Read, Write};
+use std::io::{BufReader, Read, Write};
 use std::net::TcpStream;
 use std::process::{Command, Stdio};
 use std::sync::Arc;
@@ -50,20 +50,7 @@ fn cpu_s(pid: u32, ticks_per_s: f64) -> Result<f64, Error> {
 /// `(placed, streaming)` sensors, from one `status` and one `poses` request.
 fn site_state(socket: &std::path::Path) -> Result<(usize, usize), Error> {
     let mut stream = BufReader::new(common::connect_when_up(socket).map_err(|e| e.to_string())?);
-    let mut ask = |req: &str| -> Result<Message, Error> {
-        stream.get_mut().write_all(req.as_bytes())?;
-        let mut line = String::new();
-        loop {
-            line.clear();
-            if stream.read_line(&mut line)? == 0 {
-                return Err("the daemon closed the socket".into());
-            }
-            match serde_json::from_str::<Message>(&line) {
-                Ok(Message::Version(_)) | Err(_) => continue,
-                Ok(m) => return Ok(m),
-            }
-        }
-    };
+    let mut ask = |req: &str| common::ask(&mut stream, req);
     let streaming = match ask("{\"cmd\":\"status\"}\n")? {
         Message::Status(s) => s.sensors.iter().filter(|x| x.rate_hz.is_some()).count(),
         _ => 0,

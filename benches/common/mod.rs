@@ -1,6 +1,9 @@
 //! What the daemon benchmarks share: their knobs from the environment, a daemon that is
-//! killed when the bench ends, its CPU time, and reaching its socket while it starts.
+//! killed when the bench ends, its CPU time, reaching its socket while it starts, and one
+//! request's answer on it.
 
+use scanfuse::daemon::protocol::Message;
+use std::io::{BufRead, BufReader, Write};
 use std::os::unix::net::UnixStream;
 use std::path::Path;
 use std::process::{Child, Command};
@@ -129,4 +132,25 @@ pub fn site_of_true_poses(
     }
     .save(state)?;
     Ok(text)
+}
+
+/// Sends one request line and returns the daemon's answer (the VERSION greeting and lines that
+/// are not protocol objects skipped).
+#[allow(dead_code)] // not every bench asks the socket this way
+pub fn ask(stream: &mut BufReader<UnixStream>, req: &str) -> Result<Message, String> {
+    stream
+        .get_mut()
+        .write_all(req.as_bytes())
+        .map_err(|e| e.to_string())?;
+    let mut line = String::new();
+    loop {
+        line.clear();
+        if stream.read_line(&mut line).map_err(|e| e.to_string())? == 0 {
+            return Err("the daemon closed the socket".into());
+        }
+        match serde_json::from_str::<Message>(&line) {
+            Ok(Message::Version(_)) | Err(_) => continue,
+            Ok(m) => return Ok(m),
+        }
+    }
 }
