@@ -149,15 +149,20 @@ fn scanfuse_track_writes_tracks_lines_on_the_recordings_clock() {
     }
     std::fs::write(&poses, text).expect("poses written");
     let out = dir.path().join("tracks.ndjson");
-    let run = Command::new(bin)
-        .arg("track")
-        .arg(&mcap)
-        .arg("--poses")
-        .arg(&poses)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .expect("track runs");
+    // `scanfuse track` on the recording with the true poses, plus `extra` arguments.
+    let track = |extra: &[&std::ffi::OsStr]| {
+        Command::new(bin)
+            .arg("track")
+            .arg(&mcap)
+            .arg("--poses")
+            .arg(&poses)
+            .arg("--out")
+            .arg(&out)
+            .args(extra)
+            .output()
+            .expect("track runs")
+    };
+    let run = track(&[]);
     assert!(
         run.status.success(),
         "{}",
@@ -203,27 +208,17 @@ fn scanfuse_track_writes_tracks_lines_on_the_recordings_clock() {
     );
 
     // A site file's [track] sets the tracker; a bad one is refused with its file, line and key.
-    let site = |track: &str| {
+    let site = |section: &str| {
         let path = dir.path().join("site.toml");
         std::fs::write(
             &path,
             format!(
                 "[site]\nname = \"room6\"\nstate_dir = \"state\"\nsocket = \"s.sock\"\nanchor = \"sw\"\n\n\
-                 [[sensor]]\nid = \"sw\"\nconnect = \"tcp://127.0.0.1:10940\"\n\n[track]\n{track}\n"
+                 [[sensor]]\nid = \"sw\"\nconnect = \"tcp://127.0.0.1:10940\"\n\n[track]\n{section}\n"
             ),
         )
         .expect("site file written");
-        Command::new(bin)
-            .arg("track")
-            .arg(&mcap)
-            .arg("--poses")
-            .arg(&poses)
-            .arg("--out")
-            .arg(&out)
-            .arg("--config")
-            .arg(&path)
-            .output()
-            .expect("track runs")
+        track(&["--config".as_ref(), path.as_os_str()])
     };
     let with = site("death_s = 0.3\nbackground_s = 120");
     let stderr = String::from_utf8_lossy(&with.stderr);
