@@ -238,11 +238,10 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
             first.score = polished_score;
         }
     }
+    // The people's fit, decisive or disputed: what may place the pair alone.
+    let any_fit = walkers.as_ref().or(disputed.as_ref());
     let Some((best, icp)) = distinct.first().cloned() else {
-        if let Some(placed) = walkers
-            .as_ref()
-            .or(disputed.as_ref())
-            .and_then(|f| placed_by_walkers(a, b, f, hypotheses_count, p))
+        if let Some(placed) = any_fit.and_then(|f| placed_by_walkers(a, b, f, hypotheses_count, p))
         {
             return placed;
         }
@@ -291,7 +290,6 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
     let by_walkers = walkers
         .as_ref()
         .filter(|f| f.near(&best.a_from_b, &p.walkers));
-    let any_fit = walkers.clone().or_else(|| disputed.clone());
     let verdict = if overlap < p.min_overlap {
         Err(Abstain::TooLittleOverlap { overlap })
     } else if best.score.value < p.min_score {
@@ -319,7 +317,10 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
             ratio: ambiguity,
             other,
         })
-    } else if let Some(fit) = disputed.filter(|f| !f.near(&best.a_from_b, &p.walkers)) {
+    } else if let Some(fit) = disputed
+        .as_ref()
+        .filter(|f| !f.near(&best.a_from_b, &p.walkers))
+    {
         Err(Abstain::WalkersDisagree {
             other: best.a_from_b.inverse() * fit.a_from_b,
         })
@@ -344,9 +345,7 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
     if verdict
         .as_ref()
         .is_err_and(|why| !matches!(why, Abstain::WalkersDisagree { .. }))
-        && let Some(placed) = any_fit
-            .as_ref()
-            .and_then(|f| placed_by_walkers(a, b, f, hypotheses_count, p))
+        && let Some(placed) = any_fit.and_then(|f| placed_by_walkers(a, b, f, hypotheses_count, p))
     {
         return placed;
     }
