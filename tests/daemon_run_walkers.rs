@@ -92,7 +92,7 @@ fn people_walking_place_the_unit_walls_leave_ambiguous_and_nothing_before() {
     // (stream s, s1 placed, its reason) per poll.
     let mut polls: Vec<(f64, bool, String)> = Vec::new();
     let started = Instant::now();
-    let placed_s = loop {
+    let (placed_s, evidence) = loop {
         assert!(
             started.elapsed() < Duration::from_secs(120),
             "s1 not placed; polls (stream s, placed, reason): {:?}",
@@ -129,7 +129,7 @@ fn people_walking_place_the_unit_walls_leave_ambiguous_and_nothing_before() {
             s1.reason.clone().unwrap_or_default(),
         ));
         if s1.registered {
-            break stream_s;
+            break (stream_s, s1.evidence.clone());
         }
         std::thread::sleep(Duration::from_millis(20));
     };
@@ -152,6 +152,11 @@ fn people_walking_place_the_unit_walls_leave_ambiguous_and_nothing_before() {
         waited > 0,
         "no poll before people walked saw the walls' ambiguity: {:?}",
         polls.first()
+    );
+    // The socket says what placed it, in `register --json`'s words: people were needed.
+    assert!(
+        evidence.as_deref().is_some_and(|e| e.contains("walkers")),
+        "s1's evidence on the socket: {evidence:?}"
     );
     assert!(
         placed_s - walk_s <= TARGET_S,

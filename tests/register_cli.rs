@@ -103,6 +103,19 @@ fn check_fixture(name: &str, anchor: &str) {
             ),
             None => assert!(id == anchor || used >= 3, "{id}: {used} pairs, no caveat"),
         }
+        // What placed it: the evidence of its used pairs, one word if they agree.
+        let mut kinds: Vec<&str> = pairs
+            .iter()
+            .filter(|p| p["used"] == true && (p["a"] == id || p["b"] == id))
+            .map(|p| p["evidence"].as_str().expect("a used pair's evidence"))
+            .collect();
+        kinds.dedup();
+        let expected = match kinds.as_slice() {
+            _ if id == anchor => None,
+            [one] => Some(*one),
+            _ => Some("walls+walkers"),
+        };
+        assert_eq!(s["evidence"].as_str(), expected, "{id}'s evidence: {s}");
     }
 }
 

@@ -66,7 +66,7 @@ pub(super) struct PairOut {
     #[serde(skip_serializing_if = "Option::is_none")]
     reason: Option<String>,
     /// What registered the pair: `walls`, `walls+walkers` or `walkers` (people alone);
-    /// absent when it was not registered.
+    /// absent when it was neither registered nor used by the site.
     #[serde(skip_serializing_if = "Option::is_none")]
     evidence: Option<&'static str>,
     /// The walkers behind it, when they chose or placed it.
@@ -314,7 +314,8 @@ pub(super) fn to_output(
             if input.is_none() {
                 return unregistered("no scans in the recording".into());
             }
-            let placement = site.sensors.iter().find(|p| p.id == info.id);
+            let index = site.sensors.iter().position(|p| p.id == info.id);
+            let placement = index.and_then(|i| site.sensors.get(i));
             match placement.map(|p| &p.pose) {
                 Some(Ok(placed)) => SensorPose {
                     id: info.id.clone(),
@@ -330,6 +331,7 @@ pub(super) fn to_output(
                     reason: placement.and_then(|p| p.caveat.clone()),
                     age_s: None,
                     source: None,
+                    evidence: index.and_then(|i| site.evidence(i)).map(str::to_string),
                 },
                 Some(Err(reason)) => unregistered(reason.clone()),
                 None => unregistered("not registered".into()),
@@ -353,9 +355,8 @@ pub(super) fn to_output(
             overlap: p.result.overlap,
             used: p.used,
             reason: p.result.verdict.as_ref().err().map(|why| why.to_string()),
-            evidence: p
-                .result
-                .registered()
+            // Also for an ambiguous pair whose candidate the join used.
+            evidence: (p.result.registered() || p.used)
                 .then(|| evidence(p.result.walkers.as_ref())),
             walkers: p.result.walkers.as_ref().map(|f| WalkersOut {
                 sightings: f.inliers,

@@ -95,6 +95,8 @@ pub struct PoseEntry {
     pub loaded: bool,
     /// What to check about the pose (`Placement::caveat`); the socket's `reason`.
     pub caveat: Option<String>,
+    /// What placed it (`SiteResult::evidence`); the socket's `evidence`.
+    pub evidence: Option<&'static str>,
     pub updated: SystemTime,
 }
 
@@ -123,6 +125,7 @@ impl PoseEntry {
             } else {
                 self.source
             }),
+            evidence: self.evidence.map(str::to_string),
         }
     }
 }

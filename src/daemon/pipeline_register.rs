@@ -819,6 +819,8 @@ impl Registrar {
                             source,
                             loaded: false,
                             caveat: None,
+                            // Refined against the neighbours' static views.
+                            evidence: Some("walls"),
                             updated: now,
                         }),
                         method: Method::Local,
@@ -879,8 +881,9 @@ impl Registrar {
         } else {
             BTreeMap::new()
         };
+        let evidence: Vec<_> = (0..site.sensors.len()).map(|i| site.evidence(i)).collect();
         let mut outcomes = Vec::new();
-        for placement in site.sensors {
+        for (placement, evidence) in site.sensors.into_iter().zip(evidence) {
             let Some(track) = self.tracks.get_mut(&placement.id) else {
                 continue;
             };
@@ -906,6 +909,7 @@ impl Registrar {
                     source,
                     loaded: false,
                     caveat: placement.caveat,
+                    evidence,
                     updated: now,
                 }),
                 Err(reason) => match track.survey {
@@ -1005,6 +1009,7 @@ pub fn surveyed(s: &Survey, mount: &Mount, now: SystemTime) -> PoseEntry {
         source: PoseSource::Surveyed,
         loaded: false,
         caveat: None,
+        evidence: None,
         updated: now,
     }
 }

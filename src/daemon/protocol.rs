@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 /// Major protocol version: bumped when a client written for the old one would misread.
 pub const PROTO_MAJOR: u32 = 1;
 /// Minor protocol version: bumped when fields or classes are added.
-pub const PROTO_MINOR: u32 = 3;
+pub const PROTO_MINOR: u32 = 4;
 
 /// Request lines longer than this are rejected (and discarded up to their newline).
 pub const MAX_LINE_BYTES: usize = 64 * 1024;
@@ -320,6 +320,11 @@ pose_vocabulary! {
         pub age_s: Option<f64>,
         #[serde(default, skip_serializing_if = "Option::is_none")]
         pub source: Option<PoseSource>,
+        /// What placed it, as `register --json`'s pairs say: `"walls"`, `"walls+walkers"`
+        /// or `"walkers"` (people alone); since protocol 1.4. Absent for the anchor, a pose
+        /// loaded or surveyed, and a sensor not placed.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        pub evidence: Option<String>,
     }
 }
 
@@ -340,6 +345,7 @@ impl SensorPose {
             reason: Some(reason.into()),
             age_s: None,
             source: None,
+            evidence: None,
         }
     }
 }

@@ -397,6 +397,7 @@ fn load_saved_poses(config: &Config, pipeline: &Pipeline) {
                         source,
                         loaded: true,
                         caveat: s.reason.clone(),
+                        evidence: None,
                         updated,
                     }),
                 );

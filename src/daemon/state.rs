@@ -180,6 +180,7 @@ impl SavedPose {
             reason: self.reason.clone(),
             age_s,
             source: self.registered.then_some(PoseSource::Saved),
+            evidence: None,
         }
     }
 }

@@ -160,3 +160,29 @@ fn why_best_pair(i: usize, pairs: &[(usize, usize)], results: &[PairResult]) -> 
         .max_by(|x, y| x.1.score.value.total_cmp(&y.1.score.value))?;
     r.verdict.as_ref().err().map(|why| why.to_string())
 }
+
+impl SiteResult {
+    /// What placed sensor `i`, in the pairs' vocabulary ([`evidence`]): `"walls"`,
+    /// `"walkers"` (people alone) or `"walls+walkers"`, from the pairs that entered the solve
+    /// at it. A sensor the join placed on no pair of its own was placed by the walls (joins
+    /// score static views). None for the anchor and for a sensor not placed.
+    ///
+    /// [`evidence`]: crate::register::walkers::evidence
+    pub fn evidence(&self, i: usize) -> Option<&'static str> {
+        let placed = self.sensors.get(i).is_some_and(|s| s.pose.is_ok());
+        if !placed || i == self.anchor {
+            return None;
+        }
+        let mut kinds = self
+            .pairs
+            .iter()
+            .filter(|p| p.used && (p.a == i || p.b == i))
+            .map(|p| crate::register::walkers::evidence(p.result.walkers.as_ref()));
+        let first = kinds.next().unwrap_or("walls");
+        Some(if kinds.all(|k| k == first) {
+            first
+        } else {
+            "walls+walkers"
+        })
+    }
+}
