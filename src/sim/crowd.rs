@@ -56,6 +56,27 @@ pub(crate) struct BodyNow {
 struct Way {
     inner: [f64; 2],
     outer: [f64; 2],
+    /// The furthest a body's centre may keep from the door's centre line, along the door,
+    /// to the right of someone coming in (0 for a given point).
+    room: [f64; 2],
+}
+
+/// Of a way's room to the side, the least share a passer keeps right by.
+const KEEP_RIGHT_MIN: f64 = 0.25;
+
+impl Way {
+    /// The lane of one passage: people keep right, at `share` (in [`KEEP_RIGHT_MIN`], 1) of
+    /// the room, so those coming in and those going out pass each other rather than
+    /// walk through one another at the door's centre.
+    fn lane(self, coming_in: bool, share: f64) -> Way {
+        let k = if coming_in { share } else { -share };
+        let shift = |p: [f64; 2]| [p[0] + self.room[0] * k, p[1] + self.room[1] * k];
+        Way {
+            inner: shift(self.inner),
+            outer: shift(self.outer),
+            ..self
+        }
+    }
 }
 
 #[derive(Debug, Clone)]
@@ -111,7 +132,11 @@ fn ways_of(
                         "{p:?} is not in free space people can reach; move it off walls and boxes"
                     ))
                 })?;
-                Ok(Way { inner, outer: p })
+                Ok(Way {
+                    inner,
+                    outer: p,
+                    room: [0.0, 0.0],
+                })
             })
             .collect();
     }
@@ -138,12 +163,12 @@ fn ways_of(
             let normal = [-along[1], along[0]];
             // Inside is the side where the inner end is free; prefer a side that is not.
             let side = |s: f64| [foot[0] + normal[0] * s, foot[1] + normal[1] * s];
-            let (inner, outer) = if grid.is_free(side(INSIDE_M)) && !grid.is_free(side(-INSIDE_M))
-            {
-                (side(INSIDE_M), side(-OUTSIDE_M))
-            } else if grid.is_free(side(-INSIDE_M)) {
-                (side(-INSIDE_M), side(OUTSIDE_M))
-            } else {
+            let (inner, outer, inward) =
+                if grid.is_free(side(INSIDE_M)) && !grid.is_free(side(-INSIDE_M)) {
+                    (side(INSIDE_M), side(-OUTSIDE_M), normal)
+                } else if grid.is_free(side(-INSIDE_M)) {
+                    (side(-INSIDE_M), side(OUTSIDE_M), [-normal[0], -normal[1]])
+                } else {
                 return Err(PlanError::new(
                     &plan.origin,
                     d.line,
@@ -155,7 +180,20 @@ fn ways_of(
                     ),
                 ));
             };
-            Ok(Way { inner, outer })
+            // A body's half width (and a little) clear of each jamb; the inner end must
+            // stay walkable across the lane.
+            let right = [inward[1], -inward[0]];
+            let mut half = (d.width_m / 2.0 - 0.3).max(0.0);
+            let at = |k: f64| [inner[0] + right[0] * k, inner[1] + right[1] * k];
+            while half > 0.0 && !(grid.is_free(at(half)) && grid.is_free(at(-half))) {
+                half -= 0.05;
+            }
+            let half = half.max(0.0);
+            Ok(Way {
+                inner,
+                outer,
+                room: [right[0] * half, right[1] * half],
+            })
         })
         .collect()
 }
@@ -396,7 +434,8 @@ impl CrowdRun<'_> {
         }
         let exits = &self.plan.crowds[c].exits;
         let way = exits[self.rng.random_range(0..exits.len())];
-        goals.extend(leave_by(way));
+        let share = self.rng.random_range(KEEP_RIGHT_MIN..=1.0);
+        goals.extend(leave_by(way.lane(false, share)));
         goals
     }
 
@@ -490,7 +529,8 @@ impl CrowdRun<'_> {
                     .filter(|a| a.source == Source::Crowd(c) && !a.gone)
                     .count() as u32;
                 let entrances = &self.plan.crowds[c].entrances;
-                let way = entrances[self.rng.random_range(0..entrances.len())];
+                let way = entrances[self.rng.random_range(0..entrances.len())]
+                    .lane(true, self.rng.random_range(KEEP_RIGHT_MIN..=1.0));
                 let visits = self.rng.random_range(crowd.visits[0]..=crowd.visits[1]);
                 let mut goals = self.visit_goals(c, visits);
                 if inside + size > crowd.cap() {
@@ -518,12 +558,14 @@ impl CrowdRun<'_> {
                 continue;
             }
             self.lines[q].remove(0);
-            let way = spec.exits[self.rng.random_range(0..spec.exits.len())];
+            let way = spec.exits[self.rng.random_range(0..spec.exits.len())]
+                .lane(false, self.rng.random_range(KEEP_RIGHT_MIN..=1.0));
             if let Some(a) = self.agents.iter_mut().find(|a| a.body.id == front) {
                 a.goals = leave_by(way);
                 a.route.clear();
             }
-            let way = spec.entrances[self.rng.random_range(0..spec.entrances.len())];
+            let way = spec.entrances[self.rng.random_range(0..spec.entrances.len())]
+                .lane(true, self.rng.random_range(KEEP_RIGHT_MIN..=1.0));
             let speed = uniform(&mut self.rng, spec.queue.speed_m_s);
             let mut agent = self.new_agent(Source::Queue(q), way.outer, speed, [1.55, 1.95]);
             agent.goals = VecDeque::from([Goal::Straight(way.inner), Goal::InLine(q)]);
@@ -968,7 +1010,7 @@ radius_m = 0.4
                 continue;
             }
             left += 1;
-            // Gone from outside a door: 1 m beyond its centre.
+            // Gone from outside a door: 1 m beyond it, in its width.
             let end = track[track.len() - 1];
             let given = plan
                 .crowds
@@ -982,9 +1024,9 @@ radius_m = 0.4
             let near_door = plan
                 .doors
                 .iter()
-                .map(|d| d.at)
-                .chain(given.copied())
-                .any(|at| norm(sub(end, at)) < OUTSIDE_M + 0.15);
+                .map(|d| (d.at, d.width_m / 2.0))
+                .chain(given.map(|&at| (at, 0.0)))
+                .any(|(at, half)| norm(sub(end, at)) < OUTSIDE_M.hypot(half) + 0.15);
             assert!(near_door, "p{id} vanished at {end:?}, not at a way out");
         }
         assert!(left >= min_left, "only {left} of {} left", tracks.len());

@@ -62,6 +62,10 @@ pub struct TrackParams {
     /// for 2 dof) and no further than `gate_max_m` (1 m).
     pub gate_chi2: f64,
     pub gate_max_m: f64,
+    /// A sighting at most 0.15 m nearer one confirmed track than another within the gate
+    /// updates neither: two people close together that one sensor saw as one body (a centre
+    /// between them) would pull one track onto the other. The other sensors place them.
+    pub ambiguous_m: f64,
     /// A new track's speed uncertainty (m/s).
     pub birth_sigma_v_m_s: f64,
     /// No track is born within 0.6 m of another.
@@ -115,6 +119,7 @@ impl Default for TrackParams {
             accel_psd: 2.0,
             gate_chi2: 13.8,
             gate_max_m: 1.0,
+            ambiguous_m: 0.15,
             birth_sigma_v_m_s: 1.0,
             birth_clear_m: 0.6,
             same_track_m: 0.3,

@@ -96,6 +96,8 @@ fn run_rows(jobs: Vec<Job>, o: &ScoreOptions) -> Result<Vec<Row>> {
     let params = TrackParams::default();
     jobs.into_par_iter()
         .map(|(label, sensors, plan, (lines, zones))| {
+            // Names the row in what the scoring logs (id switches at debug level).
+            let _row = tracing::info_span!("row", %label, %sensors).entered();
             let t0 = Instant::now();
             let o = ScoreOptions {
                 lines,
