@@ -4,12 +4,13 @@
 //! `target/bench-data/`), then every sensor is served by an emulator in this process on
 //! loopback TCP, looped at ×1 (UTMs at 40 Hz, UXMs at 20 Hz), and the release daemon runs in
 //! its own process (`scanfuse run`, the real drivers, registration worker with its walker
-//! check, tracker, fuser, status socket) with the true poses in `poses.toml`. A client watches
-//! `map` on the socket. Over `SCANFUSE_BENCH_S` s (default 20) after every sensor streams it
-//! prints the daemon's CPU (fraction of one core, `/proc/PID/stat`), its RSS now and at peak
-//! (VmRSS, VmHWM), scan in → fused frame out at the watcher p50/p99/max (receive time minus
-//! the scan's stamp, the host time its driver had the whole SCIP reply) and each sensor's scan
-//! rate. Targets: < 1 core, < 1 GB, p99 ≤ 2 ms.
+//! check, tracker, fuser, status socket) with the true poses in `poses.toml`. Two clients
+//! watch the socket, one `map`, one `tracks`. Over `SCANFUSE_BENCH_S` s (default 20) after
+//! every sensor streams it prints the daemon's CPU (fraction of one core, `/proc/PID/stat`),
+//! its RSS now and at peak (VmRSS, VmHWM), scan in → fused frame out at the `map` watcher
+//! p50/p99/max (receive time minus the scan's stamp, the host time its driver had the whole
+//! SCIP reply), newest scan in → `TRACKS` out at the `tracks` watcher likewise, and each
+//! sensor's scan rate. Targets: < 1 core, < 1 GB, frames p99 ≤ 2 ms, `TRACKS` p99 ≤ 5 ms.
 //!
 //! The emulators' own CPU and memory are this process's, not the daemon's.
 //!
@@ -243,7 +244,11 @@ fn main() -> Result<(), Error> {
     let watch = std::env::var("SCANFUSE_BENCH_WATCH").map_or(true, |v| v != "0");
     let watcher = watch.then(|| {
         let socket = socket.clone();
-        std::thread::spawn(move || watch_frames(&socket, window_s))
+        std::thread::spawn(move || watch_stream(&socket, window_s, &MAP))
+    });
+    let tracks_watcher = watch.then(|| {
+        let socket = socket.clone();
+        std::thread::spawn(move || watch_stream(&socket, window_s, &TRACKS))
     });
     let (before, drops0, _) = site_state(&socket)?;
     let ticks0 = common::cpu_ticks(pid)?;
@@ -298,35 +303,75 @@ fn main() -> Result<(), Error> {
     );
     let threads: Vec<String> = threads.iter().map(|(c, n)| format!("{n} {c:.2}")).collect();
     println!("  daemon CPU by thread (cores): {}", threads.join(", "));
-    let Some(watcher) = watcher else {
+    if !watch {
         println!("  no watcher (SCANFUSE_BENCH_WATCH=0)");
-        return Ok(());
-    };
-    let (mut latencies_us, watched_s, ended, client_cpu_s) =
-        watcher.join().map_err(|_| "the watcher panicked")??;
-    if latencies_us.is_empty() {
-        return Err(format!("no frames received ({ended})").into());
     }
-    latencies_us.sort_by(f64::total_cmp);
-    let pct = |p: f64| latencies_us[((latencies_us.len() - 1) as f64 * p) as usize];
-    println!(
-        "  scan in → fused frame at a `map` watcher: {} frames in {watched_s:.1} s ({:.0}/s; {ended}), p50 {:.0} µs, p99 {:.0} µs, max {:.0} µs (target p99 ≤ 2000 µs)",
-        latencies_us.len(),
-        latencies_us.len() as f64 / watched_s.max(1e-9),
-        pct(0.5),
-        pct(0.99),
-        pct(1.0)
-    );
-    println!(
-        "  the watching client (this process) used {:.2} of a core while it watched",
-        client_cpu_s / watched_s.max(1e-9)
-    );
+    for (watcher, what) in [(watcher, &MAP), (tracks_watcher, &TRACKS)] {
+        let Some(watcher) = watcher else { continue };
+        let (mut latencies_us, watched_s, ended, client_cpu_s) =
+            watcher.join().map_err(|_| "a watcher panicked")??;
+        if latencies_us.is_empty() {
+            return Err(format!("no {} received ({ended})", what.items).into());
+        }
+        latencies_us.sort_by(f64::total_cmp);
+        let pct = |p: f64| latencies_us[((latencies_us.len() - 1) as f64 * p) as usize];
+        println!(
+            "  {}: {} {} in {watched_s:.1} s ({:.0}/s; {ended}), p50 {:.0} µs, p99 {:.0} µs, max {:.0} µs ({}); the watching thread used {:.2} of a core",
+            what.title,
+            latencies_us.len(),
+            what.items,
+            latencies_us.len() as f64 / watched_s.max(1e-9),
+            pct(0.5),
+            pct(0.99),
+            pct(1.0),
+            what.target,
+            client_cpu_s / watched_s.max(1e-9)
+        );
+    }
     Ok(())
 }
 
-/// Watches `map` for `window_s`: each frame's receive time minus its stamp (µs), how long it
-/// watched, and how the watch ended.
-fn watch_frames(socket: &Path, window_s: f64) -> Result<(Vec<f64>, f64, String, f64), String> {
+/// One stream a bench client watches, and how its latency is read.
+struct Stream {
+    request: &'static [u8],
+    /// The lines measured start so.
+    class: &'static [u8],
+    /// The stamp each carries (ns, the host clock the scans were stamped by).
+    key: &'static [u8],
+    title: &'static str,
+    items: &'static str,
+    target: &'static str,
+}
+
+/// Fused frames (one scan each), stamped with their scan's stamp.
+const MAP: Stream = Stream {
+    request: b"{\"cmd\":\"watch\",\"status\":false,\"map\":true}\n",
+    class: b"{\"class\":\"FRAME\"",
+    key: b"\"stamp_ns\":",
+    title: "scan in → fused frame at a `map` watcher",
+    items: "frames",
+    target: "target p99 ≤ 2000 µs",
+};
+
+/// People: a `TRACKS` line per fused step, stamped with the newest scan in it. The step
+/// closes when a scan 25 ms newer than the last step arrives, so this counts the wait for
+/// that scan as well as the tracker's work and the socket.
+const TRACKS: Stream = Stream {
+    request: b"{\"cmd\":\"watch\",\"status\":false,\"tracks\":true}\n",
+    class: b"{\"class\":\"TRACKS\"",
+    key: b"\"t_ns\":",
+    title: "newest scan in → `TRACKS` at a `tracks` watcher",
+    items: "TRACKS lines",
+    target: "target p99 ≤ 5000 µs",
+};
+
+/// Watches `what` for `window_s`: each line's receive time minus its stamp (µs), how long it
+/// watched, how the watch ended, and the CPU this thread used.
+fn watch_stream(
+    socket: &Path,
+    window_s: f64,
+    what: &Stream,
+) -> Result<(Vec<f64>, f64, String, f64), String> {
     let stream = common::connect_when_up(socket).map_err(|e| e.to_string())?;
     let err = |e: std::io::Error| e.to_string();
     stream
@@ -334,13 +379,11 @@ fn watch_frames(socket: &Path, window_s: f64) -> Result<(Vec<f64>, f64, String, 
         .map_err(err)?;
     let mut writer = stream.try_clone().map_err(err)?;
     let mut reader = BufReader::with_capacity(1 << 20, stream);
-    writer
-        .write_all(b"{\"cmd\":\"watch\",\"status\":false,\"map\":true}\n")
-        .map_err(err)?;
+    writer.write_all(what.request).map_err(err)?;
     let t0 = Instant::now();
     let mut latencies_us = Vec::new();
     let mut line = Vec::new();
-    let key = b"\"stamp_ns\":";
+    let key = what.key;
     let mut ended = "watched to the end".to_string();
     while t0.elapsed().as_secs_f64() < window_s {
         line.clear();
@@ -352,8 +395,7 @@ fn watch_frames(socket: &Path, window_s: f64) -> Result<(Vec<f64>, f64, String, 
             .duration_since(UNIX_EPOCH)
             .map_err(|e| e.to_string())?
             .as_nanos() as u64;
-        const FRAME: &[u8] = b"{\"class\":\"FRAME\"";
-        if !line.starts_with(FRAME) {
+        if !line.starts_with(what.class) {
             if line.starts_with(b"{\"class\":\"ERROR\"") {
                 ended = format!("dropped: {}", String::from_utf8_lossy(&line).trim());
             }

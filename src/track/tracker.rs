@@ -397,6 +397,20 @@ impl Tracker {
                 0
             };
             gone[k] = duplicate[k] && (alike[k] || t.together_ns >= same_ns);
+            if gone[k] {
+                let at = t.filter.position();
+                tracing::debug!(
+                    "track {} ends at {:.2},{:.2}: on another track's person ({})",
+                    t.id,
+                    at.x,
+                    at.y,
+                    if alike[k] {
+                        "walking alike"
+                    } else {
+                        "kept close"
+                    }
+                );
+            }
         }
         let mut k = 0;
         self.tracks.retain(|_| {
@@ -410,8 +424,12 @@ impl Tracker {
             let unseen = t_ns.saturating_sub(t.last_seen_ns);
             if t.id == 0 {
                 unseen <= tentative_ns
+            } else if unseen > death_ns {
+                let at = t.filter.position();
+                tracing::debug!("track {} ends at {:.2},{:.2}: unseen", t.id, at.x, at.y);
+                false
             } else {
-                unseen <= death_ns
+                true
             }
         });
         // Births: detections no track took, not on top of a track.
