@@ -99,13 +99,17 @@ fn main() -> Result<(), Error> {
     let stream = common::connect_when_up(&socket)?;
     stream.set_read_timeout(Some(Duration::from_secs(10)))?;
     let mut client = BufReader::new(stream);
+    // Ask at once: the daemon closes a connection that sends nothing within 5 s of its banner
+    // (socket::FIRST_REQUEST_WITHIN); having asked once, it may stay quiet between samples.
+    scans(&mut client)?;
     println!(
         "daemon_memory: hall × 5 sensors looped at {speed}× for {seconds:.0} s ({:.0} min of stream)",
         seconds * speed / 60.0
     );
     let mut samples: Vec<(f64, f64)> = Vec::new();
     let mut next = every_s;
-    while started.elapsed().as_secs_f64() < seconds {
+    // Samples while the daemon still runs (it stops a second after `seconds`).
+    while next <= seconds {
         let wait = next - started.elapsed().as_secs_f64();
         if wait > 0.0 {
             std::thread::sleep(Duration::from_secs_f64(wait));
