@@ -80,7 +80,7 @@ impl Default for MotionParams {
             refute_min: 4,
             refute_ratio: 0.5,
             confirm_after_s: 5.0,
-            settle_min_seen: 15,
+            settle_min_seen: 10,
         }
     }
 }

@@ -903,8 +903,8 @@ mod tests {
         walls.extend(polygon(&[(9.0, 1.0), (11.0, 1.0), (11.0, 1.6), (9.0, 1.6)]));
         let (pa, pb) = (pose2(0.0, 0.0, 0.6), pose2(13.0, 10.0, -2.4));
         let (a, b) = (
-            model_with_people(&walls, &pa, 8.0),
-            model_with_people(&walls, &pb, 8.0),
+            model_with_people(&walls, &pa, 3.0),
+            model_with_people(&walls, &pb, 3.0),
         );
         let truth = pa.inverse() * pb;
         let p = crate::register::RegisterParams::default();
