@@ -57,6 +57,10 @@ pub struct MotionParams {
     /// (10 s, seeds 1–6, both plan sets) every confident-wrong pose but one had no walker to
     /// check, against 218 of 1854 right ones.
     pub confirm_after_s: f64,
+    /// People confirm a pose, so that a rival they never saw at is no rival, once this many
+    /// walkers both sensors saw stand there (and at most `WalkerParams::max_through_share`
+    /// of them are seen through).
+    pub settle_min_seen: usize,
 }
 
 impl Default for MotionParams {
@@ -76,6 +80,7 @@ impl Default for MotionParams {
             refute_min: 4,
             refute_ratio: 0.5,
             confirm_after_s: 5.0,
+            settle_min_seen: 10,
         }
     }
 }

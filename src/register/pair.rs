@@ -278,11 +278,6 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
             nobody_walked_s: None,
         };
     };
-    let runner_up = distinct.get(1).map(|r| r.0.clone());
-    let ambiguity = match &runner_up {
-        Some(r) if best.score.value > 0.0 => (r.score.value / best.score.value).max(0.0),
-        _ => 0.0,
-    };
     let (covariance, weak) = covariance_at(a, b, &best.a_from_b, p);
     let overlap = best.score.overlap();
     // The walkers chose this pose among the walls' candidates: what the walls cannot tell
@@ -290,15 +285,34 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
     let by_walkers = walkers
         .as_ref()
         .filter(|f| f.near(&best.a_from_b, &p.walkers));
-    let verdict = if overlap < p.min_overlap {
-        Err(Abstain::TooLittleOverlap { overlap })
-    } else if best.score.value < p.min_score {
-        Err(Abstain::WeakMatch {
-            score: best.score.value,
+    // The runner-up is one the walkers left standing: in their basin when they chose, and not
+    // a pose people watched long enough to confirm and never did while they confirm the best.
+    let expected = unconfirmed(a, b, None, p).is_some();
+    let runner_up = distinct
+        .iter()
+        .enumerate()
+        .skip(1)
+        .filter(|(_, (c, _))| by_walkers.is_none_or(|f| f.near(&c.a_from_b, &p.walkers)))
+        .find(|(k, _)| !outwatched(evidence.first(), evidence.get(*k), expected, p))
+        .map(|(_, (c, _))| c.clone());
+    let ambiguity = match &runner_up {
+        Some(r) if best.score.value > 0.0 => (r.score.value / best.score.value).max(0.0),
+        _ => 0.0,
+    };
+    // The walls' checks, on what they can still say where people chose the pose.
+    let walls = match by_walkers {
+        Some(_) => walls_under_walkers(a, b, &best, p),
+        None => best.score,
+    };
+    let verdict = if walls.overlap() < p.min_overlap {
+        Err(Abstain::TooLittleOverlap {
+            overlap: walls.overlap(),
         })
-    } else if best.score.violation() > p.max_violation {
+    } else if walls.value < p.min_score {
+        Err(Abstain::WeakMatch { score: walls.value })
+    } else if walls.violation() > p.max_violation {
         Err(Abstain::ContradictsFreeSpace {
-            violation: best.score.violation(),
+            violation: walls.violation(),
         })
     } else if let Some(weak_axis_deg) = weak.filter(|deg| slides_freely(a, b, &best, *deg, p)) {
         Err(Abstain::Degenerate { weak_axis_deg })
@@ -319,7 +333,7 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         })
     } else if let Some(fit) = disputed
         .as_ref()
-        .filter(|f| !f.near(&best.a_from_b, &p.walkers))
+        .filter(|f| !f.agrees(&best.a_from_b, &p.walkers))
     {
         Err(Abstain::WalkersDisagree {
             other: best.a_from_b.inverse() * fit.a_from_b,
@@ -442,18 +456,42 @@ fn placed_by_walkers(
     })
 }
 
+/// The walls' score of a pose the walkers chose, where a beam passing above what the other
+/// unit saw (by more than `WalkerParams::chosen_free_space_dz_m`) does not contradict it.
+/// Between two units at different heights the walls disagree where it matters least: a
+/// privacy screen, a counter or a shelf top between the two beams, which the higher one
+/// passes over, or a monitor on a desk the lower one passes under, are contradictions by the
+/// walls' own score (which may not assume what a unit saw ends where its beam does), and at
+/// 0.2–0.4 m apart they cost a right pose a third of its points. The walkers have checked
+/// free space with people themselves (`lead_with_walkers`), so the walls need not count
+/// what the higher beam passes over.
+fn walls_under_walkers(
+    a: &ScanModel,
+    b: &ScanModel,
+    best: &Candidate,
+    p: &RegisterParams,
+) -> PoseScore {
+    let lenient = RegisterParams {
+        free_space_dz_m: p.free_space_dz_m.min(p.walkers.chosen_free_space_dz_m),
+        ..p.clone()
+    };
+    score(a, b, &best.a_from_b, &lenient)
+}
+
 /// The walker fit, when it decides the pose.
 fn decisive_walkers(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> Option<WalkerFit> {
     let (ma, mb) = (a.motion.as_ref()?, b.motion.as_ref()?);
     fit_walkers(ma, mb, &p.walkers, &p.motion).filter(|f| f.decisive(&p.walkers))
 }
 
-/// Where no wall candidate lies in the walkers' basin (the walls' hypotheses missed it: a
-/// shop's shelving hides the corners both see), the walls are refined from the walkers' pose
-/// and that candidate joins the others, with what the walkers say of it, to face the same
-/// checks. It joins only if the walls keep it in the basin: the walkers choose the place,
+/// The walls refined from the walkers' pose: where no wall candidate lies in the walkers'
+/// basin (the walls' hypotheses missed it: a shop's shelving hides the corners both see) it
+/// joins the others, with what the walkers say of it, to face the same checks; where one
+/// does but this one scores better, it takes that one's place (a refinement that started
+/// elsewhere can stop short along a weak direction, 15–20 cm off, where the walkers' start
+/// does not). It counts only if the walls keep it in the basin: the walkers choose the place,
 /// the walls still give the pose.
-fn propose_from_walkers(
+pub(super) fn propose_from_walkers(
     a: &ScanModel,
     b: &ScanModel,
     fit: &WalkerFit,
@@ -464,11 +502,7 @@ fn propose_from_walkers(
     let (Some(ma), Some(mb)) = (&a.motion, &b.motion) else {
         return;
     };
-    if distinct.len() != evidence.len()
-        || distinct
-            .iter()
-            .any(|(c, _)| fit.near(&c.a_from_b, &p.walkers))
-    {
+    if distinct.len() != evidence.len() {
         return;
     }
     let guard = |pose: &Pose2| score(a, b, pose, p).value;
@@ -481,12 +515,27 @@ fn propose_from_walkers(
         score: score(a, b, &icp.a_from_b, p),
         covariance: Matrix3::zeros(),
     };
+    // Best first: the first in the basin is the best the walls found there.
+    let in_basin = distinct
+        .iter()
+        .position(|(c, _)| fit.near(&c.a_from_b, &p.walkers));
+    if in_basin.is_some_and(|k| distinct[k].0.score.value >= candidate.score.value) {
+        return;
+    }
     let e = co_motion(ma, mb, &candidate.a_from_b, &p.motion);
     if e.refutes(&p.motion) {
         return;
     }
-    distinct.push((candidate, icp));
-    evidence.push(e);
+    match in_basin {
+        Some(k) => {
+            distinct[k] = (candidate, icp);
+            evidence[k] = e;
+        }
+        None => {
+            distinct.push((candidate, icp));
+            evidence.push(e);
+        }
+    }
 }
 
 /// Puts the wall candidate in the walkers' basin first (with its walker evidence): the
@@ -553,6 +602,27 @@ fn sift_by_people(
         }
     }
     (left, left_evidence, refuted)
+}
+
+/// Whether people rule `rival` out as a rival of the best pose: they confirm the best
+/// (`MotionParams::settle_min_seen` walkers both saw there, at most `max_through_share` of
+/// them seen through) and saw none at `rival` over a stretch long enough to expect one, so
+/// that `rival`, were it the best, would be refused as not confirmed. Without walkers in both
+/// scans, nothing is ruled out.
+/// `expected`: the two watched long enough, with people walking, to expect a walker both saw
+/// at a right pose (`unconfirmed`'s test).
+fn outwatched(
+    best: Option<&MotionEvidence>,
+    rival: Option<&MotionEvidence>,
+    expected: bool,
+    p: &RegisterParams,
+) -> bool {
+    let (Some(best), Some(rival)) = (best, rival) else {
+        return false;
+    };
+    let confirmed = best.seen >= p.motion.settle_min_seen
+        && best.seen_through as f64 <= p.walkers.max_through_share * best.seen as f64;
+    expected && confirmed && rival.seen == 0
 }
 
 /// How long the two sensors watched together, when that is long enough to expect a walker
@@ -641,11 +711,18 @@ fn covariance_at(
 /// The position σ (along the worst direction, m) and heading σ (rad) when either exceeds its
 /// limit: a pose whose own uncertainty is wider than the accuracy promised is not reported.
 fn too_uncertain(covariance: &Matrix3<f64>, p: &RegisterParams) -> Option<(f64, f64)> {
-    let xy = covariance.fixed_view::<2, 2>(0, 0).into_owned();
-    let sigma_m = xy.symmetric_eigen().eigenvalues.max().max(0.0).sqrt();
-    let sigma_rad = covariance[(2, 2)].max(0.0).sqrt();
+    let (sigma_m, sigma_rad) = pose_sigmas(covariance);
     let within = sigma_m <= p.max_sigma_m && sigma_rad <= p.max_sigma_rad;
     (!within).then_some((sigma_m, sigma_rad))
+}
+
+/// A pose's position σ along its worst direction (m: the largest eigenvalue of the xy block)
+/// and heading σ (rad), from its (x, y, yaw) covariance: the one reading of a covariance
+/// every σ gate uses (the walls' `too_uncertain`, the walkers' `places_alone`).
+pub fn pose_sigmas(covariance: &Matrix3<f64>) -> (f64, f64) {
+    let xy = covariance.fixed_view::<2, 2>(0, 0).into_owned();
+    let sigma_m = xy.symmetric_eigen().eigenvalues.max().max(0.0).sqrt();
+    (sigma_m, covariance[(2, 2)].max(0.0).sqrt())
 }
 
 /// Covariance σ²·(JᵀWJ)⁻¹, inflated for correlated residuals, and the direction (deg) of a
@@ -694,6 +771,60 @@ mod tests {
             rms_m,
             correspondences: 100,
         }
+    }
+
+    #[test]
+    fn a_rival_people_never_saw_at_does_not_make_a_confirmed_pose_ambiguous() {
+        let p = RegisterParams::default();
+        let e = |seen, seen_through| MotionEvidence { seen, seen_through };
+        let many = p.motion.settle_min_seen;
+        // Confirmed best, a rival no one was seen at, over a stretch that expected someone.
+        assert!(outwatched(Some(&e(many, 0)), Some(&e(0, 0)), true, &p));
+        assert!(outwatched(Some(&e(many, 0)), Some(&e(0, 3)), true, &p));
+        // A rival with a walker both saw stays a rival.
+        assert!(!outwatched(Some(&e(many, 0)), Some(&e(1, 0)), true, &p));
+        // A best too few people confirm, or that many see through, rules nothing out.
+        assert!(!outwatched(Some(&e(many - 1, 0)), Some(&e(0, 0)), true, &p));
+        assert!(!outwatched(Some(&e(many, many)), Some(&e(0, 0)), true, &p));
+        // Too short a watch (or no one walking) to expect a walker: no evidence either way.
+        assert!(!outwatched(Some(&e(many, 0)), Some(&e(0, 0)), false, &p));
+        // Without walkers in both scans.
+        assert!(!outwatched(None, None, true, &p));
+    }
+
+    #[test]
+    fn where_walkers_chose_the_pose_a_beam_above_what_the_other_saw_does_not_contradict_it() {
+        use crate::register::score::tests::facing;
+        let p = RegisterParams::default();
+        // Both at one spot: the unit at 1.0 m hits a counter 3 m out, the one at 1.3 m sees
+        // over it to the wall at 6 m; 0.3 m apart, within the walls' `free_space_dz_m`.
+        let (low, high) = (facing(3.0, Some(1.0)), facing(6.0, Some(1.3)));
+        let best = Candidate {
+            a_from_b: Pose2::identity(),
+            score: score(&high, &low, &Pose2::identity(), &p),
+            covariance: Matrix3::zeros(),
+        };
+        assert!(best.score.violation() > 0.9, "{:?}", best.score);
+        let chosen = walls_under_walkers(&high, &low, &best, &p);
+        assert!(chosen.violation() < 0.01, "{chosen:?}");
+        // A beam below what the other saw still contradicts it: objects stand on the floor.
+        let (low_far, high_near) = (facing(6.0, Some(1.0)), facing(3.0, Some(1.3)));
+        let best = Candidate {
+            score: score(&low_far, &high_near, &Pose2::identity(), &p),
+            ..best
+        };
+        let chosen = walls_under_walkers(&low_far, &high_near, &best, &p);
+        assert!(chosen.violation() > 0.9, "{chosen:?}");
+    }
+
+    #[test]
+    fn one_reading_of_a_covariance_its_worst_direction() {
+        // σ 2.5 cm along x and y, correlated 0.9: 3.4 cm along the diagonal.
+        let s2 = 0.025f64.powi(2);
+        let cov = Matrix3::new(s2, 0.9 * s2, 0.0, 0.9 * s2, s2, 0.0, 0.0, 0.0, 1e-6);
+        let (sigma_m, sigma_rad) = pose_sigmas(&cov);
+        assert!((sigma_m - 0.025 * 1.9f64.sqrt()).abs() < 1e-6, "{sigma_m}");
+        assert!((sigma_rad - 1e-3).abs() < 1e-9);
     }
 
     #[test]

@@ -12,6 +12,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
 use super::motion::{MotionParams, MotionTrack, co_motion};
+use super::pair::pose_sigmas;
 use crate::geometry::{Pose2, pose_error};
 
 /// Thresholds of the walker fit.
@@ -63,6 +64,10 @@ pub struct WalkerParams {
     /// A walker-only pose is biased by a body's shape and the time between two scans; this
     /// much (m) is added in quadrature to its position σ so that the site weighs it honestly.
     pub alone_bias_m: f64,
+    /// Where decisive walkers chose the pose, the walls' free space is contradicted only by a
+    /// beam less than this much (m) above what the other unit saw (`RegisterParams::
+    /// free_space_dz_m` otherwise): people checked the free space already.
+    pub chosen_free_space_dz_m: f64,
 }
 
 impl Default for WalkerParams {
@@ -92,6 +97,7 @@ impl Default for WalkerParams {
             alone_max_sigma_m: 0.03,
             alone_max_sigma_rad: 0.3f64.to_radians(),
             alone_bias_m: 0.05,
+            chosen_free_space_dz_m: 0.05,
         }
     }
 }
@@ -129,11 +135,7 @@ impl WalkerFit {
     /// Whether the fit is strong enough to place a pair by itself (`alone_*` thresholds):
     /// many simultaneous correspondences, spread over time and floor, with no rival.
     pub fn places_alone(&self, p: &WalkerParams) -> bool {
-        let sigma_m = self.covariance[(0, 0)]
-            .max(self.covariance[(1, 1)])
-            .max(0.0)
-            .sqrt();
-        let sigma_rad = self.covariance[(2, 2)].max(0.0).sqrt();
+        let (sigma_m, sigma_rad) = pose_sigmas(&self.covariance);
         self.decisive(p)
             && self.inliers >= p.alone_min_inliers
             && self.span_s >= p.alone_min_span_s
@@ -151,6 +153,15 @@ impl WalkerFit {
         c[(0, 0)] += p.alone_bias_m * p.alone_bias_m;
         c[(1, 1)] += p.alone_bias_m * p.alone_bias_m;
         c
+    }
+
+    /// Whether `pose` is one the walkers can live with: within their basin widened by three
+    /// of the fit's own σ. A decisive fit from a few seconds of walkers may be a few degrees
+    /// off (σ 1.5°), and a walls' pose within that is not one they contradict.
+    pub fn agrees(&self, pose: &Pose2, p: &WalkerParams) -> bool {
+        let (sigma_m, sigma_rad) = pose_sigmas(&self.covariance);
+        let (dt, dyaw) = pose_error(pose, &self.a_from_b);
+        dt < p.same_m + 3.0 * sigma_m && dyaw < p.same_rad + 3.0 * sigma_rad
     }
 
     /// Whether `pose` lies in the walkers' basin: the walls refine within it what the walkers,
@@ -828,6 +839,106 @@ mod tests {
         };
         let r = crate::register::register_pair(a, b, &strict);
         assert!(!r.registered(), "placed: {:?}", r.walkers);
+    }
+
+    /// A fit past every `alone_*` count, with the covariance given.
+    fn strong_fit(covariance: Matrix3<f64>) -> WalkerFit {
+        WalkerFit {
+            a_from_b: pose2(3.0, 1.0, 0.5),
+            inliers: 400,
+            span_s: 20.0,
+            spread_m: 8.0,
+            rms_m: 0.05,
+            runner_up: 0,
+            covariance,
+            alone: false,
+        }
+    }
+
+    #[test]
+    fn a_fit_places_alone_by_its_worst_direction_not_its_axes() {
+        let p = WalkerParams::default();
+        let s2 = (0.8 * p.alone_max_sigma_m).powi(2);
+        let yaw2 = (0.5 * p.alone_max_sigma_rad).powi(2);
+        let plain = Matrix3::from_diagonal(&nalgebra::Vector3::new(s2, s2, yaw2));
+        assert!(strong_fit(plain).places_alone(&p));
+        // The same σ along x and y, correlated 0.9: along the diagonal 1.1× the limit.
+        let mut tilted = plain;
+        tilted[(0, 1)] = 0.9 * s2;
+        tilted[(1, 0)] = 0.9 * s2;
+        assert!(!strong_fit(tilted).places_alone(&p));
+    }
+
+    #[test]
+    fn walkers_disagree_only_beyond_their_basin_widened_by_their_own_sigma() {
+        let p = WalkerParams::default();
+        // A fit whose heading is known to 1.5° (a few seconds of walkers).
+        let loose = Matrix3::from_diagonal(&nalgebra::Vector3::new(
+            0.03f64.powi(2),
+            0.03f64.powi(2),
+            1.5f64.to_radians().powi(2),
+        ));
+        let fit = strong_fit(loose);
+        let turned = |deg: f64| fit.a_from_b * pose2(0.0, 0.0, deg.to_radians());
+        // 5° off: out of the basin (3°) the walkers choose in, within what they can tell.
+        assert!(!fit.near(&turned(5.0), &p) && fit.agrees(&turned(5.0), &p));
+        // 8°: beyond 3° + 3σ, they contradict it.
+        assert!(!fit.agrees(&turned(8.0), &p));
+        // A tight fit contradicts the 5° pose.
+        let tight = Matrix3::from_diagonal(&nalgebra::Vector3::new(1e-4, 1e-4, 1e-6));
+        assert!(!strong_fit(tight).agrees(&turned(5.0), &p));
+        // Position: 0.3 m + 3 × 3 cm.
+        let moved = fit.a_from_b * pose2(0.35, 0.0, 0.0);
+        assert!(fit.agrees(&moved, &p) && !fit.near(&moved, &p));
+        assert!(!fit.agrees(&(fit.a_from_b * pose2(0.45, 0.0, 0.0)), &p));
+    }
+
+    #[test]
+    fn the_walls_refined_from_the_walkers_pose_replace_a_candidate_that_stopped_short() {
+        use crate::register::pair::{Candidate, propose_from_walkers};
+        use crate::register::score::score;
+        // A 12 × 8 m room with a pillar and a box both sensors see; people walk through it.
+        let mut walls = polygon(&[(-1.0, -1.0), (14.0, -1.0), (14.0, 11.0), (-1.0, 11.0)]);
+        walls.extend(polygon(&[(5.0, 5.0), (5.4, 5.0), (5.4, 5.4), (5.0, 5.4)]));
+        walls.extend(polygon(&[(9.0, 1.0), (11.0, 1.0), (11.0, 1.6), (9.0, 1.6)]));
+        let (pa, pb) = (pose2(0.0, 0.0, 0.6), pose2(13.0, 10.0, -2.4));
+        let (a, b) = (
+            model_with_people(&walls, &pa, 3.0),
+            model_with_people(&walls, &pb, 3.0),
+        );
+        let truth = pa.inverse() * pb;
+        let p = crate::register::RegisterParams::default();
+        // The walls' candidate in the walkers' basin, 0.2 m off the truth.
+        let short = truth * pose2(0.2, 0.0, 0.0);
+        let candidate = Candidate {
+            a_from_b: short,
+            score: score(&a, &b, &short, &p),
+            covariance: Matrix3::zeros(),
+        };
+        let icp = crate::register::icp::IcpResult {
+            a_from_b: short,
+            iterations: 1,
+            hessian: Matrix3::identity(),
+            rms_m: 0.05,
+            correspondences: 100,
+        };
+        let (ma, mb) = (a.motion.as_ref().unwrap(), b.motion.as_ref().unwrap());
+        let mut distinct = vec![(candidate, icp)];
+        let mut evidence = vec![co_motion(ma, mb, &short, &p.motion)];
+        let fit = WalkerFit {
+            a_from_b: truth * pose2(0.05, -0.05, 0.01),
+            ..strong_fit(Matrix3::identity() * 1e-4)
+        };
+        assert!(fit.near(&short, &p.walkers));
+        propose_from_walkers(&a, &b, &fit, &mut distinct, &mut evidence, &p);
+        assert_eq!((distinct.len(), evidence.len()), (1, 1));
+        let (dt, dyaw) = pose_error(&distinct[0].0.a_from_b, &truth);
+        assert!(
+            dt < 0.05 && dyaw.to_degrees() < 0.5,
+            "{dt:.3} m {:.2}°",
+            dyaw.to_degrees()
+        );
+        assert!(distinct[0].0.score.value > score(&a, &b, &short, &p).value);
     }
 
     #[test]

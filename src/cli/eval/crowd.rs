@@ -5,16 +5,22 @@
 //! saw) and the site registered, anchored at its first sensor. Printed per plan: units placed,
 //! within 10 cm / 1° of the truth, and wrong, crowded against empty. Target: as many placed as
 //! empty, none wrong.
+//!
+//! First, the little-shared-view table (issue 16): in the plans of [`LITTLE_VIEW_PLANS`], each
+//! pair of sensors that shares floor (their views meet at the true poses) but less than
+//! [`LITTLE_VIEW`] of its static view, registered as a pair after [`SECONDS`] of their crowd:
+//! right, wrong, abstained and why. Target: ≥ 70 % right, ≤ 0.5 % confidently wrong.
 
+use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use scanfuse::geometry::{pose_error, pose2};
-use scanfuse::register::RegisterParams;
+use scanfuse::geometry::{Pose2, pose_error, pose2};
 use scanfuse::register::site::{SensorInput, SiteParams, register_site};
-use scanfuse::scan::Scan;
-use scanfuse::sim::{Plan, Simulation};
+use scanfuse::register::{RegisterParams, register_pair};
+use scanfuse::scan::{Scan, SensorInfo};
+use scanfuse::sim::{Plan, Simulation, view_overlap};
 
 use super::super::register::prepare_sensor;
 
@@ -25,11 +31,21 @@ const SECONDS: f64 = 30.0;
 const TOL_M: f64 = 0.10;
 const TOL_DEG: f64 = 1.0;
 
+/// The plans whose pairs share floor but little static view (an open hall, a glass-fronted
+/// shop, a corridor crossing), and what "little" is.
+const LITTLE_VIEW_PLANS: [&str; 3] = ["open-hall", "glass-shop", "corridor-cross"];
+const LITTLE_VIEW: f64 = 0.10;
+
 /// Placed, right, wrong, sensors, ms.
 type Tally = (usize, usize, usize, usize, u128);
 
-/// Registers `plan` as `register` would; what it placed, against the truth.
-fn register_plan(plan: &Plan, seed: u64, params: &RegisterParams) -> Result<Tally> {
+/// `plan` simulated for [`SECONDS`] and every sensor prepared as `register` prepares it (its
+/// static view through the crowd, the walkers it saw), with the sensors' simulated infos.
+fn simulate_prepared(
+    plan: &Plan,
+    seed: u64,
+    params: &RegisterParams,
+) -> Result<(Vec<SensorInfo>, Vec<SensorInput>)> {
     let mut sim = Simulation::new(plan, seed).with_context(|| format!("plan {}", plan.name))?;
     let infos = sim.sensors().to_vec();
     let mut scans: Vec<Vec<Scan>> = vec![Vec::new(); infos.len()];
@@ -40,21 +56,30 @@ fn register_plan(plan: &Plan, seed: u64, params: &RegisterParams) -> Result<Tall
         Ok::<(), std::convert::Infallible>(())
     })
     .ok();
-    let started = Instant::now();
     let inputs: Vec<SensorInput> = infos
         .iter()
         .zip(&scans)
         .filter_map(|(info, scans)| prepare_sensor(info, scans, false, params))
         .collect();
+    Ok((infos, inputs))
+}
+
+/// The true site pose of sensor `id`.
+fn truth_of(infos: &[SensorInfo], id: &str) -> Option<Pose2> {
+    infos
+        .iter()
+        .find(|i| i.id == id)
+        .and_then(|i| i.truth)
+        .map(|t| pose2(t.x_m, t.y_m, t.yaw_deg.to_radians()))
+}
+
+/// Registers `plan` as `register` would; what it placed, against the truth.
+fn register_plan(plan: &Plan, seed: u64, params: &RegisterParams) -> Result<Tally> {
+    let started = Instant::now();
+    let (infos, inputs) = simulate_prepared(plan, seed, params)?;
     let site = register_site(&inputs, 0, params, &SiteParams::default());
     let ms = started.elapsed().as_millis();
-    let truth = |id: &str| {
-        infos
-            .iter()
-            .find(|i| i.id == id)
-            .and_then(|i| i.truth)
-            .map(|t| pose2(t.x_m, t.y_m, t.yaw_deg.to_radians()))
-    };
+    let truth = |id: &str| truth_of(&infos, id);
     let anchor = inputs
         .first()
         .and_then(|s| truth(&s.id))
@@ -75,7 +100,112 @@ fn register_plan(plan: &Plan, seed: u64, params: &RegisterParams) -> Result<Tall
     Ok((placed, right, wrong, infos.len(), ms))
 }
 
+/// One plan's pairs with little shared view: how many, right, wrong, abstained, and the
+/// abstentions by reason.
+#[derive(Default)]
+struct LittleView {
+    pairs: usize,
+    right: usize,
+    wrong: usize,
+    abstained: usize,
+    reasons: BTreeMap<String, usize>,
+}
+
+/// The pairs of `plan` that share floor but less than [`LITTLE_VIEW`] of their static view,
+/// each registered as a pair (`register_pair`, both ways round counted once).
+fn little_view_pairs(plan: &Plan, seed: u64, params: &RegisterParams) -> Result<LittleView> {
+    let (infos, inputs) = simulate_prepared(plan, seed, params)?;
+    let mut out = LittleView::default();
+    for (i, a) in inputs.iter().enumerate() {
+        for b in inputs.iter().skip(i + 1) {
+            let (Some(ta), Some(tb)) = (truth_of(&infos, &a.id), truth_of(&infos, &b.id)) else {
+                continue;
+            };
+            let truth = ta.inverse() * tb;
+            let overlap = view_overlap(plan, &a.id, &b.id, 0.1)
+                .with_context(|| format!("plan {}: {} and {}", plan.name, a.id, b.id))?;
+            // Floor both look at: their still views' free space meets at the true poses.
+            let floor = match (&a.model.motion, &b.model.motion) {
+                (Some(ma), Some(mb)) => ma.views_meet(mb, &truth),
+                _ => false,
+            };
+            if overlap >= LITTLE_VIEW || !floor {
+                continue;
+            }
+            out.pairs += 1;
+            let r = register_pair(&a.model, &b.model, params);
+            match &r.verdict {
+                Ok(()) => {
+                    let (dt, dyaw) = pose_error(&r.a_from_b, &truth);
+                    if dt <= TOL_M && dyaw.to_degrees() <= TOL_DEG {
+                        out.right += 1;
+                    } else {
+                        out.wrong += 1;
+                    }
+                }
+                Err(why) => {
+                    out.abstained += 1;
+                    let key = why.to_string();
+                    let key = key.split([':', '(']).next().unwrap_or("").trim();
+                    *out.reasons.entry(key.to_string()).or_default() += 1;
+                }
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// The little-shared-view table (see the module header).
+fn little_view_table(plans_dir: &Path, seed: u64, params: &RegisterParams) -> Result<()> {
+    println!(
+        "\n== Pairs that share floor but < {:.0} % of their static view ({plans_dir}, {SECONDS:.0} s of their crowd, seed {seed}; `scanfuse eval --only crowd --seed {seed}`): each pair alone, right ≤ 10 cm & 1° ==",
+        LITTLE_VIEW * 100.0,
+        plans_dir = plans_dir.display()
+    );
+    println!(
+        "{:<15} {:>6} {:>6} {:>6} {:>9}   abstained because",
+        "plan", "pairs", "right", "wrong", "abstained"
+    );
+    let mut all = LittleView::default();
+    for name in LITTLE_VIEW_PLANS {
+        let path = plans_dir.join(format!("{name}.toml"));
+        let plan = Plan::load(&path).with_context(|| path.display().to_string())?;
+        let t = little_view_pairs(&plan, seed, params)?;
+        let mut reasons: Vec<(&String, &usize)> = t.reasons.iter().collect();
+        reasons.sort_by(|x, y| y.1.cmp(x.1));
+        let top: Vec<String> = reasons
+            .iter()
+            .take(3)
+            .map(|(why, n)| format!("{n} {why}"))
+            .collect();
+        println!(
+            "{name:<15} {:>6} {:>6} {:>6} {:>9}   {}",
+            t.pairs,
+            t.right,
+            t.wrong,
+            t.abstained,
+            top.join("; ")
+        );
+        all.pairs += t.pairs;
+        all.right += t.right;
+        all.wrong += t.wrong;
+        all.abstained += t.abstained;
+    }
+    let pct = |k: usize| 100.0 * k as f64 / all.pairs.max(1) as f64;
+    println!(
+        "all: {} pairs, {} right ({:.1} %), {} wrong ({:.1} %), {} abstained (target ≥ 70 % right, ≤ 0.5 % wrong)",
+        all.pairs,
+        all.right,
+        pct(all.right),
+        all.wrong,
+        pct(all.wrong),
+        all.abstained
+    );
+    Ok(())
+}
+
 pub(super) fn run(plans_dir: &Path, seed: u64, params: &RegisterParams) -> Result<()> {
+    little_view_table(plans_dir, seed, params)?;
     println!(
         "\n== Sites through a crowd ({plans_dir}, {SECONDS:.0} s, seed {seed}; as `register`: static view through the crowd, walkers): placed / within 10 cm & 1° / wrong, crowded vs the same site empty ==",
         plans_dir = plans_dir.display()
