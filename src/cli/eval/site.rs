@@ -359,6 +359,9 @@ fn added(
     let candidates: Vec<usize> = (0..placed.len())
         .filter(|&k| k != site.anchor && placed[k].is_some())
         .collect();
+    if candidates.is_empty() {
+        return "adding one sensor: no placed sensor but the anchor to take out".to_string();
+    }
     let step = candidates.len().div_ceil(ADD_SAMPLES).max(1);
     let (mut ms, mut pairs, mut others) = (Vec::new(), Vec::new(), 0);
     let (mut landed, mut right, mut max_mm) = (0, 0, 0.0f64);
