@@ -170,51 +170,67 @@ impl Accumulator {
         }
         let (x0, x1) = (x0.max(1), x1.min(w - 2));
         let (y0, y1) = (y0.max(1), y1.min(h - 2));
-        let mut rows = vec![0.0f32; w * h];
-        for y in y0 - 1..=y1 + 1 {
-            let row = y * w;
-            for x in x0..=x1 {
-                let k = row + x;
-                rows[k] = self.votes[k - 1] + self.votes[k] + self.votes[k + 1];
+        // Over the window only, by row slices so the sums vectorise; each cell adds in the
+        // same order as cell by cell. `summed` has a border of one zero cell all round (cells
+        // outside the window sum to nothing).
+        let ww = x1 - x0 + 1;
+        let sw = ww + 2;
+        let mut rows = vec![0.0f32; (y1 - y0 + 3) * ww];
+        for (y, r) in (y0 - 1..=y1 + 1).zip(rows.chunks_exact_mut(ww)) {
+            let v = &self.votes[y * w..(y + 1) * w];
+            let (left, mid, right) = (&v[x0 - 1..x1], &v[x0..=x1], &v[x0 + 1..=x1 + 1]);
+            for (((out, l), m), rr) in r.iter_mut().zip(left).zip(mid).zip(right) {
+                *out = l + m + rr;
             }
         }
-        let mut summed = vec![0.0f32; w * h];
+        let mut summed = vec![0.0f32; (y1 - y0 + 3) * sw];
         let mut top = 0.0f32;
-        for y in y0..=y1 {
-            for x in x0..=x1 {
-                let k = y * w + x;
-                let v = rows[k - w] + rows[k] + rows[k + w];
-                summed[k] = v;
-                top = top.max(v);
+        for (r, out) in summed
+            .chunks_exact_mut(sw)
+            .skip(1)
+            .take(y1 - y0 + 1)
+            .enumerate()
+        {
+            let (above, here, below) = (
+                &rows[r * ww..(r + 1) * ww],
+                &rows[(r + 1) * ww..(r + 2) * ww],
+                &rows[(r + 2) * ww..(r + 3) * ww],
+            );
+            let out = &mut out[1..=ww];
+            for (((o, a), m), b) in out.iter_mut().zip(above).zip(here).zip(below) {
+                *o = a + m + b;
             }
+            top = out.iter().copied().fold(top, f32::max);
         }
         // Only local maxima well above nothing can be peaks: sorting just those keeps this
         // cheap on big sites.
         let floor = (PEAK_FLOOR * top).max(f32::MIN_POSITIVE);
         let mut order: Vec<usize> = Vec::new();
-        for y in y0..=y1 {
-            for x in x0..=x1 {
-                let k = y * w + x;
+        for sy in 1..=y1 - y0 + 1 {
+            for sx in 1..=ww {
+                let k = sy * sw + sx;
                 let v = summed[k];
                 if v >= floor
                     && [
-                        k - w - 1,
-                        k - w,
-                        k - w + 1,
+                        k - sw - 1,
+                        k - sw,
+                        k - sw + 1,
                         k - 1,
                         k + 1,
-                        k + w - 1,
-                        k + w,
-                        k + w + 1,
+                        k + sw - 1,
+                        k + sw,
+                        k + sw + 1,
                     ]
                     .iter()
                     .all(|&j| summed[j] <= v)
                 {
-                    order.push(k);
+                    order.push((y0 + sy - 1) * w + x0 + sx - 1);
                 }
             }
         }
-        order.sort_unstable_by(|&i, &j| summed[j].total_cmp(&summed[i]));
+        // Cells (not votes with them) sorted unstably by vote: ties fall as they always did.
+        let vote = |k: usize| summed[(k / w + 1 - y0) * sw + k % w + 1 - x0];
+        order.sort_unstable_by(|&i, &j| vote(j).total_cmp(&vote(i)));
         let mut out: Vec<(f32, usize)> = Vec::with_capacity(count);
         for k in order {
             if out.len() >= count {
@@ -226,7 +242,7 @@ impl Accumulator {
                 (jx - x).abs().max((jy - y).abs()) >= min_gap as i64
             });
             if far {
-                out.push((summed[k], k));
+                out.push((vote(k), k));
             }
         }
         // Sub-cell position: vote-weighted centre of the 3×3 block.

@@ -83,6 +83,32 @@ pub struct PolarRanges {
     bin_rad: f64,
     /// Range per bin; infinity = no return (unknown, never free).
     ranges_m: Vec<f32>,
+    /// Per `sector`, the farthest free range any point there can be tested against (−∞:
+    /// none): a point beyond it violates nothing, found without an arctangent.
+    sector_max_m: Vec<f64>,
+}
+
+/// Sectors of `PolarRanges::sector_max_m`.
+const SECTORS: usize = 64;
+
+/// A point's sector: its "diamond angle" (monotonic in the bearing, 0–4 from +x round
+/// counter-clockwise) in `SECTORS` equal steps. Cheap, and exact enough: `PolarRanges`
+/// credits every bin to the sectors either side too.
+#[inline]
+fn sector(q: &Point2<f64>) -> usize {
+    let (x, y) = (q.x, q.y);
+    let d = if y >= 0.0 {
+        if x >= 0.0 {
+            y / (x + y)
+        } else {
+            1.0 - x / (y - x)
+        }
+    } else if x < 0.0 {
+        2.0 - y / (-x - y)
+    } else {
+        3.0 + x / (x - y)
+    };
+    ((d * (SECTORS / 4) as f64) as usize).min(SECTORS - 1)
 }
 
 impl PolarRanges {
@@ -96,7 +122,39 @@ impl PolarRanges {
                 *slot = slot.min(r);
             }
         }
-        PolarRanges { bin_rad, ranges_m }
+        // What `violates` compares a point in bin b with is the nearest of bins b − 1..b + 1;
+        // a point's bin may be one off at a bin's edge, so each bin credits b − 2..b + 2, to
+        // the sectors of both its edges and the sectors either side.
+        let seen = |b: usize| {
+            [bins - 1, 0, 1]
+                .iter()
+                .map(|&d| ranges_m[(b + d) % bins])
+                .fold(f32::INFINITY, f32::min)
+        };
+        let mut sector_max_m = vec![f64::NEG_INFINITY; SECTORS];
+        for b in 0..bins {
+            let far = [bins - 1, 0, 1]
+                .iter()
+                .map(|&d| seen((b + d) % bins))
+                .filter(|r| r.is_finite())
+                .fold(f32::NEG_INFINITY, f32::max);
+            if far == f32::NEG_INFINITY {
+                continue;
+            }
+            for edge in [b, b + 1] {
+                let bearing = edge as f64 * bin_rad - PI;
+                let s = sector(&Point2::new(bearing.cos(), bearing.sin()));
+                for t in [s + SECTORS - 1, s, s + 1] {
+                    let m = &mut sector_max_m[t % SECTORS];
+                    *m = m.max(far as f64);
+                }
+            }
+        }
+        PolarRanges {
+            bin_rad,
+            ranges_m,
+            sector_max_m,
+        }
     }
 
     /// The bearing bin: the beam spacing, at least 0.25°.
@@ -114,6 +172,11 @@ impl PolarRanges {
     pub fn violates(&self, q: &Point2<f64>, margin_m: f64, margin_frac: f64) -> bool {
         let r = q.coords.norm();
         if r < 0.2 {
+            return false;
+        }
+        // Beyond anything its sector saw: nothing nearer to compare with (no arctangent).
+        let far = self.sector_max_m[sector(q)];
+        if r >= far - margin_m - margin_frac * r {
             return false;
         }
         let bins = self.ranges_m.len();
@@ -350,4 +413,49 @@ fn share_near(a: &ScanModel, b: &ScanModel, a_from_b: &Pose2) -> f64 {
         })
         .count();
     near as f64 / pts.len() as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `violates` as it was before the sector shortcut: every point through its bin.
+    fn violates_by_bin(polar: &PolarRanges, q: &Point2<f64>, margin_m: f64, frac: f64) -> bool {
+        let r = q.coords.norm();
+        if r < 0.2 {
+            return false;
+        }
+        let bins = polar.ranges_m.len();
+        let b = PolarRanges::bin_of(polar.bin_rad, bins, q.y.atan2(q.x));
+        let seen = [(b + bins - 1) % bins, b, (b + 1) % bins]
+            .iter()
+            .map(|&k| polar.ranges_m[k])
+            .fold(f32::INFINITY, f32::min) as f64;
+        seen.is_finite() && r < seen - margin_m - frac * r
+    }
+
+    #[test]
+    fn the_sector_shortcut_decides_every_point_as_its_bin_does() {
+        // A 270° view of a ragged room (near on one side, far on the other, a blind cone
+        // behind), tested on a dense lattice including points on the axes and diagonals.
+        let step = 0.25f64.to_radians();
+        let points: Vec<Point2<f64>> = (0..1081)
+            .map(|k| {
+                let a = -135f64.to_radians() + k as f64 * step;
+                let r = 3.0 + 2.5 * (3.0 * a).sin() + if k % 97 < 5 { 20.0 } else { 0.0 };
+                Point2::new(r * a.cos(), r * a.sin())
+            })
+            .collect();
+        let polar = PolarRanges::new(&points, step);
+        let mut violations = 0;
+        for i in -300..=300 {
+            for j in -300..=300 {
+                let q = Point2::new(i as f64 * 0.1, j as f64 * 0.1);
+                let fast = polar.violates(&q, 0.15, 0.02);
+                assert_eq!(fast, violates_by_bin(&polar, &q, 0.15, 0.02), "{q}");
+                violations += fast as usize;
+            }
+        }
+        assert!(violations > 1000, "{violations}");
+    }
 }

@@ -4,7 +4,7 @@ use scanfuse::geometry::{Pose2, pose_error};
 use scanfuse::register::RegisterParams;
 use scanfuse::register::model::shared_view;
 use scanfuse::register::site::{
-    SensorInput, SiteParams, SiteResult, ViewDescriptor, rank_partners, register_site,
+    SensorInput, SiteParams, SiteResult, ViewDescriptor, add_sensor, rank_partners, register_site,
 };
 use std::time::Instant;
 
@@ -32,7 +32,14 @@ pub(super) struct SiteOutcome {
     recalled: [usize; RECALL_K.len()],
     /// Against registering every pair (`--site-compare`): what differs, and its time.
     compared: Option<String>,
+    /// Sensors taken out of the solved site and added back one at a time (`added`).
+    added: Option<String>,
 }
+
+/// Sites of at least this many sensors also time adding one sensor to the placed site.
+const ADD_FROM_SENSORS: usize = 16;
+/// How many placed sensors are taken out and added back, spread over the site.
+const ADD_SAMPLES: usize = 5;
 
 /// The k of the pair-selection recall figure.
 const RECALL_K: [usize; 5] = [2, 4, 8, 16, 32];
@@ -57,6 +64,9 @@ impl SiteOutcome {
         );
         if let Some(c) = &self.compared {
             println!("    {c}");
+        }
+        if let Some(a) = &self.added {
+            println!("    {a}");
         }
         for w in &self.why_wrong {
             println!("{w}");
@@ -178,6 +188,8 @@ pub(super) fn solve_site(
         let every = register_site(inputs, 0, params, &all);
         differences(&site, &every, t0.elapsed().as_secs_f64() * 1e3)
     });
+    let added = (inputs.len() >= ADD_FROM_SENSORS)
+        .then(|| added(inputs, truths, &site, params, &selected, tol));
     let (overlapping, recalled) = recall(inputs, truths);
     let within = |e: (f64, f64)| e.0 <= tol.0 && e.1 <= tol.1;
     // Each placed sensor's error against the truth, relative to the anchor (m, rad).
@@ -324,7 +336,68 @@ pub(super) fn solve_site(
         overlapping,
         recalled,
         compared,
+        added,
     }
+}
+
+/// Takes `ADD_SAMPLES` placed sensors (spread over the site, never the anchor) out of the
+/// solved site one at a time and adds each back (`add_sensor`): its time, the pairs it
+/// registered, whether it lands right (against the truth) and how far from the site's pose.
+fn added(
+    inputs: &[SensorInput],
+    truths: &[Pose2],
+    site: &SiteResult,
+    params: &RegisterParams,
+    sp: &SiteParams,
+    tol: (f64, f64),
+) -> String {
+    let placed: Vec<Option<Pose2>> = site
+        .sensors
+        .iter()
+        .map(|s| s.pose.as_ref().ok().map(|p| p.pose.planar()))
+        .collect();
+    let candidates: Vec<usize> = (0..placed.len())
+        .filter(|&k| k != site.anchor && placed[k].is_some())
+        .collect();
+    if candidates.is_empty() {
+        return "adding one sensor: no placed sensor but the anchor to take out".to_string();
+    }
+    let step = candidates.len().div_ceil(ADD_SAMPLES).max(1);
+    let (mut ms, mut pairs, mut others) = (Vec::new(), Vec::new(), 0);
+    let (mut landed, mut right, mut max_mm) = (0, 0, 0.0f64);
+    let mut refused = Vec::new();
+    for &k in candidates.iter().step_by(step) {
+        let t0 = Instant::now();
+        let a = add_sensor(inputs, &placed, k, params, sp);
+        ms.push(t0.elapsed().as_secs_f64() * 1e3);
+        pairs.push(a.pairs.len());
+        others = others.max(a.placed);
+        match (&a.pose, placed[k], truths.get(k), truths.first()) {
+            (Ok(at), Some(site_pose), Some(t), Some(t0)) => {
+                landed += 1;
+                let (dt, dyaw) = pose_error(at, &(t0.inverse() * t));
+                right += usize::from(dt <= tol.0 && dyaw <= tol.1);
+                max_mm = max_mm.max(pose_error(at, &site_pose).0 * 1e3);
+            }
+            (Err(why), ..) => refused.push(format!("{}: {why}", inputs[k].id)),
+            _ => {}
+        }
+    }
+    let n = ms.len();
+    ms.sort_by(f64::total_cmp);
+    let mut line = format!(
+        "adding one sensor ({n} placed ones taken out and added back): {landed}/{n} placed, {right} within tolerance of the truth, {} not; {:.0}–{:.0} ms (median {:.0} ms); {}–{} pairs registered of {others}; ≤ {max_mm:.1} mm from the site's pose",
+        landed - right,
+        ms.first().copied().unwrap_or(0.0),
+        ms.last().copied().unwrap_or(0.0),
+        ms.get(n / 2).copied().unwrap_or(0.0),
+        pairs.iter().min().copied().unwrap_or(0),
+        pairs.iter().max().copied().unwrap_or(0),
+    );
+    for r in refused {
+        line.push_str(&format!("\n      not added: {r}"));
+    }
+    line
 }
 
 /// How a site solved with pair selection differs from one registering every pair.

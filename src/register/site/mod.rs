@@ -4,8 +4,9 @@
 //! everything placed; `second_opinion` re-weighs every placement alone; `solve` is the joint
 //! weighted least squares; `check` drops placements that contradict another's free space;
 //! `report` says where each sensor stands or why it does not. This file owns the types and
-//! the order of the stages.
+//! the order of the stages. `add` places one sensor added to a placed site.
 
+mod add;
 mod check;
 mod descriptor;
 mod groups;
@@ -18,6 +19,7 @@ mod solve;
 #[cfg(test)]
 mod tests;
 
+pub use add::{AddedSensor, add_sensor};
 pub use descriptor::{ViewDescriptor, rank_partners};
 pub use groups::{bridges, consistent_edges, spanning_poses};
 pub use pairs::{Skip, SkippedPair};

@@ -664,3 +664,59 @@ fn placed_sensors_are_paired_where_their_views_meet_and_not_across_the_site() {
         "{more:?}"
     );
 }
+
+/// Three sensors placed in the hall and one in a room 40 m off it; a fourth hall sensor
+/// added alone lands at its truth after registering only the placed sensors it shares view
+/// with, and a sensor in the far room, which shares no view with any placed one, is refused
+/// after trying them all.
+#[test]
+fn a_sensor_added_to_a_placed_site_lands_at_its_truth_from_its_neighbours_alone() {
+    let mut walls = hall();
+    walls.extend(polygon(&[
+        (40.0, 0.0),
+        (52.0, 0.0),
+        (52.0, 5.0),
+        (40.0, 5.0),
+    ]));
+    let truth = [
+        pose2(-3.0, -1.0, 0.3),
+        pose2(1.0, -2.0, 2.6),
+        pose2(4.0, 1.5, -2.5),
+        pose2(50.0, 3.5, 2.9),
+        pose2(-1.0, 1.5, -0.8),
+        pose2(42.0, 1.0, 0.6),
+    ];
+    let sensors: Vec<SensorInput> = truth
+        .iter()
+        .enumerate()
+        .map(|(i, t)| sensor_at(&walls, *t, 270f64.to_radians(), &format!("s{i}")))
+        .collect();
+    let placed: Vec<Option<Pose2>> = truth
+        .iter()
+        .enumerate()
+        .map(|(i, t)| (i < 4).then(|| truth[0].inverse() * t))
+        .collect();
+    let p = RegisterParams::default();
+    let sp = SiteParams {
+        partners: 1,
+        ..SiteParams::default()
+    };
+    let added = add_sensor(&sensors, &placed, 4, &p, &sp);
+    let at = added.pose.expect("the hall sensor is placed");
+    let (dt, dyaw) = pose_error(&at, &(truth[0].inverse() * truth[4]));
+    assert!(dt < 0.05 && dyaw < 0.5f64.to_radians(), "{dt} m {dyaw} rad");
+    assert_eq!(added.placed, 4);
+    // Its hall neighbours only: the sensor in the far room was never tried.
+    let keys: Vec<(usize, usize)> = added.pairs.iter().map(|(k, _)| *k).collect();
+    assert!(!keys.contains(&(3, 4)), "{keys:?}");
+    assert!(keys.contains(&(0, 4)) && keys.contains(&(1, 4)), "{keys:?}");
+    // With s3 unplaced, a second sensor in the far room shares view with no placed sensor:
+    // refused, with a reason, after trying every placed one.
+    let mut without_s3 = placed.clone();
+    without_s3[3] = None;
+    let far = add_sensor(&sensors, &without_s3, 5, &p, &sp);
+    let why = far.pose.expect_err("nothing placed sees the far room");
+    assert!(why.contains("survey it"), "{why}");
+    let keys: Vec<(usize, usize)> = far.pairs.iter().map(|(k, _)| *k).collect();
+    assert_eq!(keys, vec![(0, 5), (1, 5), (2, 5)]);
+}
