@@ -614,10 +614,8 @@ fn the_last_check_drops_a_sensor_only_for_contradictions_it_is_sure_of() {
     assert!(contradicts(&far, &near, &same, &certain));
 }
 
-/// Two sensors in the hall and two in a room 40 m off it, placed at the truth: pair selection
-/// registers the pairs that share view where the site puts them, and skips the rest.
-#[test]
-fn placed_sensors_are_paired_where_their_views_meet_and_not_across_the_site() {
+/// 270° sensors `s0`, `s1`, … at `truth` in the hall and a 12 × 5 m room 40 m off it.
+fn in_hall_and_far_room(truth: &[Pose2]) -> Vec<SensorInput> {
     let mut walls = hall();
     walls.extend(polygon(&[
         (40.0, 0.0),
@@ -625,17 +623,24 @@ fn placed_sensors_are_paired_where_their_views_meet_and_not_across_the_site() {
         (52.0, 5.0),
         (40.0, 5.0),
     ]));
+    truth
+        .iter()
+        .enumerate()
+        .map(|(i, t)| sensor_at(&walls, *t, 270f64.to_radians(), &format!("s{i}")))
+        .collect()
+}
+
+/// Two sensors in the hall and two in a room 40 m off it, placed at the truth: pair selection
+/// registers the pairs that share view where the site puts them, and skips the rest.
+#[test]
+fn placed_sensors_are_paired_where_their_views_meet_and_not_across_the_site() {
     let truth = [
         pose2(-3.0, -1.0, 0.3),
         pose2(1.0, -2.0, 2.6),
         pose2(41.0, 1.5, 0.6),
         pose2(50.0, 3.5, 2.9),
     ];
-    let sensors: Vec<SensorInput> = truth
-        .iter()
-        .enumerate()
-        .map(|(i, t)| sensor_at(&walls, *t, 270f64.to_radians(), &format!("s{i}")))
-        .collect();
+    let sensors = in_hall_and_far_room(&truth);
     let p = RegisterParams::default();
     let mut selection = pairs::PairSelection::new(&sensors, &p, 1);
     let frame: Vec<Option<(usize, Pose2)>> = truth
@@ -671,13 +676,6 @@ fn placed_sensors_are_paired_where_their_views_meet_and_not_across_the_site() {
 /// after trying them all.
 #[test]
 fn a_sensor_added_to_a_placed_site_lands_at_its_truth_from_its_neighbours_alone() {
-    let mut walls = hall();
-    walls.extend(polygon(&[
-        (40.0, 0.0),
-        (52.0, 0.0),
-        (52.0, 5.0),
-        (40.0, 5.0),
-    ]));
     let truth = [
         pose2(-3.0, -1.0, 0.3),
         pose2(1.0, -2.0, 2.6),
@@ -686,11 +684,7 @@ fn a_sensor_added_to_a_placed_site_lands_at_its_truth_from_its_neighbours_alone(
         pose2(-1.0, 1.5, -0.8),
         pose2(42.0, 1.0, 0.6),
     ];
-    let sensors: Vec<SensorInput> = truth
-        .iter()
-        .enumerate()
-        .map(|(i, t)| sensor_at(&walls, *t, 270f64.to_radians(), &format!("s{i}")))
-        .collect();
+    let sensors = in_hall_and_far_room(&truth);
     let placed: Vec<Option<Pose2>> = truth
         .iter()
         .enumerate()
