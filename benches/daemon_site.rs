@@ -275,7 +275,6 @@ fn main() -> Result<(), Error> {
     threads.sort_by(|a, b| b.0.total_cmp(&a.0));
     let (after, drops1, placed) = site_state(&socket)?;
     let (rss, hwm) = rss_mib(pid)?;
-    drop(daemon);
 
     let mut rates: Vec<(f64, String)> = after
         .iter()
@@ -328,6 +327,8 @@ fn main() -> Result<(), Error> {
             client_cpu_s / watched_s.max(1e-9)
         );
     }
+    // The daemon runs until the watchers have watched their whole window.
+    drop(daemon);
     Ok(())
 }
 

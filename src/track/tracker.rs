@@ -45,6 +45,27 @@ struct SensorState {
     pose: Option<Pose2>,
     /// Its latest scan's sightings not yet fused.
     pending: Vec<Sighting>,
+    /// Its latest scan's stamp, and the shortest interval seen between two of its scans.
+    last_ns: Option<u64>,
+    period_ns: Option<u64>,
+    /// A scan of it came in since the last step.
+    delivered: bool,
+}
+
+impl SensorState {
+    /// Whether a scan of this (placed) sensor is still to come before a step that closes at
+    /// `due_ns` may be called complete, as of `now_ns`: one is due by then and it has not
+    /// fallen silent (two and a half periods without a scan: unplugged, or stalled). Its
+    /// period unknown, it is awaited (the step then closes half a step late at worst).
+    fn awaited(&self, due_ns: u64, now_ns: u64) -> bool {
+        if self.delivered || self.pose.is_none() {
+            return false;
+        }
+        match (self.last_ns, self.period_ns) {
+            (Some(last), Some(period)) => last + period <= due_ns && now_ns < last + period * 5 / 2,
+            _ => true,
+        }
+    }
 }
 
 /// Detections merged across sensors.
@@ -128,12 +149,41 @@ impl Tracker {
         self.sensors.remove(id);
     }
 
-    /// Takes one scan (stamp order across sensors). When the scan's stamp closes a step, the
-    /// step is fused first and its confirmed tracks returned.
+    /// Takes one scan (stamp order across sensors) and returns the confirmed tracks when it
+    /// closes a step. A step is fused at its newest scan as soon as it is complete (every
+    /// placed sensor due in it has delivered; not before half a step) or is half a step
+    /// overdue:
+    /// `TRACKS` then follow that scan by the tracker's own work, not by a wait for the next
+    /// scan (scanners running in step would add nearly a step). A sensor's second scan
+    /// belongs to the next step, so the step is fused before it.
     pub fn push(&mut self, s: SensorScan<'_>) -> Option<Tracks> {
-        let out = self.close_step(s.scan.stamp_ns);
+        let t_ns = s.scan.stamp_ns;
+        let Some(last) = self.last_step_ns else {
+            self.last_step_ns = Some(t_ns);
+            self.observe(s);
+            return None;
+        };
+        let again = self.sensors.get(s.id).is_some_and(|st| st.delivered);
+        if let (true, Some(newest)) = (again, self.newest_ns) {
+            self.newest_ns = None;
+            let out = self.step(newest);
+            self.observe(s);
+            self.newest_ns = Some(t_ns);
+            return Some(out);
+        }
         self.observe(s);
-        out
+        let newest = self.newest_ns.map_or(t_ns, |n| n.max(t_ns));
+        self.newest_ns = Some(newest);
+        let step_ns = (self.params.step_s * 1e9) as u64;
+        let due_ns = last.saturating_add(step_ns);
+        let complete = newest >= last.saturating_add(step_ns / 2)
+            && !self.sensors.values().any(|st| st.awaited(due_ns, newest));
+        // Half a step late, a sensor still awaited is not waited for.
+        if complete || newest >= due_ns.saturating_add(step_ns / 2) {
+            self.newest_ns = None;
+            return Some(self.step(newest));
+        }
+        None
     }
 
     /// Takes the people one sensor saw at `t_ns`, site frame, as if detected in its scan
@@ -181,6 +231,16 @@ impl Tracker {
         let p = &self.params;
         let ranges = Tracker::horizontal_ranges(s.scan, s.geometry, &s.mount, p);
         let state = self.sensors.entry(s.id.to_string()).or_default();
+        let stamp = s.scan.stamp_ns;
+        if let Some(gap) = state
+            .last_ns
+            .and_then(|l| stamp.checked_sub(l))
+            .filter(|g| *g > 0)
+        {
+            state.period_ns = Some(state.period_ns.map_or(gap, |p| p.min(gap)));
+        }
+        state.last_ns = Some(stamp);
+        state.delivered = true;
         // A sensor whose pose jumped was moved: what it learnt is from elsewhere.
         if let (Some(old), Some(new)) = (state.pose, s.site_from_sensor) {
             let (m, rad) = pose_error(&new, &old);
@@ -291,6 +351,9 @@ impl Tracker {
         for t in &mut self.tracks {
             t.filter.predict(dt_s, p.accel_psd);
             t.sensors.clear();
+        }
+        for s in self.sensors.values_mut() {
+            s.delivered = false;
         }
         // Each sensor's sightings go to the tracks (confirmed ones choose first), at most one
         // per track and sensor; a track then takes the mean of what it got, one detection
@@ -767,5 +830,55 @@ mod tests {
             }
             assert_eq!(most, usize::from(placed), "placed: {placed}");
         }
+    }
+
+    /// Three placed scanners at 40 Hz in step (a burst of scans every 25 ms, give or take
+    /// 3 ms, each a couple of ms apart): once their rates are known, each step is fused on
+    /// the burst's last scan, not on the next burst's first; when one falls silent the others'
+    /// steps still close without waiting for it.
+    #[test]
+    fn a_step_is_fused_when_every_scanner_due_has_delivered() {
+        let room = polygon(&[(0.0, 0.0), (10.0, 0.0), (10.0, 8.0), (0.0, 8.0)]);
+        let poses = [
+            pose2(0.5, 0.5, 0.6),
+            pose2(9.5, 0.5, 2.4),
+            pose2(5.0, 7.5, -1.6),
+        ];
+        let scans: Vec<Scan> = poses.iter().map(|p| scan(&room, p, 0)).collect();
+        let mut tracker = Tracker::new(TrackParams::default());
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let mut late_ms = Vec::new();
+        for k in 1..200u64 {
+            let start = k * TICK + rng.random_range(0..6_000_000) - 3_000_000;
+            let mut burst: Vec<(u64, usize)> = (0..3)
+                .filter(|&i| i < 2 || k < 100) // unit 2 falls silent at 2.5 s
+                .map(|i| (start + rng.random_range(0..2_000_000), i))
+                .collect();
+            burst.sort();
+            for (stamp_ns, i) in burst {
+                let mut s = scans[i].clone();
+                s.stamp_ns = stamp_ns;
+                let out = tracker.push(SensorScan {
+                    id: ["a", "b", "c"][i],
+                    scan: &s,
+                    geometry: None,
+                    mount: Mount::default(),
+                    site_from_sensor: Some(poses[i]),
+                });
+                if let Some(out) = out
+                    && k >= 10
+                    && !(100..104).contains(&k)
+                {
+                    late_ms.push((stamp_ns - out.t_ns) as f64 * 1e-6);
+                }
+            }
+        }
+        late_ms.sort_by(f64::total_cmp);
+        let p99 = late_ms[late_ms.len() * 99 / 100];
+        assert!(late_ms.len() > 150, "{} steps", late_ms.len());
+        assert!(
+            p99 <= 2.5,
+            "fused {p99:.1} ms after the step's newest scan (p99)"
+        );
     }
 }
