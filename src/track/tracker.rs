@@ -1,9 +1,10 @@
 //! The tracker: scans of placed sensors in, confirmed tracks out, by the scans' own clock.
 //!
 //! Per sensor: foreground against its [`Background`], blobs ([`detect`]), legs paired on low
-//! units, centres to the site frame. Every `step_s` the latest detections of every sensor are
-//! merged (one person seen by three sensors is one detection), assigned to the tracks by the
-//! Hungarian method on a gated Mahalanobis cost ([`assign`]), and the tracks' Kalman filters
+//! units, centres to the site frame. Once per `step_s` (as soon as every placed sensor due
+//! has delivered its scan) the latest detections of every sensor are merged (one person seen
+//! by three sensors is one detection), assigned to the tracks by the Hungarian method on a
+//! gated Mahalanobis cost ([`assign`]), and the tracks' Kalman filters
 //! ([`Kalman`]) updated; what no track takes starts a tentative track, confirmed after a few
 //! consistent detections; a track unseen for `death_s` ends. Ids are never reused.
 
@@ -151,11 +152,10 @@ impl Tracker {
 
     /// Takes one scan (stamp order across sensors) and returns the confirmed tracks when it
     /// closes a step. A step is fused at its newest scan as soon as it is complete (every
-    /// placed sensor due in it has delivered; not before half a step) or is half a step
-    /// overdue:
-    /// `TRACKS` then follow that scan by the tracker's own work, not by a wait for the next
-    /// scan (scanners running in step would add nearly a step). A sensor's second scan
-    /// belongs to the next step, so the step is fused before it.
+    /// placed sensor due in it has delivered; not before half a step) or half a step
+    /// overdue, so `TRACKS` follow that scan by the tracker's own work rather than by a
+    /// wait for the next scan (scanners running in step would add nearly a step). A
+    /// sensor's second scan belongs to the next step: the step is fused before it.
     pub fn push(&mut self, s: SensorScan<'_>) -> Option<Tracks> {
         let t_ns = s.scan.stamp_ns;
         let Some(last) = self.last_step_ns else {
