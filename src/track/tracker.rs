@@ -8,7 +8,7 @@
 //! ([`Kalman`]) updated; what no track takes starts a tentative track, confirmed after a few
 //! consistent detections; a track unseen for `death_s` ends. Ids are never reused.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, VecDeque};
 
 use nalgebra::Point2;
 
@@ -20,6 +20,9 @@ use super::filter::Kalman;
 use crate::daemon::protocol::{Track, Tracks};
 use crate::geometry::{Mount, Pose2, pose_error, project_scan};
 use crate::scan::{Scan, ScanGeometry};
+
+/// How many of a sensor's latest intervals between scans its period is taken from.
+const PERIOD_GAPS: usize = 32;
 
 /// One sensor's scan as the tracker takes it.
 #[derive(Debug, Clone, Copy)]
@@ -46,9 +49,9 @@ struct SensorState {
     pose: Option<Pose2>,
     /// Its latest scan's sightings not yet fused.
     pending: Vec<Sighting>,
-    /// Its latest scan's stamp, and the shortest interval seen between two of its scans.
+    /// Its latest scan's stamp, and the intervals between its recent scans (oldest first).
     last_ns: Option<u64>,
-    period_ns: Option<u64>,
+    gaps_ns: VecDeque<u64>,
     /// A scan of it came in since the last step.
     delivered: bool,
 }
@@ -62,10 +65,32 @@ impl SensorState {
         if self.delivered || self.pose.is_none() {
             return false;
         }
-        match (self.last_ns, self.period_ns) {
+        match (self.last_ns, self.period_ns()) {
             (Some(last), Some(period)) => last + period <= due_ns && now_ns < last + period * 5 / 2,
             _ => true,
         }
+    }
+
+    /// Its period: the shortest of its recent intervals (a scan is awaited no later than it
+    /// can come), forgetting in `PERIOD_GAPS` scans one pair of stamps jitter set close.
+    fn period_ns(&self) -> Option<u64> {
+        self.gaps_ns.iter().copied().min()
+    }
+
+    /// A scan of it stamped `stamp_ns` came in.
+    fn delivers(&mut self, stamp_ns: u64) {
+        if let Some(gap) = self
+            .last_ns
+            .and_then(|l| stamp_ns.checked_sub(l))
+            .filter(|g| *g > 0)
+        {
+            if self.gaps_ns.len() == PERIOD_GAPS {
+                self.gaps_ns.pop_front();
+            }
+            self.gaps_ns.push_back(gap);
+        }
+        self.last_ns = Some(stamp_ns);
+        self.delivered = true;
     }
 }
 
@@ -157,21 +182,47 @@ impl Tracker {
     /// wait for the next scan (scanners running in step would add nearly a step). A
     /// sensor's second scan belongs to the next step: the step is fused before it.
     pub fn push(&mut self, s: SensorScan<'_>) -> Option<Tracks> {
-        let t_ns = s.scan.stamp_ns;
+        self.arrive(s.id, s.scan.stamp_ns, |tracker| tracker.observe(s))
+    }
+
+    /// Takes the people one sensor saw at `t_ns`, site frame, as if detected in its scan
+    /// (for tests and benches that start from detections); steps as [`push`](Tracker::push).
+    pub fn push_detections(
+        &mut self,
+        id: &str,
+        t_ns: u64,
+        people: &[Point2<f64>],
+    ) -> Option<Tracks> {
+        self.arrive(id, t_ns, |tracker| {
+            let state = tracker.sensors.entry(id.to_string()).or_default();
+            state.delivers(t_ns);
+            // Its sightings are in the site frame already: placed where the site is.
+            state.pose = Some(Pose2::identity());
+            state.pending.clear();
+            state
+                .pending
+                .extend(people.iter().map(|&at| Sighting { at, stamp_ns: t_ns }));
+        })
+    }
+
+    /// One scan of sensor `id` stamped `t_ns` comes in: `take` files it; the step is fused
+    /// before it when it is the sensor's second in the step, or after it when that completes
+    /// the step (or leaves it half a step overdue).
+    fn arrive(&mut self, id: &str, t_ns: u64, take: impl FnOnce(&mut Self)) -> Option<Tracks> {
         let Some(last) = self.last_step_ns else {
             self.last_step_ns = Some(t_ns);
-            self.observe(s);
+            take(self);
             return None;
         };
-        let again = self.sensors.get(s.id).is_some_and(|st| st.delivered);
+        let again = self.sensors.get(id).is_some_and(|st| st.delivered);
         if let (true, Some(newest)) = (again, self.newest_ns) {
             self.newest_ns = None;
             let out = self.step(newest);
-            self.observe(s);
+            take(self);
             self.newest_ns = Some(t_ns);
             return Some(out);
         }
-        self.observe(s);
+        take(self);
         let newest = self.newest_ns.map_or(t_ns, |n| n.max(t_ns));
         self.newest_ns = Some(newest);
         let step_ns = (self.params.step_s * 1e9) as u64;
@@ -186,61 +237,12 @@ impl Tracker {
         None
     }
 
-    /// Takes the people one sensor saw at `t_ns`, site frame, as if detected in its scan
-    /// (for tests and benches that start from detections).
-    pub fn push_detections(
-        &mut self,
-        id: &str,
-        t_ns: u64,
-        people: &[Point2<f64>],
-    ) -> Option<Tracks> {
-        let out = self.close_step(t_ns);
-        let state = self.sensors.entry(id.to_string()).or_default();
-        state.pending.clear();
-        state
-            .pending
-            .extend(people.iter().map(|&at| Sighting { at, stamp_ns: t_ns }));
-        out
-    }
-
-    /// Fuses the step a scan stamped `t_ns` closes, if it closes one: at the newest stamp
-    /// taken since the last step (the incoming one's when none was).
-    fn close_step(&mut self, t_ns: u64) -> Option<Tracks> {
-        let step_ns = (self.params.step_s * 1e9) as u64;
-        let out = match self.last_step_ns {
-            None => {
-                self.last_step_ns = Some(t_ns);
-                None
-            }
-            Some(last) if t_ns >= last.saturating_add(step_ns) => {
-                let at = match self.newest_ns {
-                    Some(n) if n > last => n,
-                    _ => t_ns,
-                };
-                self.newest_ns = None;
-                Some(self.step(at))
-            }
-            Some(_) => None,
-        };
-        self.newest_ns = Some(self.newest_ns.map_or(t_ns, |n| n.max(t_ns)));
-        out
-    }
-
     /// Detections of one scan, kept for the next step; the background learns from it.
     fn observe(&mut self, s: SensorScan<'_>) {
         let p = &self.params;
         let ranges = Tracker::horizontal_ranges(s.scan, s.geometry, &s.mount, p);
         let state = self.sensors.entry(s.id.to_string()).or_default();
-        let stamp = s.scan.stamp_ns;
-        if let Some(gap) = state
-            .last_ns
-            .and_then(|l| stamp.checked_sub(l))
-            .filter(|g| *g > 0)
-        {
-            state.period_ns = Some(state.period_ns.map_or(gap, |p| p.min(gap)));
-        }
-        state.last_ns = Some(stamp);
-        state.delivered = true;
+        state.delivers(s.scan.stamp_ns);
         // A sensor whose pose jumped was moved: what it learnt is from elsewhere.
         if let (Some(old), Some(new)) = (state.pose, s.site_from_sensor) {
             let (m, rad) = pose_error(&new, &old);
@@ -365,6 +367,7 @@ impl Tracker {
             .map(|(id, _)| id.clone())
             .collect();
         let mut got: Vec<Vec<(Point2<f64>, usize)>> = vec![Vec::new(); self.tracks.len()];
+        let mut shared = got.clone();
         for (k, id) in ids.iter().enumerate() {
             let Some(state) = self.sensors.get_mut(id) else {
                 continue;
@@ -390,12 +393,23 @@ impl Tracker {
                     let (i, j) = (rows[r], cols[*c]);
                     taken[j] = true;
                     let d = &sightings[j];
-                    if confirmed && between_tracks(&self.tracks, i, &d.at, &p) {
-                        continue;
-                    }
                     // A sighting is a little older than the step: carried to its time.
                     let lag_s = t_ns.saturating_sub(d.stamp_ns) as f64 * 1e-9;
-                    got[i].push((d.at + self.tracks[i].filter.velocity() * lag_s, k));
+                    let at = d.at + self.tracks[i].filter.velocity() * lag_s;
+                    match confirmed
+                        .then(|| rival(&self.tracks, i, &d.at, &p))
+                        .flatten()
+                    {
+                        // One body's worth of two people: the pair's middle, so each
+                        // track keeps its side of it.
+                        Some(r) => {
+                            let half = (self.tracks[i].filter.position()
+                                - self.tracks[r].filter.position())
+                                / 2.0;
+                            shared[i].push((at + half, k));
+                        }
+                        None => got[i].push((at, k)),
+                    }
                 }
             }
             // What no track took is left for births.
@@ -406,16 +420,25 @@ impl Tracker {
                 .map(|(s, _)| s)
                 .collect();
         }
-        for (t, seen) in self.tracks.iter_mut().zip(&got) {
+        let mean = |seen: &[(Point2<f64>, usize)]| {
+            Point2::from(
+                seen.iter()
+                    .map(|(q, _)| q.coords)
+                    .sum::<nalgebra::Vector2<f64>>()
+                    / seen.len() as f64,
+            )
+        };
+        for ((t, seen), shared) in self.tracks.iter_mut().zip(&got).zip(&shared) {
             if seen.is_empty() {
+                // Only sightings shared with a neighbour: the pair moves with its blob, but
+                // the track is not seen (it ends if that is all it gets for `death_s`).
+                if !shared.is_empty() {
+                    t.filter.update(&mean(shared), p.shared_sigma_m);
+                    t.filter.limit_speed(p.max_speed_m_s);
+                }
                 continue;
             }
-            let mean = seen
-                .iter()
-                .map(|(q, _)| q.coords)
-                .sum::<nalgebra::Vector2<f64>>()
-                / seen.len() as f64;
-            t.filter.update(&Point2::from(mean), p.sigma_meas_m);
+            t.filter.update(&mean(seen), p.sigma_meas_m);
             t.filter.limit_speed(p.max_speed_m_s);
             t.last_seen_ns = t_ns;
             t.hits += 1;
@@ -551,16 +574,18 @@ impl Tracker {
     }
 }
 
-/// Whether a sighting track `i` took lies about as near another confirmed track
-/// (`TrackParams::ambiguous_m`): one body's worth of returns from two people.
-fn between_tracks(tracks: &[TrackState], i: usize, at: &Point2<f64>, p: &TrackParams) -> bool {
-    let Some(mine) = tracks.get(i).map(|t| (t.filter.position() - at).norm()) else {
-        return false;
-    };
-    tracks.iter().enumerate().any(|(k, t)| {
-        let d = (t.filter.position() - at).norm();
-        k != i && t.id != 0 && d <= p.gate_max_m && d - mine <= p.ambiguous_m
-    })
+/// The other confirmed track a sighting track `i` took lies about as near
+/// (`TrackParams::ambiguous_m`), the nearest if several: one body's worth of returns from two
+/// people.
+fn rival(tracks: &[TrackState], i: usize, at: &Point2<f64>, p: &TrackParams) -> Option<usize> {
+    let mine = (tracks.get(i)?.filter.position() - at).norm();
+    tracks
+        .iter()
+        .enumerate()
+        .map(|(k, t)| (k, t, (t.filter.position() - at).norm()))
+        .filter(|(k, t, d)| *k != i && t.id != 0 && *d <= p.gate_max_m && d - mine <= p.ambiguous_m)
+        .min_by(|a, b| a.2.total_cmp(&b.2))
+        .map(|(k, _, _)| k)
 }
 
 #[cfg(test)]
@@ -830,6 +855,23 @@ mod tests {
             }
             assert_eq!(most, usize::from(placed), "placed: {placed}");
         }
+    }
+
+    /// A pair of stamps jitter set 1 ms apart makes a 40 Hz unit look fast (never awaited)
+    /// only until `PERIOD_GAPS` newer intervals have come.
+    #[test]
+    fn a_units_period_forgets_one_early_stamp() {
+        let mut unit = SensorState::default();
+        let mut t_ns = 0;
+        unit.delivers(t_ns);
+        for gap_ms in std::iter::once(1).chain(std::iter::repeat_n(25, PERIOD_GAPS)) {
+            t_ns += gap_ms * 1_000_000;
+            unit.delivers(t_ns);
+            if unit.gaps_ns.len() < PERIOD_GAPS {
+                assert_eq!(unit.period_ns(), Some(1_000_000));
+            }
+        }
+        assert_eq!(unit.period_ns(), Some(25_000_000));
     }
 
     /// Three placed scanners at 40 Hz in step (a burst of scans every 25 ms, give or take
