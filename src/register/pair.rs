@@ -437,7 +437,7 @@ fn placed_by_walkers(
         a_from_b: pose,
         covariance,
         match_score: match_score(a, b, &pose, p),
-        ambiguity: fit.runner_up as f64 / fit.inliers.max(1) as f64,
+        ambiguity: fit.rival_share(),
         overlap: at.overlap(),
         score: at,
         candidates: vec![Candidate {
@@ -481,7 +481,14 @@ fn walls_under_walkers(
 /// The walker fit, when it decides the pose.
 fn decisive_walkers(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> Option<WalkerFit> {
     let (ma, mb) = (a.motion.as_ref()?, b.motion.as_ref()?);
-    fit_walkers(ma, mb, &p.walkers, &p.motion).filter(|f| f.decisive(&p.walkers))
+    let fit = fit_walkers(ma, mb, &p.walkers, &p.motion);
+    if std::env::var_os("WALK_DEBUG").is_some() {
+        if let Some(f) = &fit {
+            let (sm, sr) = pose_sigmas(&f.covariance);
+            eprintln!("DBG fit inl {} tog {} ru {} rutog {} span {:.1} spread {:.1} rms {:.3} sig {:.3} {:.2}deg dec {} alone {} pose {:?}", f.inliers, f.walks, f.runner_up, f.runner_up_walks, f.span_s, f.spread_m, f.rms_m, sm, sr.to_degrees(), f.decisive(&p.walkers), f.places_alone(&p.walkers), f.a_from_b);
+        }
+    }
+    fit.filter(|f| f.decisive(&p.walkers))
 }
 
 /// The walls refined from the walkers' pose: where no wall candidate lies in the walkers'

@@ -35,7 +35,8 @@ pub struct WalkerParams {
     pub ticks_scored: usize,
     /// A fit decides only with this many agreeing walker sightings, over at least `min_span_s`
     /// and across `min_spread_m` of floor, with an RMS residual under `max_rms_m`, and when the
-    /// best other pose has fewer than `max_ambiguity` times its agreements.
+    /// best other pose has fewer than `max_ambiguity` times its agreements (both of people
+    /// walking in both views: [`WalkerFit::rival_share`]).
     pub min_inliers: usize,
     pub min_span_s: f64,
     pub min_spread_m: f64,
@@ -115,6 +116,11 @@ pub struct WalkerFit {
     pub rms_m: f64,
     /// Agreements of the best clearly different pose.
     pub runner_up: usize,
+    /// How many walks agree with the fit, and with the runner-up: runs of one person
+    /// followed walking in both views (`TOGETHER_S`, `TOGETHER_M`). The other agreements
+    /// chance may give (people crossing, a queue); a walk is one person's independent word.
+    pub walks: usize,
+    pub runner_up_walks: usize,
     /// Of (x, y, yaw).
     pub covariance: Matrix3<f64>,
     /// The pair's pose is this fit's own, placed by the walkers alone (the walls had no
@@ -129,7 +135,15 @@ impl WalkerFit {
             && self.span_s >= p.min_span_s
             && self.spread_m >= p.min_spread_m
             && self.rms_m <= p.max_rms_m
-            && (self.runner_up as f64) < p.max_ambiguity * self.inliers as f64
+            && self.rival_share() < p.max_ambiguity
+    }
+
+    /// The runner-up's walks against the best's. In a crowd a clearly different pose collects
+    /// 30–60 % as many agreements as the right one, but from a moment's crossings and from
+    /// one or two walks that happen to be congruent (two straight walks at one pace always
+    /// are); the right pose has a walk for every person both saw.
+    pub fn rival_share(&self) -> f64 {
+        self.runner_up_walks as f64 / self.walks.max(1) as f64
     }
 
     /// Whether the fit is strong enough to place a pair by itself (`alone_*` thresholds):
@@ -141,7 +155,7 @@ impl WalkerFit {
             && self.span_s >= p.alone_min_span_s
             && self.spread_m >= p.alone_min_spread_m
             && self.rms_m <= p.alone_max_rms_m
-            && (self.runner_up as f64) < p.alone_max_ambiguity * self.inliers as f64
+            && self.rival_share() < p.alone_max_ambiguity
             && sigma_m <= p.alone_max_sigma_m
             && sigma_rad <= p.alone_max_sigma_rad
     }
@@ -389,14 +403,21 @@ pub fn fit_walkers(
     refined.retain(|(_, pose, _)| !co_motion(a, b, pose, motion).refutes(motion));
     refined.sort_by_key(|x| std::cmp::Reverse(x.0));
     let (inliers, pose, pairs) = refined.first()?.clone();
-    // Leaders that refine to the winner were the same pose seen through noise.
-    let runner_up = refined
+    // Leaders that refine to the winner were the same pose seen through noise. The rival is
+    // the one with most walks of one person in both views.
+    let (runner_up, runner_up_walks) = refined
         .iter()
         .skip(1)
         .filter(|(_, q, _)| !same(q, &pose))
-        .map(|(n, _, _)| *n)
-        .max()
-        .unwrap_or(0);
+        .map(|(n, _, matched)| (*n, walked_together(matched).walks))
+        .max_by_key(|x| x.1)
+        .unwrap_or((0, 0));
+    if std::env::var_os("WALK_DEBUG").is_some() {
+        for (n, q, m) in &refined {
+            let r = pose.inverse() * q;
+            eprintln!("  cand {n} tog {:?} rel {:.2} {:.2} {:.1}deg", walked_together(m), r.translation.x, r.translation.y, r.rotation.angle().to_degrees());
+        }
+    }
     let rms_m = (pairs
         .iter()
         .map(|(a, b, _)| (a - pose * b).norm_squared())
@@ -416,9 +437,99 @@ pub fn fit_walkers(
         spread_m,
         rms_m,
         runner_up,
+        walks: walked_together(&pairs).walks,
+        runner_up_walks,
         covariance: covariance(&pose, &pairs, rms_m, p),
         alone: false,
     })
+}
+
+/// Agreements count as one person walking in both views only in runs that follow the same
+/// walker in both, tick after tick, for at least this long (s) and this far (m): two
+/// people crossing where a wrong pose lays them over each other agree for a moment, and
+/// people standing in a queue agree where they stand; the same person walking agrees along.
+const TOGETHER_S: f64 = 1.0;
+const TOGETHER_M: f64 = 1.0;
+/// A walk lost for up to this long (s) and found again within what a walker covers at
+/// `WALK_SPEED_M_S` is the same walk.
+const WALK_GAP_S: f64 = 1.0;
+const WALK_SPEED_M_S: f64 = 2.0;
+
+/// What one person followed walking in both views says of a pose.
+#[derive(Debug, Default, Clone, Copy, PartialEq)]
+struct Together {
+    /// Agreeing sightings in such runs.
+    sightings: usize,
+    /// The runs: walks, each a person (one long walk interrupted counts more than once).
+    walks: usize,
+}
+
+/// Of the agreeing sightings `pairs` (in tick order), the runs of one walker followed in
+/// both sensors for [`TOGETHER_S`] over [`TOGETHER_M`] (see there).
+fn walked_together(pairs: &[(Point2<f64>, Point2<f64>, f64)]) -> Together {
+    // A run: its first time and place in A, its last sighting in both, its length.
+    struct Run {
+        t0: f64,
+        a0: Point2<f64>,
+        a: Point2<f64>,
+        b: Point2<f64>,
+        t: f64,
+        n: usize,
+        far_m: f64,
+    }
+    let counted = |r: &Run| r.t - r.t0 >= TOGETHER_S && r.far_m >= TOGETHER_M;
+    let mut out = Together::default();
+    let mut close = |runs: &[Run]| {
+        for r in runs.iter().filter(|r| counted(r)) {
+            out.sightings += r.n;
+            out.walks += 1;
+        }
+    };
+    let mut open: Vec<Run> = Vec::new();
+    let mut k = 0;
+    while let Some(&(_, _, t)) = pairs.get(k) {
+        let tick: Vec<&(Point2<f64>, Point2<f64>, f64)> =
+            pairs[k..].iter().take_while(|x| x.2 == t).collect();
+        k += tick.len();
+        let mut next: Vec<Run> = Vec::new();
+        for (a, b, _) in tick {
+            let continued = open.iter().position(|r| {
+                let reach_m = PATH_STEP_M + WALK_SPEED_M_S * (t - r.t);
+                t - r.t <= WALK_GAP_S && (r.a - a).norm() <= reach_m && (r.b - b).norm() <= reach_m
+            });
+            next.push(match continued {
+                Some(i) => {
+                    let r = open.swap_remove(i);
+                    Run {
+                        a: *a,
+                        b: *b,
+                        t,
+                        n: r.n + 1,
+                        far_m: r.far_m.max((a - r.a0).norm()),
+                        ..r
+                    }
+                }
+                None => Run {
+                    t0: t,
+                    a0: *a,
+                    a: *a,
+                    b: *b,
+                    t,
+                    n: 1,
+                    far_m: 0.0,
+                },
+            });
+        }
+        // Runs not seen for `WALK_GAP_S` end; a walk seen again sooner is the same walk
+        // (one walk counted twice would make a chance rival look like two people).
+        let (ended, waiting): (Vec<Run>, Vec<Run>) =
+            open.into_iter().partition(|r| t - r.t > WALK_GAP_S);
+        close(&ended);
+        next.extend(waiting);
+        open = next;
+    }
+    close(&open);
+    out
 }
 
 /// How far one sensor's clock reads from another's, found from their walkers.
@@ -850,6 +961,8 @@ mod tests {
             spread_m: 8.0,
             rms_m: 0.05,
             runner_up: 0,
+            walks: 40,
+            runner_up_walks: 0,
             covariance,
             alone: false,
         }
