@@ -481,14 +481,7 @@ fn walls_under_walkers(
 /// The walker fit, when it decides the pose.
 fn decisive_walkers(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> Option<WalkerFit> {
     let (ma, mb) = (a.motion.as_ref()?, b.motion.as_ref()?);
-    let fit = fit_walkers(ma, mb, &p.walkers, &p.motion);
-    if std::env::var_os("WALK_DEBUG").is_some() {
-        if let Some(f) = &fit {
-            let (sm, sr) = pose_sigmas(&f.covariance);
-            eprintln!("DBG fit inl {} tog {} ru {} rutog {} span {:.1} spread {:.1} rms {:.3} sig {:.3} {:.2}deg dec {} alone {} pose {:?}", f.inliers, f.walks, f.runner_up, f.runner_up_walks, f.span_s, f.spread_m, f.rms_m, sm, sr.to_degrees(), f.decisive(&p.walkers), f.places_alone(&p.walkers), f.a_from_b);
-        }
-    }
-    fit.filter(|f| f.decisive(&p.walkers))
+    fit_walkers(ma, mb, &p.walkers, &p.motion).filter(|f| f.decisive(&p.walkers))
 }
 
 /// The walls refined from the walkers' pose: where no wall candidate lies in the walkers'

@@ -412,12 +412,6 @@ pub fn fit_walkers(
         .map(|(n, _, matched)| (*n, walked_together(matched).walks))
         .max_by_key(|x| x.1)
         .unwrap_or((0, 0));
-    if std::env::var_os("WALK_DEBUG").is_some() {
-        for (n, q, m) in &refined {
-            let r = pose.inverse() * q;
-            eprintln!("  cand {n} tog {:?} rel {:.2} {:.2} {:.1}deg", walked_together(m), r.translation.x, r.translation.y, r.rotation.angle().to_degrees());
-        }
-    }
     let rms_m = (pairs
         .iter()
         .map(|(a, b, _)| (a - pose * b).norm_squared())
@@ -966,6 +960,60 @@ mod tests {
             covariance,
             alone: false,
         }
+    }
+
+    #[test]
+    fn a_walk_is_one_person_followed_in_both_views_and_a_crossing_or_a_queue_is_none() {
+        let mut pairs: Matched = Vec::new();
+        let at = |x: f64, y: f64| Point2::new(x, y);
+        for k in 0..120 {
+            let t = k as f64 / 40.0;
+            // One person walking 1.3 m/s for 3 s, lost for half a second in the middle.
+            if !(50..70).contains(&k) {
+                pairs.push((at(1.3 * t, 0.0), at(5.0, 1.3 * t), t));
+            }
+            // Someone standing in a queue, in both views, all along.
+            pairs.push((at(8.0, 8.0), at(-3.0, 2.0), t));
+            // Crossings: a different spot every tick (people laid over each other a moment).
+            let (ka, kb) = ((k % 7) as f64, (k % 3) as f64);
+            let (ja, jb) = ((k % 5) as f64, (k % 4) as f64);
+            pairs.push((
+                at(20.0 + 3.0 * ka, 4.0 * ja),
+                at(-20.0 - 3.0 * kb, 4.0 * jb),
+                t,
+            ));
+        }
+        let together = walked_together(&pairs);
+        assert_eq!(together.walks, 1, "{together:?}");
+        assert_eq!(together.sightings, 100, "{together:?}");
+        // A walk shorter than a second is no walk.
+        let brief: Matched = pairs.iter().filter(|x| x.2 < 0.9).copied().collect();
+        assert_eq!(walked_together(&brief).walks, 0);
+    }
+
+    #[test]
+    fn a_runner_up_of_many_sightings_but_one_walk_does_not_block_placing_alone() {
+        let p = WalkerParams::default();
+        let plain = Matrix3::from_diagonal(&nalgebra::Vector3::new(1e-4, 1e-4, 1e-6));
+        // A crowd: the rival pose collects 40 % as many sightings as the right one, all of
+        // them from one walk congruent with another by chance.
+        let crowd = WalkerFit {
+            runner_up: 160,
+            runner_up_walks: 1,
+            walks: 12,
+            ..strong_fit(plain)
+        };
+        assert!(crowd.runner_up as f64 > p.alone_max_ambiguity * crowd.inliers as f64);
+        assert!(crowd.places_alone(&p) && crowd.decisive(&p), "{crowd:?}");
+        // Four people walking as the rival says are a rival.
+        let rival = WalkerFit {
+            runner_up_walks: 4,
+            ..crowd.clone()
+        };
+        assert!(!rival.places_alone(&p), "{rival:?}");
+        // The same against a best of few walks.
+        let few = WalkerFit { walks: 3, ..crowd };
+        assert!(!few.places_alone(&p), "{few:?}");
     }
 
     #[test]
