@@ -35,8 +35,7 @@ pub struct WalkerParams {
     pub ticks_scored: usize,
     /// A fit decides only with this many agreeing walker sightings, over at least `min_span_s`
     /// and across `min_spread_m` of floor, with an RMS residual under `max_rms_m`, and when the
-    /// best other pose has fewer than `max_ambiguity` times its agreements (both of people
-    /// walking in both views: [`WalkerFit::rival_share`]).
+    /// best other pose has fewer than `max_ambiguity` times its agreements.
     pub min_inliers: usize,
     pub min_span_s: f64,
     pub min_spread_m: f64,
@@ -53,8 +52,9 @@ pub struct WalkerParams {
     pub correlation: f64,
     /// Walkers place a pair alone (no wall candidate in their basin, the walls undecided) only
     /// past all of these, stricter than a fit that merely chooses: this many agreeing
-    /// sightings over this long and this much floor, a residual and a rival this small, and
-    /// their own σ within these (m, rad).
+    /// sightings over this long and this much floor, a residual this small, a rival of at
+    /// most `alone_max_ambiguity` as many walks ([`WalkerFit::rival_share`]), and their own σ
+    /// within these (m, rad).
     pub alone_min_inliers: usize,
     pub alone_min_span_s: f64,
     pub alone_min_spread_m: f64,
@@ -116,9 +116,9 @@ pub struct WalkerFit {
     pub rms_m: f64,
     /// Agreements of the best clearly different pose.
     pub runner_up: usize,
-    /// How many walks agree with the fit, and with the runner-up: runs of one person
-    /// followed walking in both views (`TOGETHER_S`, `TOGETHER_M`). The other agreements
-    /// chance may give (people crossing, a queue); a walk is one person's independent word.
+    /// How many walks agree with the fit, and the most with any clearly different pose: runs
+    /// of one person followed walking in both views (`TOGETHER_S`, `TOGETHER_M`). The other
+    /// agreements chance may give (people crossing, a queue); a walk is one person's word.
     pub walks: usize,
     pub runner_up_walks: usize,
     /// Of (x, y, yaw).
@@ -135,7 +135,7 @@ impl WalkerFit {
             && self.span_s >= p.min_span_s
             && self.spread_m >= p.min_spread_m
             && self.rms_m <= p.max_rms_m
-            && self.rival_share() < p.max_ambiguity
+            && (self.runner_up as f64) < p.max_ambiguity * self.inliers as f64
     }
 
     /// The runner-up's walks against the best's. In a crowd a clearly different pose collects
@@ -403,15 +403,19 @@ pub fn fit_walkers(
     refined.retain(|(_, pose, _)| !co_motion(a, b, pose, motion).refutes(motion));
     refined.sort_by_key(|x| std::cmp::Reverse(x.0));
     let (inliers, pose, pairs) = refined.first()?.clone();
-    // Leaders that refine to the winner were the same pose seen through noise. The rival is
-    // the one with most walks of one person in both views.
-    let (runner_up, runner_up_walks) = refined
+    // Leaders that refine to the winner were the same pose seen through noise. The rival:
+    // the most sightings, and the most walks of one person in both views, of any other.
+    let others: Vec<&(usize, Pose2, Matched)> = refined
         .iter()
         .skip(1)
         .filter(|(_, q, _)| !same(q, &pose))
-        .map(|(n, _, matched)| (*n, walked_together(matched).walks))
-        .max_by_key(|x| x.1)
-        .unwrap_or((0, 0));
+        .collect();
+    let runner_up = others.iter().map(|(n, _, _)| *n).max().unwrap_or(0);
+    let runner_up_walks = others
+        .iter()
+        .map(|(_, _, matched)| walked_together(matched).walks)
+        .max()
+        .unwrap_or(0);
     let rms_m = (pairs
         .iter()
         .map(|(a, b, _)| (a - pose * b).norm_squared())

@@ -145,6 +145,20 @@ fn little_view_pairs(plan: &Plan, seed: u64, params: &RegisterParams) -> Result<
                         out.right += 1;
                     } else {
                         out.wrong += 1;
+                        let fit = r.walkers.as_ref();
+                        println!(
+                            "  wrong: {} seed {seed} {}–{}: {:.0} cm {:.1}° off, evidence {}, walks {} against {}, sightings {} against {}",
+                            plan.name,
+                            a.id,
+                            b.id,
+                            dt * 100.0,
+                            dyaw.to_degrees(),
+                            scanfuse::register::walkers::evidence(fit),
+                            fit.map_or(0, |f| f.walks),
+                            fit.map_or(0, |f| f.runner_up_walks),
+                            fit.map_or(0, |f| f.inliers),
+                            fit.map_or(0, |f| f.runner_up),
+                        );
                     }
                 }
                 Err(why) => {
