@@ -54,7 +54,9 @@ pub struct WalkerParams {
     /// past all of these, stricter than a fit that merely chooses: this many agreeing
     /// sightings over this long and this much floor, a residual this small, a rival of at
     /// most `alone_max_ambiguity` as many walks ([`WalkerFit::rival_share`]), and their own σ
-    /// within these (m, rad).
+    /// within these (m, rad). The σ limit is tight (2 cm) because the bias of a body's shape
+    /// averages out only over many walks: a fit of σ 2.6 cm from ten walks in an open hall,
+    /// its rival far behind, was 13 cm off.
     pub alone_min_inliers: usize,
     pub alone_min_span_s: f64,
     pub alone_min_spread_m: f64,
@@ -62,8 +64,6 @@ pub struct WalkerParams {
     pub alone_max_ambiguity: f64,
     pub alone_max_sigma_m: f64,
     pub alone_max_sigma_rad: f64,
-    /// (`alone_max_sigma_m` 2 cm: a fit of 2.6 cm from ten walks in an open hall was 13 cm
-    /// off; the bias of a body's shape averages out only over many viewing directions.)
     /// A walker-only pose is biased by a body's shape and the time between two scans; this
     /// much (m) is added in quadrature to its position σ so that the site weighs it honestly.
     pub alone_bias_m: f64,
