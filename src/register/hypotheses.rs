@@ -170,6 +170,10 @@ impl Accumulator {
         }
         let (x0, x1) = (x0.max(1), x1.min(w - 2));
         let (y0, y1) = (y0.max(1), y1.min(h - 2));
+        // Votes only in the border cells leave no window inside it (and would underflow).
+        if x0 > x1 || y0 > y1 {
+            return Vec::new();
+        }
         // Over the window only, by row slices so the sums vectorise; each cell adds in the
         // same order as cell by cell. `summed` has a border of one zero cell all round (cells
         // outside the window sum to nothing).
@@ -359,4 +363,26 @@ pub fn hypotheses(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> Vec<(f32,
         .par_iter()
         .flat_map_iter(|&theta| hypotheses_for(a, b, theta, p))
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn votes_only_in_a_border_column_give_no_peak_rather_than_a_panic() {
+        let mut acc = Accumulator {
+            min: Point2::origin(),
+            res: 0.1,
+            width: 10,
+            height: 10,
+            votes: vec![0.0; 100],
+            touched: (usize::MAX, 0, usize::MAX, 0),
+        };
+        acc.add(5 * 10, 1.0);
+        assert!(acc.peaks(4, 1).is_empty());
+        // A vote inside the border makes peaks (its 3×3 sums are a plateau).
+        acc.add(5 * 10 + 4, 2.0);
+        assert!(!acc.peaks(4, 1).is_empty());
+    }
 }

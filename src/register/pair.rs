@@ -437,7 +437,7 @@ fn placed_by_walkers(
         a_from_b: pose,
         covariance,
         match_score: match_score(a, b, &pose, p),
-        ambiguity: fit.runner_up as f64 / fit.inliers.max(1) as f64,
+        ambiguity: fit.rival_share(),
         overlap: at.overlap(),
         score: at,
         candidates: vec![Candidate {
