@@ -132,6 +132,28 @@ pub(super) fn join_groups(
         }
         let Some((g, join)) = joined else { break };
         joins += 1;
+        tracing::trace!(
+            "join {joins}: [{}] at ({:.2}, {:.2}) value {:.2} overlap {:.2} ambiguity {:.2}, from pairs {}",
+            groups[g]
+                .iter()
+                .map(|&(m, _)| sensors[m].id.as_str())
+                .collect::<Vec<_>>()
+                .join(" "),
+            join.anchor_from_root.translation.x,
+            join.anchor_from_root.translation.y,
+            join.score.value,
+            join.score.overlap,
+            join.ambiguity,
+            join.sources
+                .iter()
+                .map(|&(k, ci)| format!(
+                    "{}–{} #{ci}",
+                    sensors[pairs[k].0].id,
+                    sensors[pairs[k].1].id
+                ))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
         for &(m, root_from_member) in &groups[g] {
             placed[m] = Some(join.anchor_from_root * root_from_member);
         }

@@ -313,6 +313,16 @@ fn place(
     let checked = groups::checked_edges(n, anchor, &pairs, &results, sp);
     let (mut placed, mut groups) = groups::groups(n, anchor, &checked.edges);
     let grouped = started.elapsed().as_secs_f64();
+    for members in groups.iter().filter(|g| g.len() > 1) {
+        tracing::trace!(
+            "group [{}]",
+            members
+                .iter()
+                .map(|&(m, _)| sensors[m].id.as_str())
+                .collect::<Vec<_>>()
+                .join(" ")
+        );
+    }
     let joined = join::join_groups(
         &mut placed,
         &mut groups,

@@ -79,6 +79,10 @@ pub(super) fn second_opinion(
         if !contradicted && !outvoted(&join.anchor_from_root) {
             continue;
         }
+        tracing::trace!(
+            "second opinion moves {} by {dt:.2} m (contradicted: {contradicted})",
+            sensors[k].id
+        );
         if k == anchor {
             let anchor_from_new = join.anchor_from_root.inverse() * current;
             for (i, pose) in placed.iter_mut().enumerate() {
