@@ -244,6 +244,14 @@ pub(super) enum Refusal {
     Slides { axis_deg: f64 },
     /// Only placed sensor `with` shares its view, and that pair alone does not register.
     LonePair { with: usize, why: String },
+    /// Placed with its group, but more of its pairs with the rest of the site put it
+    /// elsewhere (`against` pairs to `support`), and that place is refused in turn (`then`):
+    /// withdrawn by the second opinion rather than left where the site outvotes it.
+    Outvoted {
+        support: usize,
+        against: usize,
+        then: Box<Refusal>,
+    },
 }
 
 impl Refusal {
@@ -293,6 +301,14 @@ impl Refusal {
             Refusal::LonePair { with, why } => format!(
                 "only {} of the placed sensors shares its view, and that pair alone is not registered ({why}); {HELP}",
                 id(*with)
+            ),
+            Refusal::Outvoted {
+                support,
+                against,
+                then,
+            } => format!(
+                "its group put it where {support} of its pairs agree, but {against} put it elsewhere (a look-alike place?), and there: {}",
+                then.describe(id)
             ),
             Refusal::Slides { axis_deg } => format!(
                 "its position along {axis_deg:.0}° is not fixed by what the placed sensors see (a corridor seen lengthwise); survey it, or add a sensor that sees across"
