@@ -148,8 +148,7 @@ pub(super) fn join_groups(
                 .iter()
                 .map(|&(k, ci)| format!(
                     "{}–{} #{ci}",
-                    sensors[pairs[k].0].id,
-                    sensors[pairs[k].1].id
+                    sensors[pairs[k].0].id, sensors[pairs[k].1].id
                 ))
                 .collect::<Vec<_>>()
                 .join(", ")
