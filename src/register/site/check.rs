@@ -74,6 +74,11 @@ pub(super) fn solve_without_conflicts(
             i.max(j)
         };
         contradicted[loser] = Some(if loser == i { j } else { i });
+        tracing::trace!(
+            "free-space check drops {} (contradicts {})",
+            sensors[loser].id,
+            sensors[if loser == i { j } else { i }].id
+        );
         let keep: Vec<bool> = edges.iter().map(|e| e.a != loser && e.b != loser).collect();
         let mut k = 0;
         edges.retain(|_| {

@@ -122,9 +122,19 @@ pub fn consistent_edges(n: usize, anchor: usize, edges: &[Edge], sp: &SiteParams
         }
     }
     let mut kept: Vec<usize> = (0..edges.len()).filter(|&e| bad[e] <= good[e]).collect();
-    // Check the survivors against the tree they build; drop disagreeing ones once.
+    // Check the survivors against the trees they build; drop disagreeing ones once. Every
+    // component gets its tree, not only the anchor's: a group that joins the anchor later is
+    // placed whole on its edges, and a wrong edge among them that closes no triangle (a
+    // look-alike bay on a periodic floor, where triangles through it would need a sensor seeing
+    // both places) is caught only by the longer cycles a tree shows.
     let subset: Vec<Edge> = kept.iter().map(|&e| edges[e].clone()).collect();
-    let poses = spanning_poses(n, anchor, &subset);
+    let mut poses = spanning_poses(n, anchor, &subset);
+    for root in 0..n {
+        if poses[root].is_none() {
+            poses[root] = Some(Pose2::identity());
+            grow_poses(&mut poses, &subset);
+        }
+    }
     kept.retain(|&e| {
         let edge = &edges[e];
         match (poses[edge.a], poses[edge.b]) {

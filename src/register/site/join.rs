@@ -132,6 +132,27 @@ pub(super) fn join_groups(
         }
         let Some((g, join)) = joined else { break };
         joins += 1;
+        tracing::trace!(
+            "join {joins}: [{}] at ({:.2}, {:.2}) value {:.2} overlap {:.2} ambiguity {:.2}, from pairs {}",
+            groups[g]
+                .iter()
+                .map(|&(m, _)| sensors[m].id.as_str())
+                .collect::<Vec<_>>()
+                .join(" "),
+            join.anchor_from_root.translation.x,
+            join.anchor_from_root.translation.y,
+            join.score.value,
+            join.score.overlap,
+            join.ambiguity,
+            join.sources
+                .iter()
+                .map(|&(k, ci)| format!(
+                    "{}–{} #{ci}",
+                    sensors[pairs[k].0].id, sensors[pairs[k].1].id
+                ))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
         for &(m, root_from_member) in &groups[g] {
             placed[m] = Some(join.anchor_from_root * root_from_member);
         }
@@ -222,6 +243,14 @@ pub(super) enum Refusal {
     Slides { axis_deg: f64 },
     /// Only placed sensor `with` shares its view, and that pair alone does not register.
     LonePair { with: usize, why: String },
+    /// Placed with its group, but more of its pairs with the rest of the site put it
+    /// elsewhere (`against` pairs to `support`), and that place is refused in turn (`then`):
+    /// withdrawn by the second opinion rather than left where the site outvotes it.
+    Outvoted {
+        support: usize,
+        against: usize,
+        then: Box<Refusal>,
+    },
 }
 
 impl Refusal {
@@ -271,6 +300,14 @@ impl Refusal {
             Refusal::LonePair { with, why } => format!(
                 "only {} of the placed sensors shares its view, and that pair alone is not registered ({why}); {HELP}",
                 id(*with)
+            ),
+            Refusal::Outvoted {
+                support,
+                against,
+                then,
+            } => format!(
+                "its group put it where {support} of its pairs agree, but {against} put it elsewhere (a look-alike place?), and there: {}",
+                then.describe(id)
             ),
             Refusal::Slides { axis_deg } => format!(
                 "its position along {axis_deg:.0}° is not fixed by what the placed sensors see (a corridor seen lengthwise); survey it, or add a sensor that sees across"

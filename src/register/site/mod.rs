@@ -313,6 +313,16 @@ fn place(
     let checked = groups::checked_edges(n, anchor, &pairs, &results, sp);
     let (mut placed, mut groups) = groups::groups(n, anchor, &checked.edges);
     let grouped = started.elapsed().as_secs_f64();
+    for members in groups.iter().filter(|g| g.len() > 1) {
+        tracing::trace!(
+            "group [{}]",
+            members
+                .iter()
+                .map(|&(m, _)| sensors[m].id.as_str())
+                .collect::<Vec<_>>()
+                .join(" ")
+        );
+    }
     let joined = join::join_groups(
         &mut placed,
         &mut groups,
@@ -324,7 +334,17 @@ fn place(
         memo,
     );
     let joins = started.elapsed().as_secs_f64() - grouped;
-    second_opinion::second_opinion(&mut placed, anchor, sensors, &pairs, &results, p, sp, memo);
+    let mut joined = joined;
+    let withdrawn =
+        second_opinion::second_opinion(&mut placed, anchor, sensors, &pairs, &results, p, sp, memo);
+    // A withdrawn sensor stands alone, with why, as a group that could not join.
+    for (k, why) in withdrawn {
+        for g in groups.iter_mut() {
+            g.retain(|&(m, _)| m != k);
+        }
+        groups.push(vec![(k, Pose2::identity())]);
+        joined.refusals.push(Some(why));
+    }
     tracing::debug!(
         "site stages: groups {grouped:.2} s ({} groups), joins {joins:.2} s, second opinion {:.2} s; {} pair scores kept",
         groups.len(),

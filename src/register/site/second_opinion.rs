@@ -3,7 +3,7 @@
 
 use super::SensorInput;
 use super::SiteParams;
-use super::join::JoinContext;
+use super::join::{JoinContext, Refusal};
 use super::memo::ScoreMemo;
 use crate::geometry::{Pose2, pose_error};
 use crate::register::{PairResult, RegisterParams};
@@ -14,6 +14,11 @@ use crate::register::{PairResult, RegisterParams};
 /// bind it into a group; its pairs with the rest of the site may still say, jointly and
 /// clearly, that it stands elsewhere. Then it moves there; when it is the anchor, everyone
 /// else moves instead, so the anchor keeps the frame.
+///
+/// A move changes the evidence for the others (a block of sensors bound to a look-alike place
+/// moves back one by one, and the first weighed still saw the rest of the block there), so the
+/// passes repeat while anything moves. A sensor whose pairs outvote its place but whose rival
+/// place is refused too stands nowhere the site can say: it is withdrawn (returned, with why).
 #[allow(clippy::too_many_arguments)] // the stage inputs, as `join_groups` and `site_result`
 pub(super) fn second_opinion(
     placed: &mut [Option<Pose2>],
@@ -24,7 +29,44 @@ pub(super) fn second_opinion(
     p: &RegisterParams,
     sp: &SiteParams,
     memo: &ScoreMemo,
-) {
+) -> Vec<(usize, Refusal)> {
+    let mut withdrawn = Vec::new();
+    for _ in 0..MAX_PASSES {
+        let changed = one_pass(
+            placed,
+            anchor,
+            sensors,
+            pairs,
+            results,
+            p,
+            sp,
+            memo,
+            &mut withdrawn,
+        );
+        if !changed {
+            break;
+        }
+    }
+    withdrawn
+}
+
+/// Passes of the second opinion at most (each after one that moved or withdrew a sensor).
+const MAX_PASSES: usize = 4;
+
+/// One pass over every placed sensor; whether any moved or was withdrawn.
+#[allow(clippy::too_many_arguments)]
+fn one_pass(
+    placed: &mut [Option<Pose2>],
+    anchor: usize,
+    sensors: &[SensorInput],
+    pairs: &[(usize, usize)],
+    results: &[PairResult],
+    p: &RegisterParams,
+    sp: &SiteParams,
+    memo: &ScoreMemo,
+    withdrawn: &mut Vec<(usize, Refusal)>,
+) -> bool {
+    let mut changed = false;
     // The anchor first: were it wrong, every other opinion would be taken in its wrong frame.
     let reach_m = super::reach_m(sensors);
     let order = std::iter::once(anchor).chain((0..placed.len()).filter(|&k| k != anchor));
@@ -69,8 +111,32 @@ pub(super) fn second_opinion(
         {
             continue;
         }
-        let Ok(join) = ctx.weigh(&alone) else {
-            continue;
+        let join = match ctx.weigh(&alone) {
+            Ok(join) => join,
+            Err(then) => {
+                // Outvoted, and the rival place does not stand either: withdraw it (never
+                // the anchor, which keeps the frame).
+                let against = ctx
+                    .opinions_on(k, current)
+                    .filter(|(_, _, _, agrees)| !agrees)
+                    .map(|(_, _, place, _)| ctx.support(k, place))
+                    .max()
+                    .unwrap_or(0);
+                if k != anchor && against > current_support {
+                    tracing::trace!("second opinion withdraws {}", sensors[k].id);
+                    placed[k] = None;
+                    withdrawn.push((
+                        k,
+                        Refusal::Outvoted {
+                            support: current_support,
+                            against,
+                            then: Box::new(then),
+                        },
+                    ));
+                    changed = true;
+                }
+                continue;
+            }
         };
         let (dt, dyaw) = pose_error(&join.anchor_from_root, &current);
         if (dt <= sp.confirm_m && dyaw <= sp.confirm_rad) || ctx.slides(&alone, &join).is_some() {
@@ -79,6 +145,10 @@ pub(super) fn second_opinion(
         if !contradicted && !outvoted(&join.anchor_from_root) {
             continue;
         }
+        tracing::trace!(
+            "second opinion moves {} by {dt:.2} m (contradicted: {contradicted})",
+            sensors[k].id
+        );
         if k == anchor {
             let anchor_from_new = join.anchor_from_root.inverse() * current;
             for (i, pose) in placed.iter_mut().enumerate() {
@@ -91,5 +161,7 @@ pub(super) fn second_opinion(
         } else {
             placed[k] = Some(join.anchor_from_root);
         }
+        changed = true;
     }
+    changed
 }

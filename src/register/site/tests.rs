@@ -63,6 +63,41 @@ fn one_wrong_edge_is_dropped_and_the_rest_solve_to_truth() {
     }
 }
 
+/// A ring of sensors the anchor has no edge to (it joins them later, as one group): a wrong
+/// edge on the ring closes no triangle, only the long cycle, and must still be dropped, as it
+/// is when the anchor is on the ring. (On a 120-scanner concourse one such edge to a
+/// look-alike bay 112 m away placed a sensor there: the anchor's tree checked nothing.)
+#[test]
+fn a_wrong_edge_on_a_cycle_away_from_the_anchor_is_dropped() {
+    // 0 the anchor, far away; 1..=6 a ring 4 m apart along a concourse.
+    let truth: Vec<Pose2> = std::iter::once(pose2(-50.0, 0.0, 0.0))
+        .chain((0..6).map(|k| pose2(4.0 * k as f64, 3.0 * (k % 2) as f64, 0.1 * k as f64)))
+        .collect();
+    let ring = [(1, 2), (2, 3), (3, 4), (4, 5), (5, 6), (1, 6)];
+    let edges: Vec<Edge> = ring
+        .iter()
+        .map(|&(a, b)| {
+            // The closing edge puts 6 a period of the floor (8 m) off, and is the weakest.
+            let wrong = (a, b) == (1, 6);
+            let bias = if wrong {
+                pose2(8.0, 0.0, 0.0)
+            } else {
+                Pose2::identity()
+            };
+            Edge {
+                strength: if wrong { 0.5 } else { 1.0 },
+                ..edge(a, b, &truth, bias)
+            }
+        })
+        .collect();
+    let sp = SiteParams::default();
+    for anchor in [0, 1] {
+        let kept = consistent_edges(7, anchor, &edges, &sp);
+        let wrong = kept.iter().any(|&k| (edges[k].a, edges[k].b) == (1, 6));
+        assert!(!wrong, "anchor {anchor}: the wrong edge is kept ({kept:?})");
+    }
+}
+
 #[test]
 fn surveyed_priors_place_an_unreached_sensor_and_weigh_against_edges() {
     let truth = [
