@@ -79,7 +79,12 @@ fn the_example_sets_every_key() {
     }
     // Keys that name a file are shown commented out (`scanfuse check` needs the file), but
     // shown.
-    let commented = ["drawing", "drawing_layers", "drawing_scale"];
+    let commented = [
+        "drawing",
+        "drawing_layers",
+        "drawing_scale",
+        "drawing_pairs",
+    ];
     for key in commented {
         let shown = text
             .lines()

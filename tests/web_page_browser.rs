@@ -4,10 +4,10 @@
 //! `data-pose` against the status socket's `poses`, drags one sensor and checks that `poses`
 //! then shows it surveyed where it was dropped. The same page and daemon carry the building
 //! drawing: Python's ezdxf exports the hall's plan to DXF (tests/python/plan_to_drawing.py),
-//! `[site] drawing` names it and `poses.toml` holds the poses and `building_from_site` as
-//! `scanfuse align --save` leaves them (here from the recording's truth: the building frame
-//! is the plan's); the page must draw the drawing under the map, its walls on the scans'
-//! walls. It leaves a screenshot in `target/web-page.png` (the one in docs/ is such a
+//! `[site] drawing` names it and `poses.toml` holds the poses (the recording's truth) but no
+//! `building_from_site`: the daemon must align itself to the drawing (the plan's frame is the
+//! building's, so it must find the anchor's true pose) and save it, and the page must draw
+//! the drawing under the map, its walls on the scans' walls. It leaves a screenshot in `target/web-page.png` (the one in docs/ is such a
 //! picture).
 //!
 //! Needs SCANFUSE_TEST_PYTHON (the venv .ci/run builds) and /usr/bin/chromium (.ci/run
@@ -51,7 +51,7 @@ fn the_page_shows_every_sensor_where_poses_has_it_and_a_drag_surveys_one() {
         &sensors,
         &format!("\n[web]\nlisten = \"127.0.0.1:{port}\"\n"),
     );
-    let drawing = with_drawing(&python, &hall, &config, dir.path());
+    let (drawing, gate) = with_drawing(&python, &hall, &config, dir.path());
     let _daemon = start_daemon(&config, dir.path());
     let sock = dir.path().join("s.sock");
     let mut client = Client::connect(&sock, Duration::from_secs(30));
@@ -65,6 +65,26 @@ fn the_page_shows_every_sensor_where_poses_has_it_and_a_drag_surveys_one() {
             >= 2)
             .then_some(())
     });
+    // Nothing said where the site lies in the building: the daemon aligns itself to the
+    // drawing, and the plan's frame is the building's, so it must find the anchor's truth.
+    let building = wait_for(Duration::from_secs(60), "aligned to the drawing", || {
+        client.poses().building_from_site.filter(|b| b.aligned)
+    });
+    let (dx, dy) = (
+        building.x_m - gate.translation.x,
+        building.y_m - gate.translation.y,
+    );
+    let dyaw = (building.yaw_deg - gate.rotation.angle().to_degrees() + 540.0) % 360.0 - 180.0;
+    eprintln!(
+        "live alignment: {building:?}; off the truth by {:.1} cm, {dyaw:.3}°",
+        dx.hypot(dy) * 100.0
+    );
+    assert!(
+        dx.hypot(dy) < 0.05 && dyaw.abs() < 0.3 && (building.scale - 1.0).abs() < 1e-9,
+        "{building:?} against the truth {gate:?}"
+    );
+    let saved = std::fs::read_to_string(dir.path().join("state/poses.toml")).unwrap();
+    assert!(saved.contains("[building_from_site]"), "{saved}");
     let screenshot = common::repo().join("target/web-page.png");
     let out = Command::new(python)
         .arg(common::repo().join("tests/python/web_page.py"))
@@ -114,13 +134,14 @@ fn the_page_shows_every_sensor_where_poses_has_it_and_a_drag_surveys_one() {
 
 /// Exports the hall's plan to `dir/plan.dxf`, names it in the config's `[site]` (walls and
 /// columns only) and writes `state/poses.toml` with every sensor's true pose in the anchor's
-/// frame and `building_from_site` (the anchor's true pose: the plan's frame is the building's).
+/// frame (and no `building_from_site`); gives the drawing and the anchor's true pose (the
+/// plan's frame is the building's).
 fn with_drawing(
     python: &Path,
     hall: &Path,
     config: &Path,
     dir: &Path,
-) -> scanfuse::drawing::Drawing {
+) -> (scanfuse::drawing::Drawing, scanfuse::geometry::Pose2) {
     let plan = common::repo().join("fixtures/plans/hall.toml");
     let dxf = dir.join("plan.dxf");
     common::succeeded(
@@ -173,23 +194,17 @@ fn with_drawing(
     scanfuse::daemon::state::PosesFile {
         anchor: "gate".into(),
         sensors,
-        building_from_site: Some(scanfuse::drawing::BuildingFromSite {
-            x_m: gate.translation.x,
-            y_m: gate.translation.y,
-            yaw_deg: gate.rotation.angle().to_degrees(),
-            aligned: true,
-            method: "pairs+lines".into(),
-            ..Default::default()
-        }),
+        building_from_site: None,
     }
     .save(&dir.join("state"))
     .unwrap();
-    scanfuse::drawing::read(
+    let drawing = scanfuse::drawing::read(
         &dxf,
         &scanfuse::drawing::ReadOptions {
             layers: Some(layers),
             ..Default::default()
         },
     )
-    .unwrap()
+    .unwrap();
+    (drawing, gate)
 }

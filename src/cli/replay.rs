@@ -155,6 +155,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 path,
                 layers: args.layers.clone(),
                 scale_m_per_unit: args.scale,
+                pairs: Vec::new(),
             }),
         },
         sensors,

@@ -225,8 +225,9 @@ pub struct SiteConfig {
     pub anchor: String,
     /// Status-socket clients served at once; more are refused.
     pub max_clients: usize,
-    /// The building drawing (`drawing`, `drawing_layers`, `drawing_scale`): drawn under the
-    /// map on the page once `poses.toml` holds `building_from_site`.
+    /// The building drawing (`drawing`, `drawing_layers`, `drawing_scale`, `drawing_pairs`):
+    /// the placed site is aligned to it (`align_live`) and it is drawn under the map on the
+    /// page once `building_from_site` is known.
     pub drawing: Option<DrawingConfig>,
 }
 
@@ -238,6 +239,9 @@ pub struct DrawingConfig {
     pub layers: Option<Vec<String>>,
     /// Metres per drawing unit (SVG, rasters, a DXF without `$INSUNITS`).
     pub scale_m_per_unit: Option<f64>,
+    /// `drawing_pairs`: site points and the drawing points they lie at (m), as `scanfuse
+    /// align --pairs` takes them; empty: aligned automatically.
+    pub pairs: Vec<crate::drawing::align::PointPair>,
 }
 
 /// One `[[sensor]]`.
@@ -615,6 +619,7 @@ struct RawSite {
     drawing: Option<Spanned<String>>,
     drawing_layers: Option<Spanned<Vec<String>>>,
     drawing_scale: Option<Spanned<f64>>,
+    drawing_pairs: Option<Spanned<String>>,
     zones_frame: Option<Spanned<String>>,
 }
 
@@ -884,6 +889,22 @@ impl Config {
                     Some(v) => Some(*v.get_ref()),
                     None => None,
                 },
+                pairs: match &site.drawing_pairs {
+                    Some(v) => match crate::drawing::align::parse_pairs(v.get_ref()) {
+                        Ok(pairs) if pairs.len() >= 2 => pairs,
+                        Ok(_) => {
+                            return Err(loc.at(
+                                v.span(),
+                                "site.drawing_pairs",
+                                "needs two or more pairs: \"site_x,site_y=drawing_x,drawing_y; …\" (m)",
+                            ));
+                        }
+                        Err(e) => {
+                            return Err(loc.at(v.span(), "site.drawing_pairs", e.to_string()));
+                        }
+                    },
+                    None => Vec::new(),
+                },
             }),
             None => {
                 if let Some(v) = &site.drawing_layers {
@@ -891,6 +912,9 @@ impl Config {
                 }
                 if let Some(v) = &site.drawing_scale {
                     return Err(loc.at(v.span(), "site.drawing_scale", "needs site.drawing"));
+                }
+                if let Some(v) = &site.drawing_pairs {
+                    return Err(loc.at(v.span(), "site.drawing_pairs", "needs site.drawing"));
                 }
                 None
             }
@@ -1817,8 +1841,22 @@ map_cell_m = 0.1
                 path: PathBuf::from("/etc/scanfuse/plan.svg"),
                 layers: Some(vec!["A-WALL".into(), "S-COLS".into()]),
                 scale_m_per_unit: Some(0.001),
+                pairs: Vec::new(),
             })
         );
+        let paired = with.replace(
+            "drawing_scale = 0.001\n",
+            "drawing_scale = 0.001\ndrawing_pairs = \"0,0=10,20; 5,0=15,20\"\n",
+        );
+        let pairs = parse(&paired).unwrap().site.drawing.unwrap().pairs;
+        assert_eq!(pairs.len(), 2);
+        assert_eq!(pairs[1].1, nalgebra::Point2::new(15.0, 20.0));
+        for (bad, says) in [("0,0=10,20", "two or more"), ("0,0=10", "0,0=10")] {
+            let text = paired.replace("0,0=10,20; 5,0=15,20", bad);
+            let (_, key, message) = invalid(&text);
+            assert_eq!(key, "site.drawing_pairs");
+            assert!(message.contains(says), "{message}");
+        }
         let (_, key, _) = invalid(&GOOD.replace(
             "anchor = \"entrance\"\n",
             "anchor = \"entrance\"\ndrawing_scale = 0.001\n",

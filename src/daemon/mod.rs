@@ -9,9 +9,11 @@
 //! - [`local_refine`]: a moved sensor aligned from its old pose before any global search;
 //! - [`pipeline_fuse`]: fused frames, the occupancy grid and the map files;
 //! - [`pipeline_track`]: the people tracker's thread, fed posed scans, publishing `TRACKS`;
+//! - [`align_live`]: the placed site aligned to the building drawing (`building_from_site`);
 //! - [`returns`]: how much each sensor sees (a covered lens is named, not guessed at);
 //! - [`run`]: the lifecycle (emulators for `replay:`, driver tasks, socket, systemd, signals).
 
+pub mod align_live;
 pub mod config;
 pub mod lines;
 pub mod local_refine;

@@ -299,6 +299,16 @@ impl Pipeline {
         self.update_drawing_line();
     }
 
+    /// The site's alignment to the building drawing as it stands.
+    pub(super) fn building_from_site(&self) -> Option<crate::drawing::BuildingFromSite> {
+        self.building_from_site.borrow().clone()
+    }
+
+    /// The building drawing (`[site] drawing`), once read.
+    pub(super) fn drawing(&self) -> Option<Arc<crate::drawing::Drawing>> {
+        lock(&self.drawing).0.clone()
+    }
+
     /// `building_from_site` as it changes (the people outputs place building-frame zones
     /// through it).
     pub(super) fn watch_building_from_site(

@@ -412,6 +412,8 @@ pub enum EventKind {
     Surveyed,
     /// A placed pose that people walking later contradicted was taken back.
     Withdrawn,
+    /// The site was aligned to the building drawing (`building_from_site`).
+    Aligned,
     Error,
 }
 

@@ -597,6 +597,17 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
     } else {
         None
     };
+    if pipeline.drawing().is_some() {
+        let mut rx = server_stop_rx.clone();
+        let pairs = config.site.drawing.as_ref().map(|d| d.pairs.clone());
+        tokio::spawn(super::align_live::run(
+            Arc::clone(&pipeline),
+            pairs.unwrap_or_default(),
+            async move {
+                let _ = rx.wait_for(|s| *s).await;
+            },
+        ));
+    }
     // Zones, lines, OSC and MQTT: fed by the people stream (the tracker publishes TRACKS).
     if super::people_out::wanted(&config.people) {
         let mut rx = server_stop_rx.clone();
