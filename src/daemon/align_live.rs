@@ -106,7 +106,7 @@ pub async fn run(
 }
 
 /// Announces the alignment (or why there is none), shows it on the socket and saves it.
-fn publish(pipeline: &Pipeline, b: BuildingFromSite) {
+pub(super) fn publish(pipeline: &Pipeline, b: BuildingFromSite) {
     let source = pipeline
         .drawing()
         .map_or_else(String::new, |d| d.source.clone());

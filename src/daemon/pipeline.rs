@@ -867,6 +867,42 @@ impl StatusSource for Pipeline {
         ))
     }
 
+    fn align(&self, pairs: Option<&str>) -> Result<Poses, Refused> {
+        let Some(drawing) = self.drawing() else {
+            return Err(Refused(
+                "no building drawing: set [site] drawing = \"plan.dxf\" in the config (and reload)"
+                    .into(),
+            ));
+        };
+        let pairs = match pairs.map(crate::drawing::align::parse_pairs) {
+            None => Vec::new(),
+            Some(Ok(p)) if p.len() >= 2 => p,
+            Some(Ok(_)) => {
+                return Err(Refused(
+                    "give two or more pairs: \"site_x,site_y=drawing_x,drawing_y; …\" (m)".into(),
+                ));
+            }
+            Some(Err(e)) => return Err(Refused(e.to_string())),
+        };
+        let scans = self.posed_scans();
+        if scans.is_empty() {
+            return Err(Refused(
+                "no sensor is placed yet: nothing to align to the drawing".into(),
+            ));
+        }
+        let params = crate::register::RegisterParams::default();
+        let found = super::align_live::align_scans(&drawing, &scans, &pairs, &params);
+        if !found.aligned {
+            return Err(Refused(format!(
+                "not aligned to the drawing ({}): {}; the alignment stays as it was",
+                found.method,
+                found.reason.as_deref().unwrap_or("no reason given")
+            )));
+        }
+        super::align_live::publish(self, found);
+        Ok(self.poses())
+    }
+
     fn survey(&self, sensor: &str, request: Option<SurveyRequest>) -> Result<SurveyReply, Refused> {
         let mut inner = lock(&self.inner);
         let Some(slot) = inner.sensors.get(sensor) else {

@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 /// Major protocol version: bumped when a client written for the old one would misread.
 pub const PROTO_MAJOR: u32 = 1;
 /// Minor protocol version: bumped when fields or classes are added.
-pub const PROTO_MINOR: u32 = 4;
+pub const PROTO_MINOR: u32 = 5;
 
 /// Request lines longer than this are rejected (and discarded up to their newline).
 pub const MAX_LINE_BYTES: usize = 64 * 1024;
@@ -63,6 +63,14 @@ pub enum Request {
     /// `{"cmd":"unsurvey","sensor":"dock"}` → [`Survey`]: forgets the survey set by hand, and
     /// registers the sensor from its scans again (a survey in the config still counts).
     Unsurvey { sensor: String },
+    /// `{"cmd":"align","pairs":"sx,sy=dx,dy; …"}` → [`Poses`] (with `building_from_site`), since
+    /// protocol 1.5: aligns the placed site to `[site] drawing` now, from two or more point
+    /// pairs (site point = drawing point, m, as `scanfuse align --pairs`) refined on the lines,
+    /// or automatically without `pairs`; replaces the alignment only when it finds one.
+    Align {
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        pairs: Option<String>,
+    },
 }
 
 /// A survey set by hand is this sure of the position unless the request says otherwise, m.

@@ -55,6 +55,14 @@ pub trait StatusSource: Send + Sync + 'static {
             "this daemon cannot place {sensor} by hand; set survey = {{…}} in the config instead"
         )))
     }
+    /// Aligns the site to the building drawing now, from `pairs` (`--pairs`' syntax) or
+    /// automatically; the poses with the alignment found.
+    fn align(&self, pairs: Option<&str>) -> Result<Poses, Refused> {
+        let _ = pairs;
+        Err(Refused(
+            "this daemon cannot align to a drawing; use scanfuse align".into(),
+        ))
+    }
 }
 
 /// A `survey` request's pose, as sent (degrees, sigmas filled in with the defaults).
@@ -133,6 +141,14 @@ pub async fn answer_request<S: StatusSource + ?Sized>(
                 Err(refused) => Message::error(refused.0),
             };
             blocking(Box::new(f), "clearing the survey").await
+        }
+        Request::Align { pairs } => {
+            let source = Arc::clone(source);
+            let f = move || match source.align(pairs.as_deref()) {
+                Ok(poses) => Message::Poses(poses),
+                Err(refused) => Message::error(refused.0),
+            };
+            blocking(Box::new(f), "aligning to the drawing").await
         }
     }
 }
