@@ -86,37 +86,6 @@ fn the_page_shows_every_sensor_where_poses_has_it_and_a_drag_surveys_one() {
     );
     let saved = std::fs::read_to_string(dir.path().join("state/poses.toml")).unwrap();
     assert!(saved.contains("[building_from_site]"), "{saved}");
-    // The socket's (and the page's) `align`: two point pairs clicked 10 cm off, refined on
-    // the drawing's lines, replace it; bad pairs are refused and change nothing.
-    let site_points = [(0.0, 0.0), (8.0, 3.0)];
-    let pairs: Vec<String> = site_points
-        .iter()
-        .map(|&(x, y)| {
-            let d = gate * nalgebra::Point2::new(x, y);
-            format!("{x},{y}={},{}", d.x + 0.1, d.y - 0.1)
-        })
-        .collect();
-    let line = serde_json::json!({"cmd": "align", "pairs": pairs.join("; ")}).to_string();
-    match client.request(&line) {
-        Message::Poses(p) => {
-            let b = p.building_from_site.expect("building_from_site");
-            let off = (b.x_m - gate.translation.x).hypot(b.y_m - gate.translation.y);
-            let dyaw = (b.yaw_deg - gate.rotation.angle().to_degrees() + 540.0) % 360.0 - 180.0;
-            eprintln!(
-                "aligned from two pairs 10 cm off: {b:?}; off by {:.1} cm",
-                off * 100.0
-            );
-            assert!(
-                b.method == "pairs+lines" && off < 0.05 && dyaw.abs() < 0.3,
-                "{b:?}"
-            );
-        }
-        other => panic!("align answered {other:?}"),
-    }
-    match client.request(r#"{"cmd":"align","pairs":"1,2=3"}"#) {
-        Message::Error(e) => assert!(e.message.contains("1,2=3"), "{}", e.message),
-        other => panic!("bad pairs answered {other:?}"),
-    }
     let screenshot = common::repo().join("target/web-page.png");
     let out = Command::new(python)
         .arg(common::repo().join("tests/python/web_page.py"))
@@ -155,6 +124,52 @@ fn the_page_shows_every_sensor_where_poses_has_it_and_a_drag_surveys_one() {
         std::fs::metadata(&screenshot).is_ok_and(|m| m.len() > 10_000),
         "a screenshot"
     );
+    // Two map points picked on the page and paired 10 cm off on the drawing, aligned from.
+    let b: scanfuse::drawing::BuildingFromSite =
+        serde_json::from_value(summary["page_align"].clone()).expect("page_align");
+    let off = (b.x_m - gate.translation.x).hypot(b.y_m - gate.translation.y);
+    let dyaw = (b.yaw_deg - gate.rotation.angle().to_degrees() + 540.0) % 360.0 - 180.0;
+    eprintln!(
+        "aligned from the page's pairs: off by {:.1} cm, {dyaw:.3}°",
+        off * 100.0
+    );
+    assert!(
+        b.method == "pairs+lines" && off < 0.05 && dyaw.abs() < 0.3,
+        "{b:?}"
+    );
+    // The socket's `align` (the verb the page sends): two point pairs 10 cm off, refined on
+    // the drawing's lines; bad pairs are refused.
+    let mut client = Client::connect(&sock, Duration::from_secs(10));
+    let site_points = [(0.0, 0.0), (8.0, 3.0)];
+    let pairs: Vec<String> = site_points
+        .iter()
+        .map(|&(x, y)| {
+            let d = gate * nalgebra::Point2::new(x, y);
+            format!("{x},{y}={},{}", d.x + 0.1, d.y - 0.1)
+        })
+        .collect();
+    let line = serde_json::json!({"cmd": "align", "pairs": pairs.join("; ")}).to_string();
+    match client.request(&line) {
+        Message::Poses(p) => {
+            let b = p.building_from_site.expect("building_from_site");
+            let off = (b.x_m - gate.translation.x).hypot(b.y_m - gate.translation.y);
+            let dyaw = (b.yaw_deg - gate.rotation.angle().to_degrees() + 540.0) % 360.0 - 180.0;
+            eprintln!(
+                "aligned from two pairs 10 cm off: {b:?}; off by {:.1} cm",
+                off * 100.0
+            );
+            assert!(
+                b.method == "pairs+lines" && off < 0.05 && dyaw.abs() < 0.3,
+                "{b:?}"
+            );
+        }
+        other => panic!("align answered {other:?}"),
+    }
+    match client.request(r#"{"cmd":"align","pairs":"1,2=3"}"#) {
+        Message::Error(e) => assert!(e.message.contains("1,2=3"), "{}", e.message),
+        other => panic!("bad pairs answered {other:?}"),
+    }
+
     // The drop is kept in state_dir, to survive a restart.
     let surveys = std::fs::read_to_string(dir.path().join("state/surveys.toml")).unwrap();
     let dragged = summary["dragged"].as_str().unwrap();

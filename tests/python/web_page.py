@@ -3,15 +3,21 @@
 Opens the page a running daemon serves, waits until it is drawn, checks each sensor drawn on
 the page (its data-sensor and data-pose) against the status socket's `poses` reply, drags
 one sensor, and checks that `poses` then shows it surveyed where it was dropped. Saves a
-screenshot before the drag (FILE-before.png) and after it (FILE). Run by tests/web_page_browser.rs:
+screenshot before the drag (FILE-before.png), with two point pairs listed (FILE-pairs.png,
+with --drawing) and after the drag (FILE). Run by tests/web_page_browser.rs:
 
     python web_page.py --url http://127.0.0.1:PORT/ --socket PATH --screenshot FILE.png [--drawing]
 
 With --drawing the daemon has a building drawing and an alignment to it: the page must draw
 the drawing under the map (`data-drawing` on the canvas), and the drawing's walls must lie on
 the scans' walls on screen: the summary gives the drawn segment count and the median screen
-distance (px) from the scan points near a drawn wall to that wall.
+distance (px) from the scan points near a drawn wall to that wall. Then two map points are
+picked on the page and paired with where the current alignment puts them on the drawing,
+10 cm off, and "Align from pairs" must replace the alignment with one made from the pairs
+(`page_align` in the summary: `building_from_site` as `poses` then has it).
 """
+
+import math
 
 import argparse
 import json
@@ -100,6 +106,54 @@ def drawing_fit(page):
     return int(view["drawn"] or 0), median, len(dists)
 
 
+def to_drawing(b, x, y):
+    """Site point (x, y) in the drawing's frame through building_from_site b."""
+    c, s = math.cos(math.radians(b["yaw_deg"])), math.sin(math.radians(b["yaw_deg"]))
+    return (b["x_m"] + b["scale"] * (c * x - s * y), b["y_m"] + b["scale"] * (s * x + c * y))
+
+
+def floor_point(page, x, y):
+    """A screen point near (x, y) on the bare floor (not on a sensor's glyph)."""
+    for dx in (0, 40, -40, 80, -80):
+        on_glyph = page.evaluate(
+            "([x, y]) => !!(document.elementFromPoint(x, y) || {closest: () => null})"
+            ".closest('g.glyph')",
+            [x + dx, y],
+        )
+        if not on_glyph:
+            return x + dx, y
+    sys.exit(f"no bare floor near {x}, {y} to pick")
+
+
+def align_by_pairs(page, sock, screenshot):
+    """Picks two map points on the page, pairs each with where the current alignment puts it
+    on the drawing (10 cm off), aligns from the pairs; `building_from_site` after."""
+    before = ask(sock, {"cmd": "poses"})["building_from_site"]
+    box = page.locator("#overlay").bounding_box()
+    cx, cy = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+    for sx, sy in ((cx - 180, cy - 60), (cx + 180, cy + 80)):
+        page.click("#pick")
+        page.mouse.click(*floor_point(page, sx, sy))
+        site = page.get_attribute("#pick-at", "data-site")
+        if not site:
+            sys.exit("picking a map point left no data-site on #pick-at")
+        x, y = (float(v) for v in site.split())
+        dx, dy = to_drawing(before, x, y)
+        page.fill("#draw-x", f"{dx + 0.1:.3f}")
+        page.fill("#draw-y", f"{dy - 0.1:.3f}")
+        page.click("#add-pair")
+    if page.locator("#pairs li").count() != 2:
+        sys.exit("the two pairs are not listed")
+    page.screenshot(path=screenshot)
+    page.click("#align-pairs")
+    until(
+        "the page to show the alignment from the pairs",
+        30,
+        lambda: page.get_attribute("#building", "data-method") == "pairs+lines",
+    )
+    return ask(sock, {"cmd": "poses"})["building_from_site"]
+
+
 def until(what, seconds, check):
     end = time.monotonic() + seconds
     last = None
@@ -142,7 +196,7 @@ def main():
         before = until("the page to show every placed sensor as `poses` has it", 60, same)
         time.sleep(1.0)  # a map and a status round more, for the picture
         page.screenshot(path=args.screenshot.replace(".png", "-before.png"))
-        drawing = None
+        drawing = page_align = None
         if args.drawing:
             until(
                 "the page to draw the building drawing (data-drawing)",
@@ -150,6 +204,9 @@ def main():
                 lambda: page.get_attribute("canvas", "data-drawing"),
             )
             drawing = drawing_fit(page)
+            page_align = align_by_pairs(
+                page, args.socket, args.screenshot.replace(".png", "-pairs.png")
+            )
         anchor = ask(args.socket, {"cmd": "poses"})["anchor"]
         sensor = next(sid for sid in sorted(before) if sid != anchor)
 
@@ -203,6 +260,7 @@ def main():
                     "drawing_segments": drawing and drawing[0],
                     "drawing_median_px": drawing and drawing[1],
                     "drawing_points": drawing and drawing[2],
+                    "page_align": page_align,
                 }
             )
         )
