@@ -35,6 +35,9 @@ pub struct ScoreOptions {
     pub radius_m: f64,
     /// Sensor poses to track with (site frame, by id); absent ones use the truth.
     pub poses: BTreeMap<String, Pose2>,
+    /// Sensors not placed (registration left them out): they feed the tracker nothing, and
+    /// the people only they see are missed.
+    pub unplaced: std::collections::BTreeSet<String>,
     /// This sensor stops sending at this time (s): a unit unplugged mid-run.
     pub drop_sensor: Option<(String, f64)>,
     /// Counting lines: crossings (after `warmup_s`) counted from the tracks and from the truth.
@@ -54,6 +57,7 @@ impl Default for ScoreOptions {
             warmup_s: 1.0,
             radius_m: 0.5,
             poses: BTreeMap::new(),
+            unplaced: std::collections::BTreeSet::new(),
             drop_sensor: None,
             lines: Vec::new(),
             zones: Vec::new(),
@@ -388,6 +392,9 @@ pub fn score_plan(
     let poses: Vec<Option<Pose2>> = infos
         .iter()
         .map(|i| {
+            if o.unplaced.contains(&i.id) {
+                return None;
+            }
             o.poses
                 .get(&i.id)
                 .copied()

@@ -69,7 +69,7 @@ fn simulate_prepared(
 }
 
 /// The true site pose of sensor `id`.
-fn truth_of(infos: &[SensorInfo], id: &str) -> Option<Pose2> {
+pub(super) fn truth_of(infos: &[SensorInfo], id: &str) -> Option<Pose2> {
     infos
         .iter()
         .find(|i| i.id == id)
@@ -77,31 +77,57 @@ fn truth_of(infos: &[SensorInfo], id: &str) -> Option<Pose2> {
         .map(|t| pose2(t.x_m, t.y_m, t.yaw_deg.to_radians()))
 }
 
-/// Registers `plan` as `register` would; what it placed, against the truth.
-fn register_plan(plan: &Plan, seed: u64, params: &RegisterParams) -> Result<Tally> {
+/// `plan` registered as `register` would after [`SECONDS`] of its crowd, anchored at its
+/// first sensor: each sensor's id and placed pose, carried into the plan's frame through the
+/// anchor's truth (`None`: not placed); the sensors' infos; how long registering took (ms).
+pub(super) type Registered = (Vec<SensorInfo>, Vec<(String, Option<Pose2>)>, u128);
+
+pub(super) fn register_in_plan(
+    plan: &Plan,
+    seed: u64,
+    params: &RegisterParams,
+) -> Result<Registered> {
     let started = Instant::now();
     let (infos, inputs) = simulate_prepared(plan, seed, params)?;
     let site = register_site(&inputs, 0, params, &SiteParams::default());
     let ms = started.elapsed().as_millis();
-    let truth = |id: &str| truth_of(&infos, id);
     let anchor = inputs
         .first()
-        .and_then(|s| truth(&s.id))
+        .and_then(|s| truth_of(&infos, &s.id))
         .context("the anchor has no truth")?;
-    let (mut placed, mut right, mut wrong) = (0, 0, 0);
-    for s in &site.sensors {
-        let (Ok(p), Some(t)) = (&s.pose, truth(&s.id)) else {
+    let placed = site
+        .sensors
+        .iter()
+        .map(|s| {
+            let pose = s.pose.as_ref().ok().map(|p| anchor * p.pose.planar());
+            (s.id.clone(), pose)
+        })
+        .collect();
+    Ok((infos, placed, ms))
+}
+
+/// Registers `plan` as `register` would; what it placed, against the truth.
+fn register_plan(plan: &Plan, seed: u64, params: &RegisterParams) -> Result<Tally> {
+    let (infos, placed, ms) = register_in_plan(plan, seed, params)?;
+    let (mut n, mut right, mut wrong) = (0, 0, 0);
+    for (id, pose) in &placed {
+        let (Some(p), Some(t)) = (pose, truth_of(&infos, id)) else {
             continue;
         };
-        placed += 1;
-        let (dt, dyaw) = pose_error(&p.pose.planar(), &(anchor.inverse() * t));
-        if dt <= TOL_M && dyaw.to_degrees() <= TOL_DEG {
+        n += 1;
+        if is_right(p, &t) {
             right += 1;
         } else {
             wrong += 1;
         }
     }
-    Ok((placed, right, wrong, infos.len(), ms))
+    Ok((n, right, wrong, infos.len(), ms))
+}
+
+/// Within 10 cm / 1° of the truth.
+pub(super) fn is_right(pose: &Pose2, truth: &Pose2) -> bool {
+    let (dt, dyaw) = pose_error(pose, truth);
+    dt <= TOL_M && dyaw.to_degrees() <= TOL_DEG
 }
 
 /// One plan's pairs with little shared view: how many, right, wrong, abstained, and the
@@ -140,11 +166,11 @@ fn little_view_pairs(plan: &Plan, seed: u64, params: &RegisterParams) -> Result<
             let r = register_pair(&a.model, &b.model, params);
             match &r.verdict {
                 Ok(()) => {
-                    let (dt, dyaw) = pose_error(&r.a_from_b, &truth);
-                    if dt <= TOL_M && dyaw.to_degrees() <= TOL_DEG {
+                    if is_right(&r.a_from_b, &truth) {
                         out.right += 1;
                     } else {
                         out.wrong += 1;
+                        let (dt, dyaw) = pose_error(&r.a_from_b, &truth);
                         let fit = r.walkers.as_ref();
                         println!(
                             "  wrong: {} seed {seed} {}–{}: {:.0} cm {:.1}° off, evidence {}, walks {} against {}, sightings {} against {}",
