@@ -30,20 +30,21 @@ pub(super) fn second_opinion(
     sp: &SiteParams,
     memo: &ScoreMemo,
 ) -> Vec<(usize, Refusal)> {
+    let reach_m = super::reach_m(sensors);
+    // What every opinion is weighed against but the placed sensors (filled in per sensor).
+    let base = JoinContext {
+        sensors,
+        placed: Vec::new(),
+        pairs,
+        results,
+        p,
+        sp,
+        reach_m: &reach_m,
+        memo: Some(memo),
+    };
     let mut withdrawn = Vec::new();
     for _ in 0..MAX_PASSES {
-        let changed = one_pass(
-            placed,
-            anchor,
-            sensors,
-            pairs,
-            results,
-            p,
-            sp,
-            memo,
-            &mut withdrawn,
-        );
-        if !changed {
+        if !one_pass(placed, anchor, &base, &mut withdrawn) {
             break;
         }
     }
@@ -54,40 +55,28 @@ pub(super) fn second_opinion(
 const MAX_PASSES: usize = 4;
 
 /// One pass over every placed sensor; whether any moved or was withdrawn.
-#[allow(clippy::too_many_arguments)]
 fn one_pass(
     placed: &mut [Option<Pose2>],
     anchor: usize,
-    sensors: &[SensorInput],
-    pairs: &[(usize, usize)],
-    results: &[PairResult],
-    p: &RegisterParams,
-    sp: &SiteParams,
-    memo: &ScoreMemo,
+    base: &JoinContext<'_>,
     withdrawn: &mut Vec<(usize, Refusal)>,
 ) -> bool {
+    let (sensors, p, sp) = (base.sensors, base.p, base.sp);
     let mut changed = false;
     // The anchor first: were it wrong, every other opinion would be taken in its wrong frame.
-    let reach_m = super::reach_m(sensors);
     let order = std::iter::once(anchor).chain((0..placed.len()).filter(|&k| k != anchor));
     for k in order {
         let Some(current) = placed.get(k).copied().flatten() else {
             continue;
         };
         let ctx = JoinContext {
-            sensors,
             placed: placed
                 .iter()
                 .enumerate()
                 .filter(|(i, _)| *i != k)
                 .filter_map(|(i, pose)| pose.map(|pose| (i, pose)))
                 .collect(),
-            pairs,
-            results,
-            p,
-            sp,
-            reach_m: &reach_m,
-            memo: Some(memo),
+            ..*base
         };
         // Only a pair that could carry a placement alone may overrule (as in `weigh`): where
         // every such pair agrees with the current place, there is nothing to weigh.
