@@ -104,6 +104,7 @@ fn site(plan: &str, seconds: f64) -> Result<(usize, usize, usize), Error> {
                 mount: info.mount(),
                 survey: None,
                 pose: None,
+                sigma: None,
             },
             0,
         );

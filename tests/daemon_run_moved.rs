@@ -65,6 +65,7 @@ fn registrar_with(rec: &Recording, anchor: &str, config: &RegistrationConfig) ->
                 mount: info.mount(),
                 survey: None,
                 pose: None,
+                sigma: None,
             },
             0,
         );

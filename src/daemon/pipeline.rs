@@ -101,6 +101,11 @@ pub struct PoseEntry {
 }
 
 impl PoseEntry {
+    /// σ of x, y and yaw, when it has all three.
+    pub fn sigma(&self) -> Option<[f64; 3]> {
+        Some([self.sigma_x_m?, self.sigma_y_m?, self.sigma_yaw_rad?])
+    }
+
     /// The socket/file form.
     pub fn to_sensor_pose(&self, id: &str, now: SystemTime) -> SensorPose {
         let p = &self.site_from_sensor;
@@ -441,6 +446,7 @@ impl Pipeline {
             inner.poses.insert(id.clone(), entry);
         }
         let pose = inner.poses.get(&id).map(|p| p.site_from_sensor);
+        let sigma = inner.poses.get(&id).and_then(PoseEntry::sigma);
         if pose.is_none()
             && let Some(survey) = &spec.survey
         {
@@ -453,6 +459,7 @@ impl Pipeline {
             mount: spec.mount,
             survey: by_hand.or(spec.survey),
             pose,
+            sigma,
         });
         if by_hand.is_some() {
             let _ = self.commands.send(Command::Survey {

@@ -3,7 +3,9 @@
 //! needs a pose has a static view (people removed by the per-beam median), runs the site
 //! registration and hands the poses to the pipeline, which saves them. A sensor found moved
 //! is first refined locally from its old pose ([`super::local_refine`]); the global search
-//! runs only when that fit is not clearly good.
+//! runs only when that fit is not clearly good. One sensor appearing on a placed site is
+//! placed against its neighbours alone (`add_one`), the site registration running only when
+//! that refuses.
 //!
 //! Every timer here (the static view, a move that lasts, the wait for a silent sensor, retries)
 //! runs on the scans' own clock, taken in stamp order: in a replay that is the recordings'
@@ -34,6 +36,8 @@ use crate::register::site::{
 };
 use crate::register::{RegisterParams, ScanModel};
 use crate::scan::{Scan, ScanGeometry};
+
+mod add_one;
 
 /// When some sensor never streams, the others register without it after this long.
 pub const WAIT_FOR_ALL_S: f64 = 10.0;
@@ -68,6 +72,8 @@ pub enum Command {
         mount: Mount,
         survey: Option<Survey>,
         pose: Option<Pose3>,
+        /// σ (x, y, yaw) of `pose`, where `poses.toml` has it.
+        sigma: Option<[f64; 3]>,
     },
     Remove(String),
     /// Register `id` again from scans received after `after_ns`.
@@ -112,6 +118,9 @@ pub enum Method {
     Local,
     /// The site registration (global search).
     Global,
+    /// Placed against its neighbours on a placed site, whose poses stand
+    /// ([`crate::register::site::add_sensor`]).
+    Added,
 }
 
 #[derive(Debug)]
@@ -123,6 +132,8 @@ struct Track {
     need: Need,
     /// The pose it has (from the pipeline at start, then from each registration).
     pose: Option<Pose3>,
+    /// σ (x, y, yaw) of `pose`, where known: a sensor added next to it inherits it.
+    sigma: Option<[f64; 3]>,
     /// Its static view once posed: the scans are compared with it beam by beam (moved-sensor
     /// detection), and a moved neighbour is aligned against it.
     background: Option<Scan>,
@@ -213,6 +224,16 @@ pub struct Moved {
 }
 
 impl Track {
+    /// Takes a pose found for it: it needs nothing, and its retries start afresh.
+    fn take(&mut self, entry: &PoseEntry) {
+        self.need = Need::Nothing;
+        self.pose = Some(entry.site_from_sensor);
+        self.sigma = entry.sigma();
+        self.caveat = entry.caveat.clone();
+        self.failures = 0;
+        self.retry_at_ns = 0;
+    }
+
     /// Its static view for registration and its scans of people walking: through a crowd
     /// (per beam, what keeps coming back) once the motion buffer holds enough scans for that to
     /// mean something, the median of the last `window_s` before.
@@ -341,6 +362,7 @@ impl Registrar {
                 mount,
                 survey,
                 pose,
+                sigma,
             } => {
                 let need = if pose.is_some() {
                     Need::Nothing
@@ -360,6 +382,7 @@ impl Registrar {
                         scans: VecDeque::new(),
                         need,
                         pose,
+                        sigma: pose.and(sigma),
                         background: None,
                         background_model: None,
                         local_refused: None,
@@ -391,6 +414,7 @@ impl Registrar {
                 match pinned {
                     Some(pose) => {
                         t.pose = Some(pose);
+                        t.sigma = survey.map(|s| [s.sigma_xy_m, s.sigma_xy_m, s.sigma_yaw_rad]);
                         t.need = Need::Nothing;
                     }
                     None => t.need = again,
@@ -605,6 +629,7 @@ impl Registrar {
                             refine_from: None,
                         };
                         t.pose = None;
+                        t.sigma = None;
                         t.caveat = None;
                         t.failures = 1;
                         t.retry_at_ns = now_ns + (RECHECK_S * 1e9) as u64;
@@ -809,6 +834,7 @@ impl Registrar {
                     let pose = Pose3::from_planar(&fit.site_from_sensor, old.z_m, old.pitch_rad);
                     track.need = Need::Nothing;
                     track.pose = Some(pose);
+                    track.sigma = Some([fit.sigma_x_m, fit.sigma_y_m, fit.sigma_yaw_rad]);
                     outcomes.push(Outcome {
                         id,
                         pose: Ok(PoseEntry {
@@ -844,7 +870,8 @@ impl Registrar {
         outcomes
     }
 
-    /// The site registration of every ready sensor; outcomes for the pending ones.
+    /// The site registration of every ready sensor (or, when one sensor appeared on a placed
+    /// site, its placement against its neighbours); outcomes for the pending ones.
     fn register_globally(&mut self, now_ns: u64, now: SystemTime) -> Vec<Outcome> {
         let window_s = self.window_s;
         let ready: Vec<(&String, &Track)> = self
@@ -873,6 +900,9 @@ impl Registrar {
         let Some(anchor) = inputs.iter().position(|s| s.id == self.anchor) else {
             return Vec::new();
         };
+        if let Some(added) = self.add_newcomer(&inputs, anchor, now) {
+            return vec![added];
+        }
         let site = register_site(&inputs, anchor, &self.params, &self.site_params);
         let hints: BTreeMap<String, String> = if self.motion_s > 0.0 {
             (0..site.sensors.len())
@@ -919,13 +949,7 @@ impl Registrar {
             };
             let mut retry_in_s = None;
             match &pose {
-                Ok(entry) => {
-                    track.need = Need::Nothing;
-                    track.pose = Some(entry.site_from_sensor);
-                    track.caveat = entry.caveat.clone();
-                    track.failures = 0;
-                    track.retry_at_ns = 0;
-                }
+                Ok(entry) => track.take(entry),
                 Err(_) if self.motion_s > 0.0 => {
                     // The scans it has stay: the walkers gathered so far count next time.
                     track.failures += 1;
@@ -1169,6 +1193,9 @@ fn publish(pipeline: &Pipeline, outcomes: Vec<Outcome>, retrying: bool) {
                         format!("; global search, as local refinement was refused: {why}")
                     }
                     (Method::Global, None) => String::new(),
+                    (Method::Added, _) => {
+                        "; added to the placed site from its neighbours' views".to_string()
+                    }
                 };
                 let caveat = entry
                     .caveat
@@ -1237,6 +1264,7 @@ mod tests {
                 },
                 survey: None,
                 pose: posed.then(|| Pose3::from_planar(&pose2(0.0, 0.0, 0.0), 0.0, 0.0)),
+                sigma: None,
             },
             0,
         );
@@ -1497,30 +1525,49 @@ group_share = 0.0
 
     /// What the worker reported, by stream time (s from the start).
     #[derive(Default)]
-    struct Seen {
-        outcomes: Vec<(f64, Outcome)>,
-        verdicts: Vec<(f64, Verdict)>,
+    pub(super) struct Seen {
+        pub(super) outcomes: Vec<(f64, Outcome)>,
+        pub(super) verdicts: Vec<(f64, Verdict)>,
+        /// Compute time of each registration (s).
+        pub(super) register_s: Vec<f64>,
     }
 
     /// Feeds `seconds` of the twin room to a registrar holding `a` (the anchor, placed) and
     /// `b` (placed at `b_pose`, or pending), as the worker does.
     fn run(b_pose: Option<Pose2>, seconds: f64) -> (Registrar, Seen) {
         let plan = Plan::from_toml(TWIN, "twin").expect("plan");
-        let mut sim = Simulation::new(&plan, 3).expect("simulates");
-        let infos = sim.sensors().to_vec();
-        let mut r = Registrar::new("a", &RegistrationConfig::default());
-        let mount = Mount {
-            height_m: Some(1.0),
-            pitch_rad: 0.0,
-        };
-        let placed = |p: Pose2| Pose3::from_planar(&p, 1.0, 0.0);
         // The anchor's frame is the site's.
-        for (id, pose) in [("a", Some(pose2(0.0, 0.0, 0.0))), ("b", b_pose)] {
+        simulate(
+            &plan,
+            &[("a", Some(pose2(0.0, 0.0, 0.0))), ("b", b_pose)],
+            seconds,
+        )
+    }
+
+    /// Feeds `seconds` of `plan` to a registrar holding `sensors` (the first the anchor), each
+    /// placed at its site pose or pending, as the worker does; the plan's other sensors are
+    /// not the registrar's.
+    pub(super) fn simulate(
+        plan: &Plan,
+        sensors: &[(&str, Option<Pose2>)],
+        seconds: f64,
+    ) -> (Registrar, Seen) {
+        let mut sim = Simulation::new(plan, 3).expect("simulates");
+        let infos = sim.sensors().to_vec();
+        let anchor = sensors.first().map_or("", |s| s.0);
+        let mut r = Registrar::new(anchor, &RegistrationConfig::default());
+        for &(id, pose) in sensors {
+            let mount = infos
+                .iter()
+                .find(|i| i.id == id)
+                .expect("in the plan")
+                .mount();
             let command = Command::Add {
                 id: id.into(),
                 mount,
                 survey: None,
-                pose: pose.map(placed),
+                pose: pose.map(|p| Pose3::from_planar(&p, mount.height_m.unwrap_or(0.0), 0.0)),
+                sigma: None,
             };
             r.command(command, 0);
         }
@@ -1536,7 +1583,9 @@ group_share = 0.0
             let now = r.stream_ns();
             let t_s = now.saturating_sub(start) as f64 * 1e-9;
             if r.due(now) {
+                let started = std::time::Instant::now();
                 let outcomes = r.register(now, SystemTime::now());
+                seen.register_s.push(started.elapsed().as_secs_f64());
                 seen.outcomes.extend(outcomes.into_iter().map(|o| (t_s, o)));
             }
             if r.check_due(now) {

@@ -356,6 +356,16 @@ fn added(
         .iter()
         .map(|s| s.pose.as_ref().ok().map(|p| p.pose.planar()))
         .collect();
+    let sigma: Vec<[f64; 3]> = site
+        .sensors
+        .iter()
+        .map(|s| {
+            s.pose
+                .as_ref()
+                .ok()
+                .map_or([0.0; 3], |p| [p.sigma_x_m, p.sigma_y_m, p.sigma_yaw_rad])
+        })
+        .collect();
     let candidates: Vec<usize> = (0..placed.len())
         .filter(|&k| k != site.anchor && placed[k].is_some())
         .collect();
@@ -368,7 +378,7 @@ fn added(
     let mut refused = Vec::new();
     for &k in candidates.iter().step_by(step) {
         let t0 = Instant::now();
-        let a = add_sensor(inputs, &placed, k, params, sp);
+        let a = add_sensor(inputs, &placed, &sigma, k, params, sp);
         ms.push(t0.elapsed().as_secs_f64() * 1e3);
         pairs.push(a.pairs.len());
         others = others.max(a.placed);

@@ -7,10 +7,13 @@
 //! the rivals a look-alike place would meet): it stands once there is none left to register.
 //! Every placed scan within reach weighs in each joint score either way. Refused, the next
 //! partners in the ranking are tried (twice as many each time), down to every placed sensor.
+//! Where it stands then, and how surely, comes from the pairs that agree with it (`settle`).
 
 use super::descriptor::ViewDescriptor;
 use super::join::JoinContext;
 use super::memo::ScoreMemo;
+use super::report::{caveat, evidence};
+use super::settle::settle;
 use super::{SensorInput, SiteParams};
 use crate::geometry::Pose2;
 use crate::register::model::shared_view;
@@ -26,6 +29,13 @@ const FIRST_PARTNERS: usize = 8;
 pub struct AddedSensor {
     /// Its pose in the anchor's frame, or why it cannot be placed.
     pub pose: Result<Pose2, String>,
+    /// σ of its x, y (anchor frame) and yaw: from the pairs it rests on and their partners' σ.
+    /// Zero when refused.
+    pub sigma: [f64; 3],
+    /// What to check of it, as the site registration says it (`Placement::caveat`).
+    pub caveat: Option<String>,
+    /// What placed it, in the pairs' vocabulary (`SiteResult::evidence`); None when refused.
+    pub evidence: Option<&'static str>,
     /// The pairs registered (a < b), with their results.
     pub pairs: Vec<((usize, usize), PairResult)>,
     /// Placed sensors it could have been registered against.
@@ -33,10 +43,12 @@ pub struct AddedSensor {
 }
 
 /// Places `sensors[new]` against the others at `placed` (anchor-frame poses; `None` for one
-/// not placed, which is left out). `placed[new]` is ignored.
+/// not placed, which is left out), whose σ (x, y, yaw) are `sigma` (missing: exact).
+/// `placed[new]` is ignored.
 pub fn add_sensor(
     sensors: &[SensorInput],
     placed: &[Option<Pose2>],
+    sigma: &[[f64; 3]],
     new: usize,
     p: &RegisterParams,
     sp: &SiteParams,
@@ -48,11 +60,11 @@ pub fn add_sensor(
         .filter_map(|(i, pose)| pose.map(|pose| (i, pose)))
         .collect();
     let Some(newcomer) = sensors.get(new) else {
-        return AddedSensor {
-            pose: Err(format!("no sensor {new} among {}", sensors.len())),
-            pairs: Vec::new(),
-            placed: others.len(),
-        };
+        return AddedSensor::refused(
+            format!("no sensor {new} among {}", sensors.len()),
+            Vec::new(),
+            others.len(),
+        );
     };
     let mine = ViewDescriptor::of(&newcomer.model);
     let mut ranked: Vec<(f64, usize)> = others
@@ -130,18 +142,71 @@ pub fn add_sensor(
                 .map(|&(i, _)| i)
                 .collect();
             if unchecked.is_empty() {
-                return AddedSensor {
-                    pose: Ok(at),
-                    pairs: results.into_iter().collect(),
-                    placed: others.len(),
-                };
+                let pairs: Vec<((usize, usize), PairResult)> = results.into_iter().collect();
+                return settled(
+                    sensors,
+                    &others,
+                    sigma,
+                    new,
+                    &at,
+                    pairs,
+                    &join.sources,
+                    p,
+                    sp,
+                );
             }
             register(&unchecked, &mut results);
         }
     }
+    AddedSensor::refused(why, results.into_iter().collect(), others.len())
+}
+
+impl AddedSensor {
+    fn refused(why: String, pairs: Vec<((usize, usize), PairResult)>, placed: usize) -> Self {
+        AddedSensor {
+            pose: Err(why),
+            sigma: [0.0; 3],
+            caveat: None,
+            evidence: None,
+            pairs,
+            placed,
+        }
+    }
+}
+
+/// The added sensor joined at `at` by the join's `proposed` (pair, candidate)s, settled on its
+/// agreeing pairs, with its caveat and evidence from them.
+#[allow(clippy::too_many_arguments)] // add_sensor's inputs and the join's outcome
+fn settled(
+    sensors: &[SensorInput],
+    others: &[(usize, Pose2)],
+    sigma: &[[f64; 3]],
+    new: usize,
+    at: &Pose2,
+    pairs: Vec<((usize, usize), PairResult)>,
+    proposed: &[(usize, usize)],
+    p: &RegisterParams,
+    sp: &SiteParams,
+) -> AddedSensor {
+    let placed: Vec<(usize, Pose2, [f64; 3])> = others
+        .iter()
+        .map(|&(i, pose)| (i, pose, sigma.get(i).copied().unwrap_or([0.0; 3])))
+        .collect();
+    let Some(s) = settle(new, at, &placed, &pairs, proposed, p, sp) else {
+        let why = "no pair agrees with where its view fits the placed sensors".to_string();
+        return AddedSensor::refused(why, pairs, others.len());
+    };
+    let used: Vec<((usize, usize), &PairResult)> = s
+        .used
+        .iter()
+        .filter_map(|&k| pairs.get(k).map(|(key, r)| (*key, r)))
+        .collect();
     AddedSensor {
-        pose: Err(why),
-        pairs: results.into_iter().collect(),
+        pose: Ok(s.pose),
+        sigma: s.sigma,
+        caveat: caveat(sensors, new, false, &used, sp),
+        evidence: Some(evidence(used.iter().map(|&(_, r)| r))),
         placed: others.len(),
+        pairs,
     }
 }

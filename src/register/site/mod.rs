@@ -4,7 +4,8 @@
 //! everything placed; `second_opinion` re-weighs every placement alone; `solve` is the joint
 //! weighted least squares; `check` drops placements that contradict another's free space;
 //! `report` says where each sensor stands or why it does not. This file owns the types and
-//! the order of the stages. `add` places one sensor added to a placed site.
+//! the order of the stages. `add` places one sensor added to a placed site, and `settle` says
+//! where it stands and how surely.
 
 mod add;
 mod check;
@@ -15,6 +16,7 @@ mod memo;
 mod pairs;
 mod report;
 mod second_opinion;
+mod settle;
 mod solve;
 #[cfg(test)]
 mod tests;

@@ -26,60 +26,21 @@ pub(super) fn site_result(
     } = solved;
     let anchor_pitch = sensors.get(anchor).map_or(0.0, |s| s.mount.pitch_rad);
     let id = |k: usize| sensors.get(k).map_or("another sensor", |s| s.id.as_str());
-    let caveat = |i: usize| {
-        let mut partners: Vec<usize> = origin
+    let caveat_of = |i: usize| {
+        let used: Vec<((usize, usize), &PairResult)> = origin
             .iter()
-            .filter_map(|&(k, _)| match pairs.get(k) {
-                Some(&(a, b)) if a == i => Some(b),
-                Some(&(a, b)) if b == i => Some(a),
-                _ => None,
-            })
+            .filter_map(|&(k, _)| Some((*pairs.get(k)?, results.get(k)?)))
+            .filter(|&((a, b), _)| a == i || b == i)
             .collect();
-        partners.sort_unstable();
-        partners.dedup();
         let surveyed = sensors.get(i).is_some_and(|s| s.prior.is_some());
-        // Where no one walked in any view it rests on, the walls alone decided.
-        let nobody_walked = origin
-            .iter()
-            .filter(|&&(k, _)| pairs.get(k).is_some_and(|&(a, b)| a == i || b == i))
-            .map(|&(k, _)| results.get(k).and_then(|r| r.nobody_walked_s))
-            .collect::<Option<Vec<f64>>>()
-            .and_then(|w| w.into_iter().reduce(f64::min));
-        let unconfirmed = (i != anchor && !surveyed)
-            .then_some(nobody_walked)
-            .flatten()
-            .map(|watched_s| {
-                format!(
-                    "{UNCONFIRMED}: no one walked in {watched_s:.0} s, so the walls alone placed \
-                     it; walk through its shared views while recording to confirm it"
-                )
-            });
-        let thin = (i != anchor && !surveyed && partners.len() < sp.confirming_pairs).then(|| {
-            let with: Vec<&str> = partners.iter().map(|&k| id(k)).collect();
-            format!(
-                "rests on {} only ({}): where rooms or bays repeat that can be a look-alike \
-                 spot; check it on the map, or survey it",
-                match partners.len() {
-                    1 => "one pair".to_string(),
-                    n => format!("{n} pairs"),
-                },
-                match with.as_slice() {
-                    [] => "no pair".to_string(),
-                    _ => format!("with {}", with.join(", ")),
-                }
-            )
-        });
-        match (thin, unconfirmed) {
-            (Some(t), Some(u)) => Some(format!("{t}; it {u}")),
-            (t, u) => t.or(u),
-        }
+        caveat(sensors, i, i == anchor || surveyed, &used, sp)
     };
     let placements = sensors
         .iter()
         .enumerate()
         .map(|(i, s)| Placement {
             id: s.id.clone(),
-            caveat: solution.get(i).copied().flatten().and_then(|_| caveat(i)),
+            caveat: solution.get(i).copied().flatten().and_then(|_| caveat_of(i)),
             pose: match solution.get(i).copied().flatten() {
                 Some((pose, sigma)) => Ok(PlacedPose {
                     pose: Pose3::from_planar(
@@ -173,16 +134,83 @@ impl SiteResult {
         if !placed || i == self.anchor {
             return None;
         }
-        let mut kinds = self
-            .pairs
-            .iter()
-            .filter(|p| p.used && (p.a == i || p.b == i))
-            .map(|p| crate::register::walkers::evidence(p.result.walkers.as_ref()));
-        let first = kinds.next().unwrap_or("walls");
-        Some(if kinds.all(|k| k == first) {
-            first
-        } else {
-            "walls+walkers"
+        Some(evidence(
+            self.pairs
+                .iter()
+                .filter(|p| p.used && (p.a == i || p.b == i))
+                .map(|p| &p.result),
+        ))
+    }
+}
+
+/// What placed a sensor, from the pairs that placed it ([`SiteResult::evidence`]).
+pub(super) fn evidence<'a>(used: impl IntoIterator<Item = &'a PairResult>) -> &'static str {
+    let mut kinds = used
+        .into_iter()
+        .map(|r| crate::register::walkers::evidence(r.walkers.as_ref()));
+    let first = kinds.next().unwrap_or("walls");
+    if kinds.all(|k| k == first) {
+        first
+    } else {
+        "walls+walkers"
+    }
+}
+
+/// What to check of sensor `i`, placed on the `used` pairs (each with its result): that it
+/// rests on too few pairs, and that nobody walked in any view it rests on (the walls alone
+/// decided). None for an `exempt` sensor (the anchor, a surveyed one: only the latter part
+/// could apply, and a survey confirms it).
+pub(super) fn caveat(
+    sensors: &[SensorInput],
+    i: usize,
+    exempt: bool,
+    used: &[((usize, usize), &PairResult)],
+    sp: &SiteParams,
+) -> Option<String> {
+    if exempt {
+        return None;
+    }
+    let id = |k: usize| sensors.get(k).map_or("another sensor", |s| s.id.as_str());
+    let mut partners: Vec<usize> = used
+        .iter()
+        .filter_map(|&((a, b), _)| match (a == i, b == i) {
+            (true, _) => Some(b),
+            (_, true) => Some(a),
+            _ => None,
         })
+        .collect();
+    partners.sort_unstable();
+    partners.dedup();
+    // Where no one walked in any view it rests on, the walls alone decided.
+    let nobody_walked = used
+        .iter()
+        .filter(|&&((a, b), _)| a == i || b == i)
+        .map(|(_, r)| r.nobody_walked_s)
+        .collect::<Option<Vec<f64>>>()
+        .and_then(|w| w.into_iter().reduce(f64::min));
+    let unconfirmed = nobody_walked.map(|watched_s| {
+        format!(
+            "{UNCONFIRMED}: no one walked in {watched_s:.0} s, so the walls alone placed \
+             it; walk through its shared views while recording to confirm it"
+        )
+    });
+    let thin = (partners.len() < sp.confirming_pairs).then(|| {
+        let with: Vec<&str> = partners.iter().map(|&k| id(k)).collect();
+        format!(
+            "rests on {} only ({}): where rooms or bays repeat that can be a look-alike \
+             spot; check it on the map, or survey it",
+            match partners.len() {
+                1 => "one pair".to_string(),
+                n => format!("{n} pairs"),
+            },
+            match with.as_slice() {
+                [] => "no pair".to_string(),
+                _ => format!("with {}", with.join(", ")),
+            }
+        )
+    });
+    match (thin, unconfirmed) {
+        (Some(t), Some(u)) => Some(format!("{t}; it {u}")),
+        (t, u) => t.or(u),
     }
 }

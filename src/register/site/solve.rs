@@ -42,15 +42,14 @@ pub(super) fn solve_edges(
         if origin.iter().any(|o| o.0 == k) {
             continue;
         }
-        let predicted = pa.inverse() * pb;
-        let agreeing = r.candidates.iter().enumerate().find(|(ci, c)| {
-            let (dt, dyaw) = pose_error(&c.a_from_b, &predicted);
-            dt <= sp.confirm_m
-                && dyaw <= sp.confirm_rad
-                && c.score.violation() <= p.max_violation
-                && (c.score.overlap() >= p.min_overlap || join_sources.contains(&(k, *ci)))
-        });
-        if let Some((ci, _)) = agreeing
+        let agreeing = agreeing_candidate(
+            r,
+            &(pa.inverse() * pb),
+            |ci| join_sources.contains(&(k, ci)),
+            p,
+            sp,
+        );
+        if let Some(ci) = agreeing
             && let Some(edge) = candidate_edge((a, b), r, ci)
         {
             edges.push(edge);
@@ -58,6 +57,25 @@ pub(super) fn solve_edges(
         }
     }
     (edges, origin)
+}
+
+/// The first of `r`'s candidates that agrees with where the site puts B in A's frame
+/// (`predicted`), fits without contradiction and shares enough view to carry information (or
+/// is one of the join's own proposals, `proposed`).
+pub(super) fn agreeing_candidate(
+    r: &PairResult,
+    predicted: &Pose2,
+    proposed: impl Fn(usize) -> bool,
+    p: &RegisterParams,
+    sp: &SiteParams,
+) -> Option<usize> {
+    r.candidates.iter().enumerate().position(|(ci, c)| {
+        let (dt, dyaw) = pose_error(&c.a_from_b, predicted);
+        dt <= sp.confirm_m
+            && dyaw <= sp.confirm_rad
+            && c.score.violation() <= p.max_violation
+            && (c.score.overlap() >= p.min_overlap || proposed(ci))
+    })
 }
 
 /// Residual of an edge: the measured pose's error, expressed like the pair covariance
@@ -68,12 +86,19 @@ fn edge_residual(pa: &Pose2, pb: &Pose2, z: &Pose2) -> [f64; 3] {
 }
 
 fn information(cov: &Matrix3<f64>, sp: &SiteParams) -> Matrix3<f64> {
+    floored(cov, sp)
+        .try_inverse()
+        .unwrap_or_else(Matrix3::zeros)
+}
+
+/// An edge's covariance with the σ floor added (`SiteParams::min_sigma_m`).
+pub(super) fn floored(cov: &Matrix3<f64>, sp: &SiteParams) -> Matrix3<f64> {
     let mut c = *cov;
     for k in 0..2 {
         c[(k, k)] += sp.min_sigma_m * sp.min_sigma_m;
     }
     c[(2, 2)] += sp.min_sigma_rad * sp.min_sigma_rad;
-    c.try_inverse().unwrap_or_else(Matrix3::zeros)
+    c
 }
 
 /// Joint weighted least squares (Gauss–Newton, numeric Jacobians) over all sensors reachable

@@ -730,10 +730,28 @@ fn a_sensor_added_to_a_placed_site_lands_at_its_truth_from_its_neighbours_alone(
         partners: 1,
         ..SiteParams::default()
     };
-    let added = add_sensor(&sensors, &placed, 4, &p, &sp);
+    let added = add_sensor(&sensors, &placed, &[], 4, &p, &sp);
     let at = added.pose.expect("the hall sensor is placed");
     let (dt, dyaw) = pose_error(&at, &(truth[0].inverse() * truth[4]));
     assert!(dt < 0.05 && dyaw < 0.5f64.to_radians(), "{dt} m {dyaw} rad");
+    // Its σ comes from the pairs that placed it: above the solve's floor shared among them,
+    // and well within what it is off by (a few cm); the walls alone placed it, on enough pairs.
+    let [sx, sy, syaw] = added.sigma;
+    assert!(sx > 0.001 && sy > 0.001 && syaw > 0.0, "{:?}", added.sigma);
+    assert!(
+        sx < 0.05 && sy < 0.05 && syaw < 1f64.to_radians(),
+        "{:?}",
+        added.sigma
+    );
+    assert_eq!(added.evidence, Some("walls"));
+    // Partners placed less surely make it less sure.
+    let unsure = add_sensor(&sensors, &placed, &[[0.1, 0.1, 0.02]; 4], 4, &p, &sp);
+    assert!(
+        unsure.sigma[0] > sx + 0.02,
+        "{:?} vs {:?}",
+        unsure.sigma,
+        added.sigma
+    );
     assert_eq!(added.placed, 4);
     // Its hall neighbours only: the sensor in the far room was never tried.
     let keys: Vec<(usize, usize)> = added.pairs.iter().map(|(k, _)| *k).collect();
@@ -743,7 +761,7 @@ fn a_sensor_added_to_a_placed_site_lands_at_its_truth_from_its_neighbours_alone(
     // refused, with a reason, after trying every placed one.
     let mut without_s3 = placed.clone();
     without_s3[3] = None;
-    let far = add_sensor(&sensors, &without_s3, 5, &p, &sp);
+    let far = add_sensor(&sensors, &without_s3, &[], 5, &p, &sp);
     let why = far.pose.expect_err("nothing placed sees the far room");
     assert!(why.contains("survey it"), "{why}");
     let keys: Vec<(usize, usize)> = far.pairs.iter().map(|(k, _)| *k).collect();

@@ -1,0 +1,293 @@
+//! One sensor appearing on a placed site is placed against its neighbours alone
+//! ([`add_sensor`]: work in proportion to them, not to the site), the others' poses standing.
+//! When that refuses, the site registration runs as before, so nothing it could place is lost.
+
+use std::time::{Instant, SystemTime};
+
+use super::{Method, Need, Outcome, Registrar};
+use crate::daemon::pipeline::PoseEntry;
+use crate::geometry::{Pose2, Pose3};
+use crate::register::site::{SensorInput, add_sensor};
+
+/// The sensor to add, and every input's site pose (None for it) and σ.
+type Newcomer = (usize, Vec<Option<Pose2>>, Vec<[f64; 3]>);
+
+impl Registrar {
+    /// The one input to add to a placed site, when this registration is that: every other
+    /// input placed (the anchor among them), and it pending, neither the anchor nor surveyed
+    /// (the site solve weighs a survey) nor moved (a moved sensor whose local refinement was
+    /// refused keeps the global search). The site frame is the anchor's: the placed sensors'
+    /// site poses are what [`add_sensor`] places against.
+    fn newcomer(&self, inputs: &[SensorInput]) -> Option<Newcomer> {
+        let mut newcomer = None;
+        let (mut placed, mut sigma) = (Vec::new(), Vec::new());
+        for (i, input) in inputs.iter().enumerate() {
+            let t = self.tracks.get(&input.id)?;
+            let pose = match (t.need, t.pose) {
+                (Need::Nothing, Some(pose)) => Some(pose.planar()),
+                (
+                    Need::Pose {
+                        refine_from: None, ..
+                    },
+                    _,
+                ) if newcomer.is_none()
+                    && input.id != self.anchor
+                    && t.survey.is_none()
+                    && t.local_refused.is_none() =>
+                {
+                    newcomer = Some(i);
+                    None
+                }
+                _ => return None,
+            };
+            placed.push(pose);
+            sigma.push(t.sigma.unwrap_or([0.0; 3]));
+        }
+        Some((newcomer?, placed, sigma))
+    }
+
+    /// Places the newcomer, if there is one, against the placed inputs; None when there is
+    /// none or adding refuses (said at debug level), for the site registration to try.
+    pub(super) fn add_newcomer(
+        &mut self,
+        inputs: &[SensorInput],
+        anchor: usize,
+        now: SystemTime,
+    ) -> Option<Outcome> {
+        let (new, placed, sigma) = self.newcomer(inputs)?;
+        let started = Instant::now();
+        let added = add_sensor(
+            inputs,
+            &placed,
+            &sigma,
+            new,
+            &self.params,
+            &self.site_params,
+        );
+        let input = inputs.get(new)?;
+        let took = format!(
+            "{} pairs of {} placed sensors, {:.2} s",
+            added.pairs.len(),
+            added.placed,
+            started.elapsed().as_secs_f64()
+        );
+        let at = match added.pose {
+            Ok(at) => at,
+            Err(why) => {
+                tracing::debug!(
+                    "adding {} to the placed site refused ({took}): {why}; registering the site",
+                    input.id
+                );
+                return None;
+            }
+        };
+        tracing::debug!("{} added to the placed site ({took})", input.id);
+        let track = self.tracks.get_mut(&input.id)?;
+        let Need::Pose { source, .. } = track.need else {
+            return None;
+        };
+        // z and pitch as the site registration gives them: the mount's, pitch the anchor's.
+        let anchor_pitch = inputs.get(anchor).map_or(0.0, |a| a.mount.pitch_rad);
+        let [sigma_x, sigma_y, sigma_yaw] = added.sigma;
+        let entry = PoseEntry {
+            site_from_sensor: Pose3::from_planar(
+                &at,
+                input.mount.height_m.unwrap_or(0.0),
+                input.mount.pitch_rad - anchor_pitch,
+            ),
+            sigma_x_m: Some(sigma_x),
+            sigma_y_m: Some(sigma_y),
+            sigma_yaw_rad: Some(sigma_yaw),
+            source,
+            loaded: false,
+            caveat: added.caveat,
+            evidence: added.evidence,
+            updated: now,
+        };
+        track.take(&entry);
+        Some(Outcome {
+            id: input.id.clone(),
+            pose: Ok(entry),
+            method: Method::Added,
+            local_refused: None,
+            retry_in_s: None,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::Command;
+    use super::super::walker_tests::simulate;
+    use super::*;
+    use crate::geometry::{pose_error, pose2};
+    use crate::sim::plan::Plan;
+
+    /// The lab, and 60 m east of it a closed room of its own with sensor `far`, which shares
+    /// no view with the lab's.
+    fn lab_and_far_room() -> Plan {
+        let far = r#"
+[[wall]]
+points = [[80, 0], [92, 0], [92, 7], [87, 7], [87, 5], [80, 5]]
+closed = true
+
+[[box]]
+center = [84, 1]
+size = [1.5, 0.8]
+
+[[sensor]]
+id = "far"
+model = "UTM-30LX-EW"
+x = 82.0
+y = 3.0
+yaw_deg = -20
+"#;
+        let lab = include_str!("../../../fixtures/plans/lab.toml");
+        Plan::from_toml(&format!("{lab}\n{far}"), "lab").expect("plan")
+    }
+
+    /// Site poses (the anchor `entrance`'s frame) from the plan's truth.
+    fn truth(plan: &Plan, ids: &[&str]) -> Vec<Pose2> {
+        let sim = crate::sim::Simulation::new(plan, 3).expect("simulates");
+        let at = |id: &str| {
+            let t = sim
+                .sensors()
+                .iter()
+                .find(|s| s.id == id)
+                .and_then(|s| s.truth)
+                .expect("truth");
+            pose2(t.x_m, t.y_m, t.yaw_deg.to_radians())
+        };
+        ids.iter()
+            .map(|id| at("entrance").inverse() * at(id))
+            .collect()
+    }
+
+    #[test]
+    fn a_sensor_appearing_on_a_placed_site_is_added_at_its_truth_from_its_neighbours() {
+        let plan = lab_and_far_room();
+        let ids = ["entrance", "north", "east", "bench"];
+        let site = truth(&plan, &ids);
+        let sensors: Vec<(&str, Option<Pose2>)> = ids
+            .iter()
+            .zip(&site)
+            .map(|(&id, &pose)| (id, (id != "bench").then_some(pose)))
+            .collect();
+        let (r, seen) = simulate(&plan, &sensors, 1.5);
+        let [(_, bench)] = seen.outcomes.as_slice() else {
+            panic!("one outcome, bench's: {:?}", seen.outcomes);
+        };
+        println!("bench placed in {:.2} s", seen.register_s[0]);
+        assert_eq!((bench.id.as_str(), bench.method), ("bench", Method::Added));
+        let entry = bench.pose.as_ref().expect("bench placed");
+        let (dt, dyaw) = pose_error(&entry.site_from_sensor.planar(), &site[3]);
+        assert!(
+            dt < 0.05 && dyaw < 0.5f64.to_radians(),
+            "{dt} m, {dyaw} rad"
+        );
+        assert_eq!(entry.site_from_sensor.z_m, 1.2, "its mount's height");
+        // σ from its pairs, of the order of what it is off by; the walls placed it, on three
+        // pairs: nothing to check but that people did not confirm it yet.
+        let sigma = entry.sigma().expect("σ");
+        println!(
+            "bench off by {dt:.3} m, {:.2}°; σ {sigma:?}",
+            dyaw.to_degrees()
+        );
+        assert!(sigma.iter().all(|&s| s > 0.0) && sigma[0] < 0.05 && sigma[1] < 0.05);
+        assert!(entry.evidence.is_some_and(|e| e.contains("walls")));
+        assert!(
+            !entry
+                .caveat
+                .as_ref()
+                .is_some_and(|c| c.contains("rests on"))
+        );
+        // It needs nothing more, and the others stand where they were.
+        assert!(r.pending().is_empty());
+        for (id, pose) in ids.iter().zip(&site).take(3) {
+            let stands = r.tracks[*id].pose.map(|p| pose_error(&p.planar(), pose));
+            assert!(
+                stands.is_some_and(|(dt, dyaw)| dt < 1e-9 && dyaw < 1e-9),
+                "{id}"
+            );
+        }
+    }
+
+    /// Only one pending sensor among placed ones is added: not a second, not the anchor, not
+    /// a surveyed one, not a moved one whose local refinement was refused.
+    #[test]
+    fn only_a_lone_unsurveyed_newcomer_on_a_placed_site_is_added() {
+        let model = crate::register::ScanModel::new(&[], 0.01, &Default::default());
+        let inputs: Vec<SensorInput> = ["a", "b", "c"]
+            .map(|id| SensorInput {
+                id: id.into(),
+                model: model.clone(),
+                mount: Default::default(),
+                prior: None,
+            })
+            .into();
+        let registrar = |pending: &[&str]| {
+            let mut r = Registrar::new("a", &Default::default());
+            for id in ["a", "b", "c"] {
+                let pose = (!pending.contains(&id))
+                    .then(|| Pose3::from_planar(&Pose2::identity(), 0.0, 0.0));
+                let (mount, survey) = (Default::default(), None);
+                let sigma = Some([0.01, 0.02, 0.003]);
+                let add = Command::Add {
+                    id: id.into(),
+                    mount,
+                    survey,
+                    pose,
+                    sigma,
+                };
+                r.command(add, 0);
+            }
+            r
+        };
+        let chosen = |r: &Registrar| {
+            r.newcomer(&inputs).map(|(new, placed, sigma)| {
+                assert_eq!(placed.iter().filter(|p| p.is_none()).count(), 1);
+                assert_eq!(
+                    sigma[(new + 1) % 3],
+                    [0.01, 0.02, 0.003],
+                    "placed σ carried"
+                );
+                new
+            })
+        };
+        assert_eq!(chosen(&registrar(&["c"])), Some(2));
+        assert_eq!(chosen(&registrar(&["b", "c"])), None, "two pending");
+        assert_eq!(chosen(&registrar(&["a"])), None, "the anchor pending");
+        let mut surveyed = registrar(&["c"]);
+        surveyed.tracks.get_mut("c").expect("c").survey = Some(crate::daemon::config::Survey {
+            x_m: 1.0,
+            y_m: 2.0,
+            yaw_rad: 0.3,
+            sigma_xy_m: 0.05,
+            sigma_yaw_rad: 0.02,
+        });
+        assert_eq!(chosen(&surveyed), None, "surveyed");
+        let mut moved = registrar(&["c"]);
+        moved.tracks.get_mut("c").expect("c").local_refused = Some("too far".into());
+        assert_eq!(chosen(&moved), None, "moved, local refinement refused");
+    }
+
+    #[test]
+    fn a_sensor_adding_refuses_goes_to_the_site_registration() {
+        let plan = lab_and_far_room();
+        let ids = ["entrance", "north", "far"];
+        let site = truth(&plan, &ids);
+        let sensors = [
+            ("entrance", Some(site[0])),
+            ("north", Some(site[1])),
+            ("far", None),
+        ];
+        let (_, seen) = simulate(&plan, &sensors, 1.5);
+        let [(_, far)] = seen.outcomes.as_slice() else {
+            panic!("one outcome, far's: {:?}", seen.outcomes);
+        };
+        // Refused by adding, then by the site registration, which says why.
+        assert_eq!((far.id.as_str(), far.method), ("far", Method::Global));
+        let why = far.pose.as_ref().expect_err("far shares no view");
+        assert!(why.contains("survey it"), "{why}");
+    }
+}
