@@ -413,9 +413,12 @@ pub fn fit_walkers(
         .filter(|(_, q, _)| !same(q, &pose))
         .collect();
     let runner_up = others.iter().map(|(n, _, _)| *n).max().unwrap_or(0);
+    // A rival's walks count only where the winner does not explain them too: a pose a few
+    // degrees off, refined from a subset of the same walkers (a corridor's walkers all far
+    // along one line leave such subsets), is the winner's evidence again, not another place.
     let runner_up_walks = others
         .iter()
-        .map(|(_, _, matched)| walked_together(matched).walks)
+        .map(|(_, _, matched)| rival_walks(&pose, matched, p.inlier_m))
         .max()
         .unwrap_or(0);
     let rms_m = (pairs
@@ -442,6 +445,17 @@ pub fn fit_walkers(
         covariance: covariance(&pose, &pairs, rms_m, p),
         alone: false,
     })
+}
+
+/// A rival's walks (`matched`: the sightings it agrees on) among the sightings the best pose
+/// does not explain too (within `inlier_m`).
+fn rival_walks(best: &Pose2, matched: &[(Point2<f64>, Point2<f64>, f64)], inlier_m: f64) -> usize {
+    let own: Matched = matched
+        .iter()
+        .filter(|(a, b, _)| (a - best * b).norm() > inlier_m)
+        .copied()
+        .collect();
+    walked_together(&own).walks
 }
 
 /// Agreements count as one person walking in both views only in runs that follow the same
@@ -1106,6 +1120,37 @@ mod tests {
             dyaw.to_degrees()
         );
         assert!(distinct[0].0.score.value > score(&a, &b, &short, &p).value);
+    }
+
+    /// A rival refined from a subset of the best's own walkers (a pose a degree or two off,
+    /// as a corridor's far walkers leave) has no walks of its own; one that lays other
+    /// sightings over each other (a mirror image) keeps its walks.
+    #[test]
+    fn a_rival_walks_only_where_the_best_does_not() {
+        let best = pose2(4.0, -1.0, 0.7);
+        // One person walking 5 m along x at 1 m/s, seen by both at 10 Hz.
+        let walk = |at: &dyn Fn(f64) -> Point2<f64>, b_of: &dyn Fn(Point2<f64>) -> Point2<f64>| {
+            (0..50)
+                .map(|k| {
+                    let t = k as f64 * 0.1;
+                    let a = at(t);
+                    (a, b_of(a), t)
+                })
+                .collect::<Vec<_>>()
+        };
+        let along = |t: f64| Point2::new(t, 0.0);
+        let same = walk(&along, &|a| best.inverse() * a);
+        assert!(walked_together(&same).walks >= 1);
+        assert_eq!(rival_walks(&best, &same, 0.25), 0);
+        // The B sightings of another person: the best puts them 3 m off.
+        let mirror = walk(&along, &|a| {
+            best.inverse() * (a + nalgebra::Vector2::new(0.0, 3.0))
+        });
+        assert_eq!(
+            rival_walks(&best, &mirror, 0.25),
+            walked_together(&mirror).walks
+        );
+        assert!(rival_walks(&best, &mirror, 0.25) >= 1);
     }
 
     #[test]
