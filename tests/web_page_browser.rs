@@ -71,17 +71,13 @@ fn the_page_shows_every_sensor_where_poses_has_it_and_a_drag_surveys_one() {
     let building = wait_for(Duration::from_secs(60), "aligned to the drawing", || {
         client.poses().building_from_site.filter(|b| b.aligned)
     });
-    let (dx, dy) = (
-        building.x_m - gate.translation.x,
-        building.y_m - gate.translation.y,
-    );
-    let dyaw = (building.yaw_deg - gate.rotation.angle().to_degrees() + 540.0) % 360.0 - 180.0;
+    let (off, dyaw) = off_truth(&building, &gate);
     eprintln!(
         "live alignment: {building:?}; off the truth by {:.1} cm, {dyaw:.3}°",
-        dx.hypot(dy) * 100.0
+        off * 100.0
     );
     assert!(
-        dx.hypot(dy) < 0.05 && dyaw.abs() < 0.3 && (building.scale - 1.0).abs() < 1e-9,
+        off < 0.05 && dyaw.abs() < 0.3 && (building.scale - 1.0).abs() < 1e-9,
         "{building:?} against the truth {gate:?}"
     );
     let saved = std::fs::read_to_string(dir.path().join("state/poses.toml")).unwrap();
@@ -127,8 +123,7 @@ fn the_page_shows_every_sensor_where_poses_has_it_and_a_drag_surveys_one() {
     // Two map points picked on the page and paired 10 cm off on the drawing, aligned from.
     let b: scanfuse::drawing::BuildingFromSite =
         serde_json::from_value(summary["page_align"].clone()).expect("page_align");
-    let off = (b.x_m - gate.translation.x).hypot(b.y_m - gate.translation.y);
-    let dyaw = (b.yaw_deg - gate.rotation.angle().to_degrees() + 540.0) % 360.0 - 180.0;
+    let (off, dyaw) = off_truth(&b, &gate);
     eprintln!(
         "aligned from the page's pairs: off by {:.1} cm, {dyaw:.3}°",
         off * 100.0
@@ -152,8 +147,7 @@ fn the_page_shows_every_sensor_where_poses_has_it_and_a_drag_surveys_one() {
     match client.request(&line) {
         Message::Poses(p) => {
             let b = p.building_from_site.expect("building_from_site");
-            let off = (b.x_m - gate.translation.x).hypot(b.y_m - gate.translation.y);
-            let dyaw = (b.yaw_deg - gate.rotation.angle().to_degrees() + 540.0) % 360.0 - 180.0;
+            let (off, dyaw) = off_truth(&b, &gate);
             eprintln!(
                 "aligned from two pairs 10 cm off: {b:?}; off by {:.1} cm",
                 off * 100.0
@@ -177,6 +171,17 @@ fn the_page_shows_every_sensor_where_poses_has_it_and_a_drag_surveys_one() {
         surveys.contains(&format!("id = \"{dragged}\"")),
         "{surveys}"
     );
+}
+
+/// How far `b` puts the site from the truth (the anchor's true pose in the plan's frame, which
+/// is the building's): metres, and degrees of heading.
+fn off_truth(
+    b: &scanfuse::drawing::BuildingFromSite,
+    gate: &scanfuse::geometry::Pose2,
+) -> (f64, f64) {
+    let off = (b.x_m - gate.translation.x).hypot(b.y_m - gate.translation.y);
+    let dyaw = (b.yaw_deg - gate.rotation.angle().to_degrees() + 540.0) % 360.0 - 180.0;
+    (off, dyaw)
 }
 
 /// Exports the hall's plan to `dir/plan.dxf`, names it in the config's `[site]` (walls and
