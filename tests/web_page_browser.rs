@@ -80,8 +80,16 @@ fn the_page_shows_every_sensor_where_poses_has_it_and_a_drag_surveys_one() {
         off < 0.05 && dyaw.abs() < 0.3 && (building.scale - 1.0).abs() < 1e-9,
         "{building:?} against the truth {gate:?}"
     );
-    let saved = std::fs::read_to_string(dir.path().join("state/poses.toml")).unwrap();
-    assert!(saved.contains("[building_from_site]"), "{saved}");
+    // Saved right after it is shown on the socket.
+    wait_for(
+        Duration::from_secs(10),
+        "building_from_site in poses.toml",
+        || {
+            std::fs::read_to_string(dir.path().join("state/poses.toml"))
+                .ok()
+                .filter(|saved| saved.contains("[building_from_site]"))
+        },
+    );
     let screenshot = common::repo().join("target/web-page.png");
     let out = Command::new(python)
         .arg(common::repo().join("tests/python/web_page.py"))

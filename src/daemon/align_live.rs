@@ -137,16 +137,10 @@ pub(super) fn publish(pipeline: &Pipeline, b: BuildingFromSite) {
         );
     }
     let aligned = b.aligned;
-    pipeline.set_building_from_site(Some(b.clone()));
-    if !aligned {
-        return;
-    }
-    // `poses.toml` first: the map files are written in the frame it holds.
-    let kept = super::state::keep_building_from_site(pipeline.state_dir(), pipeline.anchor(), b);
-    if let Err(e) = kept
-        .map_err(|e| e.to_string())
-        .and_then(|_| pipeline.save_now().map(|_| ()).map_err(|e| e.to_string()))
-    {
+    pipeline.set_building_from_site(Some(b));
+    // Saved with the poses (and the map files in the building's frame), under the one lock
+    // every save takes: a save racing this one cannot write the file without it.
+    if aligned && let Err(e) = pipeline.save_now() {
         pipeline.announce(EventKind::Error, None, format!("cannot save poses: {e}"));
     }
 }

@@ -785,8 +785,16 @@ impl Pipeline {
             let fuser = lock(&self.fuser);
             (poses, fuser.grid(), fuser.points())
         };
-        let files = save_files(&self.state_dir, &anchor, &poses, &grid, &points)
-            .map_err(|e| Refused(format!("{e}; check that the state directory is writable")))?;
+        let held = self.building_from_site().filter(|b| b.aligned);
+        let files = save_files(
+            &self.state_dir,
+            &anchor,
+            &poses,
+            held.as_ref(),
+            &grid,
+            &points,
+        )
+        .map_err(|e| Refused(format!("{e}; check that the state directory is writable")))?;
         Ok(Saved {
             dir: self.state_dir.display().to_string(),
             files,

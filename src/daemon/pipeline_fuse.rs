@@ -161,11 +161,14 @@ impl Fuser {
 }
 
 /// Writes `poses.toml` (when any sensor is known) and the map files into `dir`, each
-/// atomically; returns the names written.
+/// atomically; returns the names written. `held`: the site's alignment to the drawing the
+/// daemon holds (found live, or asked for on the socket); without one, what `poses.toml`
+/// has is kept.
 pub fn save_files(
     dir: &Path,
     anchor: &str,
     poses: &[(SensorPose, PoseSource, SystemTime)],
+    held: Option<&crate::drawing::BuildingFromSite>,
     grid: &OccupancyGrid,
     points: &[TaggedPoint],
 ) -> Result<Vec<String>, StateError> {
@@ -174,12 +177,16 @@ pub fn save_files(
         path: dir.to_path_buf(),
         source,
     })?;
-    // Set by `scanfuse align --save`: the map files are then in the building's frame.
-    let building = PosesFile::load(dir)
-        .ok()
-        .flatten()
-        .filter(|f| f.anchor == anchor)
-        .and_then(|f| f.building_from_site);
+    // The map files are in the building's frame once the site is aligned. One set by
+    // `scanfuse align --save` while the daemon runs is kept until the daemon finds its own.
+    let building = match held {
+        Some(b) => Some(b.clone()),
+        None => PosesFile::load(dir)
+            .ok()
+            .flatten()
+            .filter(|f| f.anchor == anchor)
+            .and_then(|f| f.building_from_site),
+    };
     let to_building = building.as_ref().and_then(|b| b.similarity());
     if poses.iter().any(|(p, _, _)| p.id == anchor) {
         let file = PosesFile {
@@ -384,6 +391,7 @@ mod tests {
             dir.path(),
             "a",
             &[(pose, PoseSource::Registered, SystemTime::now())],
+            None,
             &fuser.grid(),
             &fuser.points(),
         )
@@ -412,6 +420,7 @@ mod tests {
             dir.path(),
             "a",
             &[(pose_b, PoseSource::Registered, SystemTime::now())],
+            None,
             &fuser.grid(),
             &fuser.points(),
         )

@@ -136,7 +136,7 @@ def align_by_pairs(page, sock, screenshot):
         page.mouse.click(*floor_point(page, sx, sy))
         site = page.get_attribute("#pick-at", "data-site")
         if not site:
-            sys.exit("picking a map point left no data-site on #pick-at")
+            sys.exit(f"picking a map point at {sx:.0f}, {sy:.0f} left no data-site on #pick-at")
         x, y = (float(v) for v in site.split())
         dx, dy = to_drawing(before, x, y)
         page.fill("#draw-x", f"{dx + 0.1:.3f}")
@@ -146,11 +146,16 @@ def align_by_pairs(page, sock, screenshot):
         sys.exit("the two pairs are not listed")
     page.screenshot(path=screenshot)
     page.click("#align-pairs")
-    until(
-        "the page to show the alignment from the pairs",
-        30,
-        lambda: page.get_attribute("#building", "data-method") == "pairs+lines",
-    )
+    end = time.monotonic() + 30
+    while page.get_attribute("#building", "data-method") != "pairs+lines":
+        if time.monotonic() > end:
+            sys.exit(
+                "timed out after 30 s waiting for the page to show the alignment from the pairs:"
+                f" #building says {page.inner_text('#building')!r}, the toast"
+                f" {page.inner_text('#toast')!r}, pairs"
+                f" {[li.get_attribute('data-pair') for li in page.query_selector_all('#pairs li')]}"
+            )
+        time.sleep(0.25)
     return ask(sock, {"cmd": "poses"})["building_from_site"]
 
 
