@@ -11,7 +11,7 @@ use std::time::Instant;
 use anyhow::Result;
 use scanfuse::daemon::protocol::{PoseSource, SensorPose};
 use scanfuse::daemon::state::{PosesFile, SavedPose};
-use scanfuse::drawing::align::{AlignSensor, Alignment, align, parse_pairs};
+use scanfuse::drawing::align::{AlignSensor, Alignment, align, parse_pairs_to_fit};
 use scanfuse::drawing::{self, BuildingFromSite, ReadOptions};
 use scanfuse::geometry::pose2;
 use scanfuse::register::RegisterParams;
@@ -103,16 +103,9 @@ pub fn run(args: Args) -> Result<()> {
     let drawing = drawing::read(&args.drawing, &opts).map_err(|e| BadInput(e.to_string()))?;
     let read_ms = read_started.elapsed().as_secs_f64() * 1e3;
     let pairs = match &args.pairs {
-        Some(text) => parse_pairs(text).map_err(|e| BadInput(e.to_string()))?,
+        Some(text) => parse_pairs_to_fit(text).map_err(|e| BadInput(format!("--pairs: {e}")))?,
         None => Vec::new(),
     };
-    if args.pairs.is_some() && pairs.len() < 2 {
-        return Err(BadInput(format!(
-            "--pairs needs at least two point pairs, got {}",
-            pairs.len()
-        ))
-        .into());
-    }
     if !args.json {
         eprintln!(
             "drawing {}: {} segments in {} ({} layers), read in {read_ms:.0} ms",

@@ -890,15 +890,8 @@ impl Config {
                     None => None,
                 },
                 pairs: match &site.drawing_pairs {
-                    Some(v) => match crate::drawing::align::parse_pairs(v.get_ref()) {
-                        Ok(pairs) if pairs.len() >= 2 => pairs,
-                        Ok(_) => {
-                            return Err(loc.at(
-                                v.span(),
-                                "site.drawing_pairs",
-                                "needs two or more pairs: \"site_x,site_y=drawing_x,drawing_y; …\" (m)",
-                            ));
-                        }
+                    Some(v) => match crate::drawing::align::parse_pairs_to_fit(v.get_ref()) {
+                        Ok(pairs) => pairs,
                         Err(e) => {
                             return Err(loc.at(v.span(), "site.drawing_pairs", e.to_string()));
                         }

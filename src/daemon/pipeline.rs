@@ -889,14 +889,9 @@ impl StatusSource for Pipeline {
                     .into(),
             ));
         };
-        let pairs = match pairs.map(crate::drawing::align::parse_pairs) {
+        let pairs = match pairs.map(crate::drawing::align::parse_pairs_to_fit) {
             None => Vec::new(),
-            Some(Ok(p)) if p.len() >= 2 => p,
-            Some(Ok(_)) => {
-                return Err(Refused(
-                    "give two or more pairs: \"site_x,site_y=drawing_x,drawing_y; …\" (m)".into(),
-                ));
-            }
+            Some(Ok(p)) => p,
             Some(Err(e)) => return Err(Refused(e.to_string())),
         };
         let scans = self.posed_scans();

@@ -69,7 +69,7 @@ impl Similarity {
 /// Why an alignment could not be made.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum AlignError {
-    #[error("need at least two point pairs, got {0}")]
+    #[error("need two or more point pairs (\"sx,sy=dx,dy; sx,sy=dx,dy\", m), got {0}")]
     TooFewPairs(usize),
     #[error("the site points of the pairs coincide; pick points at least a metre apart")]
     CoincidentPairs,
@@ -105,6 +105,16 @@ pub fn parse_pairs(text: &str) -> Result<Vec<PointPair>, AlignError> {
             Ok((point(s)?, point(d)?))
         })
         .collect()
+}
+
+/// Parses point pairs to align from (`--pairs`, `[site] drawing_pairs`, the socket's
+/// `align`): as [`parse_pairs`], and two or more of them.
+pub fn parse_pairs_to_fit(text: &str) -> Result<Vec<PointPair>, AlignError> {
+    let pairs = parse_pairs(text)?;
+    if pairs.len() < 2 {
+        return Err(AlignError::TooFewPairs(pairs.len()));
+    }
+    Ok(pairs)
 }
 
 /// A point pair: a site point and the drawing point it lies at (m).
