@@ -71,15 +71,8 @@ fn the_page_shows_every_sensor_where_poses_has_it_and_a_drag_surveys_one() {
     let building = wait_for(Duration::from_secs(60), "aligned to the drawing", || {
         client.poses().building_from_site.filter(|b| b.aligned)
     });
-    let (off, dyaw) = off_truth(&building, &gate);
-    eprintln!(
-        "live alignment: {building:?}; off the truth by {:.1} cm, {dyaw:.3}°",
-        off * 100.0
-    );
-    assert!(
-        off < 0.05 && dyaw.abs() < 0.3 && (building.scale - 1.0).abs() < 1e-9,
-        "{building:?} against the truth {gate:?}"
-    );
+    assert_at_truth("live alignment", &building, &gate);
+    assert!((building.scale - 1.0).abs() < 1e-9, "{building:?}");
     // Saved right after it is shown on the socket.
     wait_for(
         Duration::from_secs(10),
@@ -131,15 +124,8 @@ fn the_page_shows_every_sensor_where_poses_has_it_and_a_drag_surveys_one() {
     // Two map points picked on the page and paired 10 cm off on the drawing, aligned from.
     let b: scanfuse::drawing::BuildingFromSite =
         serde_json::from_value(summary["page_align"].clone()).expect("page_align");
-    let (off, dyaw) = off_truth(&b, &gate);
-    eprintln!(
-        "aligned from the page's pairs: off by {:.1} cm, {dyaw:.3}°",
-        off * 100.0
-    );
-    assert!(
-        b.method == "pairs+lines" && off < 0.05 && dyaw.abs() < 0.3,
-        "{b:?}"
-    );
+    assert_at_truth("aligned from the page's pairs", &b, &gate);
+    assert_eq!(b.method, "pairs+lines");
     // The socket's `align` (the verb the page sends): two point pairs 10 cm off, refined on
     // the drawing's lines; bad pairs are refused.
     let mut client = Client::connect(&sock, Duration::from_secs(10));
@@ -155,15 +141,8 @@ fn the_page_shows_every_sensor_where_poses_has_it_and_a_drag_surveys_one() {
     match client.request(&line) {
         Message::Poses(p) => {
             let b = p.building_from_site.expect("building_from_site");
-            let (off, dyaw) = off_truth(&b, &gate);
-            eprintln!(
-                "aligned from two pairs 10 cm off: {b:?}; off by {:.1} cm",
-                off * 100.0
-            );
-            assert!(
-                b.method == "pairs+lines" && off < 0.05 && dyaw.abs() < 0.3,
-                "{b:?}"
-            );
+            assert_at_truth("aligned from two pairs 10 cm off", &b, &gate);
+            assert_eq!(b.method, "pairs+lines");
         }
         other => panic!("align answered {other:?}"),
     }
@@ -181,15 +160,23 @@ fn the_page_shows_every_sensor_where_poses_has_it_and_a_drag_surveys_one() {
     );
 }
 
-/// How far `b` puts the site from the truth (the anchor's true pose in the plan's frame, which
-/// is the building's): metres, and degrees of heading.
-fn off_truth(
+/// That `b` puts the site within 5 cm / 0.3° of the truth (the anchor's true pose in the
+/// plan's frame, which is the building's); says how far, as `what`.
+fn assert_at_truth(
+    what: &str,
     b: &scanfuse::drawing::BuildingFromSite,
     gate: &scanfuse::geometry::Pose2,
-) -> (f64, f64) {
+) {
     let off = (b.x_m - gate.translation.x).hypot(b.y_m - gate.translation.y);
     let dyaw = (b.yaw_deg - gate.rotation.angle().to_degrees() + 540.0) % 360.0 - 180.0;
-    (off, dyaw)
+    eprintln!(
+        "{what}: {b:?}; off the truth by {:.1} cm, {dyaw:.3}°",
+        off * 100.0
+    );
+    assert!(
+        off < 0.05 && dyaw.abs() < 0.3,
+        "{what}: {b:?} against the truth {gate:?}"
+    );
 }
 
 /// Exports the hall's plan to `dir/plan.dxf`, names it in the config's `[site]` (walls and
