@@ -135,7 +135,7 @@ pub struct WebConfig {
     pub max_clients: usize,
     /// Scans of one sensor sent to each page per second at most.
     pub frames_per_s: f64,
-    /// Messages a page may fall behind before it is dropped (it then reconnects).
+    /// Messages a page may fall behind before it skips to the latest state.
     pub send_queue: usize,
 }
 

@@ -405,12 +405,7 @@ impl Pipeline {
     /// Publishes an event to watchers and the terminal, not the log: for what the driver has
     /// logged itself ("sensor connected", "sensor link lost"), so the journal has it once.
     fn publish_event(&self, kind: EventKind, sensor: Option<&str>, message: String) {
-        let event = Event {
-            time: humantime::format_rfc3339_millis(SystemTime::now()).to_string(),
-            kind,
-            sensor: sensor.map(str::to_string),
-            message,
-        };
+        let event = Event::now(kind, sensor, message);
         if let Some(tap) = &self.tap {
             let _ = tap.send(Report::Event(event.clone()));
         }

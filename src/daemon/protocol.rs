@@ -437,6 +437,18 @@ pub struct Event {
     pub message: String,
 }
 
+impl Event {
+    /// An event stamped now (the wall clock).
+    pub fn now(kind: EventKind, sensor: Option<&str>, message: impl Into<String>) -> Event {
+        Event {
+            time: humantime::format_rfc3339_millis(std::time::SystemTime::now()).to_string(),
+            kind,
+            sensor: sensor.map(str::to_string),
+            message: message.into(),
+        }
+    }
+}
+
 /// One fused frame, streamed to watchers with `map` on: scans as points in the site frame.
 /// The daemon sends each posed sensor's scan in a frame of its own the moment it arrives
 /// (lowest latency); a watcher that wants the whole site keeps the latest frame per sensor.

@@ -12,7 +12,7 @@ use std::io;
 use std::os::unix::fs::{FileTypeExt, MetadataExt, PermissionsExt};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::time::{Duration, SystemTime};
+use std::time::Duration;
 
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::unix::OwnedWriteHalf;
@@ -237,12 +237,7 @@ impl Publisher {
 
     /// Builds and publishes an event stamped now.
     pub fn announce(&self, kind: EventKind, sensor: Option<&str>, message: impl Into<String>) {
-        self.event(Event {
-            time: humantime::format_rfc3339_millis(SystemTime::now()).to_string(),
-            kind,
-            sensor: sensor.map(str::to_string),
-            message: message.into(),
-        });
+        self.event(Event::now(kind, sensor, message));
     }
 
     /// Publishes a fused frame to `map` watchers; skips the encoding when nobody watches.

@@ -5,13 +5,13 @@
 //! walls in the site frame, sent once to each page). One [`Hub`] per server
 //! subscribes to the [`Publisher`] as a `watch` client does, paces each sensor's scans to
 //! `frames_per_s`, takes snapshots on a timer, and hands every line to every page through a
-//! bounded broadcast: a page that falls `send_queue` lines behind is dropped by its own task
-//! (it reconnects), and nothing here ever waits for a page.
+//! bounded broadcast: a page that falls `send_queue` lines behind is resent the latest state by
+//! its own task ([`Hub::resubscribe`]), and nothing here ever waits for a page.
 
 use std::collections::{BTreeMap, VecDeque};
 use std::future::Future;
 use std::sync::{Arc, Mutex, MutexGuard};
-use std::time::{Duration, Instant, SystemTime};
+use std::time::{Duration, Instant};
 
 use axum::extract::ws::Utf8Bytes;
 use base64::Engine;
@@ -295,6 +295,16 @@ impl Hub {
     /// A new page's stream, and what to send it first: the latest status, poses, fields of
     /// view, map, recent events and each sensor's latest scan.
     pub fn subscribe(&self) -> (broadcast::Receiver<Utf8Bytes>, Vec<Utf8Bytes>) {
+        self.subscribe_with(true)
+    }
+
+    /// A page that fell behind: a fresh stream and the latest state and scans, without the
+    /// recent events it already has.
+    pub fn resubscribe(&self) -> (broadcast::Receiver<Utf8Bytes>, Vec<Utf8Bytes>) {
+        self.subscribe_with(false)
+    }
+
+    fn subscribe_with(&self, events: bool) -> (broadcast::Receiver<Utf8Bytes>, Vec<Utf8Bytes>) {
         let rx = self.tx.subscribe();
         let c = lock(&self.cache);
         let drawing = c.drawing.as_ref().map(|(_, line)| line);
@@ -310,7 +320,9 @@ impl Hub {
         .flatten()
         .cloned()
         .collect();
-        first.extend(c.events.iter().cloned());
+        if events {
+            first.extend(c.events.iter().cloned());
+        }
         first.extend(c.frames.values().cloned());
         drop(c);
         self.wake.notify_one();
@@ -319,13 +331,7 @@ impl Hub {
 
     /// Tells every page an event the daemon's own stream does not carry (a page dropped).
     pub fn tell_pages(&self, kind: EventKind, message: String) {
-        let line = Message::Event(Event {
-            time: humantime::format_rfc3339_millis(SystemTime::now()).to_string(),
-            kind,
-            sensor: None,
-            message,
-        })
-        .to_line();
+        let line = Message::Event(Event::now(kind, None, message)).to_line();
         let _ = self.tx.send(text(&line));
     }
 
@@ -786,6 +792,54 @@ mod tests {
         assert!(
             first.iter().any(|l| l.as_str() == zones.to_line()),
             "a new page gets the latest ZONES first"
+        );
+        let _ = stop_tx.send(());
+        task.await.unwrap();
+    }
+
+    #[tokio::test]
+    async fn a_page_that_fell_behind_gets_the_state_without_the_events_again() {
+        use crate::daemon::protocol::Event;
+        let publisher = Publisher::new(64);
+        let hub = Hub::new(4, 10.0);
+        let (mut page, _) = hub.subscribe();
+        let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+        let task = tokio::spawn(Arc::clone(&hub).run(
+            Arc::new(Site::default()),
+            publisher.clone(),
+            async move {
+                let _ = stop_rx.await;
+            },
+        ));
+        while publisher.event_watchers() == 0 {
+            tokio::task::yield_now().await;
+        }
+        for i in 0..12 {
+            publisher.event(Event::now(EventKind::Saved, None, format!("event {i}")));
+        }
+        let class = |line: &Utf8Bytes| {
+            serde_json::from_str::<serde_json::Value>(line.as_str()).unwrap()["class"]
+                .as_str()
+                .unwrap()
+                .to_string()
+        };
+        // The page read nothing: its stream has lagged.
+        let lagged = loop {
+            match page.recv().await {
+                Err(broadcast::error::RecvError::Lagged(n)) => break n,
+                Err(e) => panic!("{e}"),
+                Ok(_) => {}
+            }
+        };
+        assert!(lagged > 0);
+        let (_, again) = hub.resubscribe();
+        let classes: Vec<String> = again.iter().map(class).collect();
+        assert!(classes.contains(&"POSES".to_string()), "{classes:?}");
+        assert!(!classes.contains(&"EVENT".to_string()), "{classes:?}");
+        let (_, first) = hub.subscribe();
+        assert!(
+            first.iter().map(class).any(|c| c == "EVENT"),
+            "a new page gets the recent events"
         );
         let _ = stop_tx.send(());
         task.await.unwrap();

@@ -13,7 +13,8 @@
 //!
 //! And how much: `max_clients` pages at once (503 for the next), request messages of at
 //! most [`MAX_LINE_BYTES`], and a page that does not take a message within
-//! [`WRITE_TIMEOUT`] or falls `send_queue` messages behind is dropped (the page reconnects).
+//! [`WRITE_TIMEOUT`] is dropped (the page reconnects); one that falls `send_queue` messages
+//! behind skips to the latest state on the same connection, so a request it sent is answered.
 
 use std::io;
 use std::net::{IpAddr, SocketAddr};
@@ -417,8 +418,6 @@ async fn handle(
 enum End {
     #[error("it did not take a message within {} s", WRITE_TIMEOUT.as_secs())]
     Slow,
-    #[error("it fell {0} messages behind the stream")]
-    Lagged(u64),
     #[error("{0}")]
     Closed(String),
 }
@@ -443,7 +442,7 @@ async fn session(
     peer: SocketAddr,
     _permit: OwnedSemaphorePermit,
 ) {
-    let result = serve_page(&mut socket, &shared).await;
+    let result = serve_page(&mut socket, &shared, peer).await;
     match result {
         Ok(()) => tracing::debug!("page {peer} closed"),
         Err(End::Closed(why)) => tracing::debug!("page {peer} closed: {why}"),
@@ -461,7 +460,7 @@ async fn session(
     }
 }
 
-async fn serve_page(socket: &mut WebSocket, shared: &Shared) -> Result<(), End> {
+async fn serve_page(socket: &mut WebSocket, shared: &Shared, peer: SocketAddr) -> Result<(), End> {
     let (mut stream, first) = shared.hub.subscribe();
     let mut stop = shared.stop.clone();
     send(socket, line_of(&Message::Version(Version::current()))).await?;
@@ -493,11 +492,33 @@ async fn serve_page(socket: &mut WebSocket, shared: &Shared) -> Result<(), End> 
             },
             item = stream.recv() => match item {
                 Ok(line) => send(socket, line).await?,
-                Err(broadcast::error::RecvError::Lagged(n)) => return Err(End::Lagged(n)),
+                Err(broadcast::error::RecvError::Lagged(n)) => {
+                    // A slow page skips ahead rather than being dropped: a request it sent
+                    // meanwhile (a drag) must still be answered on this connection.
+                    tracing::debug!("page {peer} fell {n} messages behind; sent it the latest state");
+                    let (fresh, state) = shared.hub.resubscribe();
+                    stream = fresh;
+                    send(socket, line_of(&skipped(n))).await?;
+                    for line in state {
+                        send(socket, line).await?;
+                    }
+                }
                 Err(broadcast::error::RecvError::Closed) => return Ok(()),
             },
         }
     }
+}
+
+/// What a page that fell `n` messages behind is told before the latest state.
+fn skipped(n: u64) -> Message {
+    Message::Event(protocol::Event::now(
+        EventKind::Disconnected,
+        None,
+        format!(
+            "this page fell {n} messages behind the stream (a slow link or a busy browser); \
+             it skipped to the latest state: scans and events in between are not shown"
+        ),
+    ))
 }
 
 /// The reply to one request from a page: the status socket's, except `watch` (a page always
