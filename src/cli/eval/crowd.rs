@@ -25,8 +25,16 @@ use scanfuse::sim::{Plan, Simulation, view_overlap};
 
 use super::super::register::prepare_sensor;
 
-/// The crowd plans scored (20 and 40 people in a hall, 20 in a shop).
-const PLANS: [&str; 3] = ["hall20", "hall40", "shop20"];
+/// The crowd plans scored as sites: 20 and 40 people in a hall, 20 in a shop, and the
+/// little-shared-view plans, where people place what walls cannot.
+const PLANS: [&str; 6] = [
+    "hall20",
+    "hall40",
+    "shop20",
+    "open-hall",
+    "glass-shop",
+    "corridor-cross",
+];
 /// Seconds simulated: `register` watches the first 30 s.
 const SECONDS: f64 = 30.0;
 const TOL_M: f64 = 0.10;

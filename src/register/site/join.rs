@@ -325,6 +325,8 @@ pub(super) struct Join {
     pub(super) score: Joint,
     /// The best rival placement's joint score over this one's (0 = none).
     pub(super) ambiguity: f64,
+    /// A pair people placed proposes it: their walks fix it where walls let it slide.
+    pub(super) walked: bool,
 }
 
 impl Join {
@@ -594,7 +596,10 @@ impl JoinContext<'_> {
                     c.score.overlap() >= self.p.min_overlap && c.score.value >= self.p.min_score
                 })
         });
-        if !stands_alone {
+        // A pair people placed (alone or choosing among the walls' answers) stands on their
+        // walks, not on how much wall the two share: the walls' share thresholds do not apply.
+        let walked = self.walkers_placed(&best.sources);
+        if !stands_alone && !walked {
             return Err(Refusal::NoPairStands);
         }
         if let [_] = group
@@ -602,12 +607,12 @@ impl JoinContext<'_> {
         {
             return Err(refusal);
         }
-        if joint.overlap < self.p.min_overlap {
+        if joint.overlap < self.p.min_overlap && !walked {
             return Err(Refusal::TooLittle {
                 overlap: joint.overlap,
             });
         }
-        if joint.value < self.p.min_score {
+        if joint.value < self.p.min_score && !walked {
             return Err(Refusal::Outweighed { value: joint.value });
         }
         // The strongest rival: any placement that is not the same answer. One that contradicts
@@ -631,7 +636,7 @@ impl JoinContext<'_> {
                 apart_deg: apart_rad.to_degrees(),
             });
         }
-        if joint.overlap * (1.0 - ambiguity) < self.sp.join_min_strength {
+        if joint.overlap * (1.0 - ambiguity) < self.sp.join_min_strength && !walked {
             return Err(Refusal::Weak {
                 overlap: joint.overlap,
                 ambiguity,
@@ -642,6 +647,23 @@ impl JoinContext<'_> {
             sources: best.sources.clone(),
             score: best.joint.clone(),
             ambiguity,
+            walked,
+        })
+    }
+
+    /// Whether one of `sources` is the answer of a pair that registered with people deciding
+    /// (`PairResult::walkers`): their walks passed the walker fit's own limits (sightings, time,
+    /// floor, residual, rival).
+    fn walkers_placed(&self, sources: &[(usize, usize)]) -> bool {
+        sources.iter().any(|&(k, ci)| {
+            self.results.get(k).is_some_and(|r| {
+                r.registered()
+                    && r.walkers.is_some()
+                    && r.candidates.get(ci).is_some_and(|c| {
+                        let (dt, dyaw) = pose_error(&c.a_from_b, &r.a_from_b);
+                        dt < self.p.same_pose_m && dyaw < self.p.same_pose_rad
+                    })
+            })
         })
     }
 
@@ -676,7 +698,11 @@ impl JoinContext<'_> {
 
     /// A slide of the placement (every 15°, by each of `join_slide_m` both ways) that keeps
     /// the pair check's `slide_ratio` of the joint score: the position is not fixed along it.
+    /// None for a placement people walked: the walls' slide is what their walks fix.
     pub(super) fn slides(&self, group: &[(usize, Pose2)], join: &Join) -> Option<Refusal> {
+        if join.walked {
+            return None;
+        }
         let shifts: Vec<(f64, f64)> = (0..12)
             .flat_map(|k| {
                 let deg = 15.0 * k as f64;

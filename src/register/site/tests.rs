@@ -616,6 +616,72 @@ fn a_sensor_seen_only_along_a_corridor_is_not_placed() {
     );
 }
 
+/// What a walker fit that placed a pair alone at `a_from_b` looks like (`walkers.rs`' limits
+/// passed: many walks, no rival).
+fn walked_alone(a_from_b: Pose2) -> crate::register::walkers::WalkerFit {
+    crate::register::walkers::WalkerFit {
+        a_from_b,
+        inliers: 600,
+        span_s: 28.0,
+        spread_m: 9.0,
+        rms_m: 0.06,
+        runner_up: 20,
+        walks: 25,
+        runner_up_walks: 1,
+        covariance: Matrix3::from_diagonal(&nalgebra::Vector3::new(4e-4, 4e-4, 1e-5)),
+        alone: true,
+    }
+}
+
+#[test]
+fn a_pair_people_placed_joins_where_walls_alone_would_slide_or_share_too_little() {
+    let (p, sp) = (RegisterParams::default(), SiteParams::default());
+    let s1 = [(1, Pose2::identity())];
+    // Along a corridor with no end in sight: walls leave the position free along it.
+    let corridor = vec![
+        Wall::new(-30.0, -1.5, 30.0, -1.5),
+        Wall::new(-30.0, 1.5, 30.0, 1.5),
+    ];
+    let mut two = two_in(&corridor, [pose2(0.0, 0.0, 0.0), pose2(3.0, 0.2, 0.4)]);
+    two.pair.verdict = Ok(());
+    two.pair.walkers = Some(walked_alone(two.pair.a_from_b));
+    let slid = two.context(&p, &sp, |ctx| {
+        let join = ctx.weigh(&s1).expect("a pair people placed joins");
+        assert!(join.walked);
+        ctx.slides(&s1, &join)
+    });
+    assert!(slid.is_none(), "people's walks fix the slide: {slid:?}");
+    // In the hall, 90° views back to back: the two share no wall (people walked between).
+    let truth = [pose2(-1.0, 0.0, std::f64::consts::PI), pose2(1.0, 0.3, 0.1)];
+    let sensors: Vec<SensorInput> = truth
+        .iter()
+        .enumerate()
+        .map(|(i, pose)| sensor_at(&hall(), *pose, 90f64.to_radians(), &format!("s{i}")))
+        .collect();
+    let pair = undecided_pair(&sensors[0], &sensors[1], &[truth[0].inverse() * truth[1]]);
+    let mut two = TwoSensors { sensors, pair };
+    two.pair.verdict = Ok(());
+    let overlap = two.pair.candidates[0].score.overlap();
+    assert!(overlap < p.min_overlap, "the scene shares {overlap}");
+    let by_walls = two.context(&p, &sp, |ctx| ctx.weigh(&s1).err());
+    assert!(
+        by_walls.is_some(),
+        "walls alone placed a pair sharing {overlap} of its view"
+    );
+    two.pair.walkers = Some(walked_alone(two.pair.a_from_b));
+    let join = two
+        .context(&p, &sp, |ctx| ctx.weigh(&s1))
+        .expect("people placed the pair: it joins");
+    let (dt, dyaw) = pose_error(&join.anchor_from_root, &two.pair.a_from_b);
+    assert!(dt < 1e-6 && dyaw < 1e-6, "{dt} {dyaw}");
+    // People that merely agree with an undecided pair are not enough.
+    two.pair.verdict = Err(crate::register::Abstain::Uncertain {
+        sigma_m: 0.2,
+        sigma_yaw_deg: 0.1,
+    });
+    assert!(two.context(&p, &sp, |ctx| ctx.weigh(&s1)).is_err());
+}
+
 #[test]
 fn a_sensor_reached_by_no_edge_stays_unplaced() {
     let truth = [
