@@ -719,6 +719,31 @@ mod tests {
 
     /// TRACKS reach a page paced like a sensor's scans; ZONES and CROSSING all reach it, and
     /// the latest ZONES is among the first lines of a page that opens later.
+    /// A hub's task running on an empty site, fed by `publisher`, until stopped.
+    struct Running {
+        stop: tokio::sync::oneshot::Sender<()>,
+        task: tokio::task::JoinHandle<()>,
+    }
+
+    impl Running {
+        fn start(hub: &Arc<Hub>, publisher: &Publisher) -> Running {
+            let (stop, stop_rx) = tokio::sync::oneshot::channel::<()>();
+            let task = tokio::spawn(Arc::clone(hub).run(
+                Arc::new(Site::default()),
+                publisher.clone(),
+                async move {
+                    let _ = stop_rx.await;
+                },
+            ));
+            Running { stop, task }
+        }
+
+        async fn stop(self) {
+            let _ = self.stop.send(());
+            self.task.await.unwrap();
+        }
+    }
+
     #[tokio::test]
     async fn people_reach_pages_paced_and_zones_are_kept() {
         use crate::daemon::protocol::{Crossing, Side, Track, Tracks, ZoneCount, Zones};
@@ -726,14 +751,7 @@ mod tests {
         // One TRACKS per 1000 s: only the first of a burst passes.
         let hub = Hub::new(64, 0.001);
         let (mut page, _) = hub.subscribe();
-        let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-        let task = tokio::spawn(Arc::clone(&hub).run(
-            Arc::new(Site::default()),
-            publisher.clone(),
-            async move {
-                let _ = stop_rx.await;
-            },
-        ));
+        let running = Running::start(&hub, &publisher);
         while publisher.people_watchers() == 0 {
             tokio::task::yield_now().await;
         }
@@ -793,8 +811,7 @@ mod tests {
             first.iter().any(|l| l.as_str() == zones.to_line()),
             "a new page gets the latest ZONES first"
         );
-        let _ = stop_tx.send(());
-        task.await.unwrap();
+        running.stop().await;
     }
 
     #[tokio::test]
@@ -803,14 +820,7 @@ mod tests {
         let publisher = Publisher::new(64);
         let hub = Hub::new(4, 10.0);
         let (mut page, _) = hub.subscribe();
-        let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
-        let task = tokio::spawn(Arc::clone(&hub).run(
-            Arc::new(Site::default()),
-            publisher.clone(),
-            async move {
-                let _ = stop_rx.await;
-            },
-        ));
+        let running = Running::start(&hub, &publisher);
         while publisher.event_watchers() == 0 {
             tokio::task::yield_now().await;
         }
@@ -841,7 +851,6 @@ mod tests {
             first.iter().map(class).any(|c| c == "EVENT"),
             "a new page gets the recent events"
         );
-        let _ = stop_tx.send(());
-        task.await.unwrap();
+        running.stop().await;
     }
 }
