@@ -137,6 +137,9 @@ struct Track {
     /// Its static view once posed: the scans are compared with it beam by beam (moved-sensor
     /// detection), and a moved neighbour is aligned against it.
     background: Option<Scan>,
+    /// `background` is a one-second median, taken before the motion buffer held enough scans
+    /// for a view through the crowd: it is taken again once it does.
+    background_provisional: bool,
     /// `background` prepared for registration, made once (a moved neighbour's local
     /// refinement aligns against it, and should not wait for it to be built).
     background_model: Option<ScanModel>,
@@ -384,6 +387,7 @@ impl Registrar {
                         pose,
                         sigma: pose.and(sigma),
                         background: None,
+                        background_provisional: false,
                         background_model: None,
                         local_refused: None,
                         changed_since_ns: None,
@@ -450,6 +454,7 @@ impl Registrar {
     pub fn push(&mut self, item: WorkItem) -> Option<Moved> {
         let window_ns = (self.window_s * 1e9) as u64;
         let window_s = self.window_s;
+        let motion_s = self.motion_s;
         let params = &self.params;
         self.stream_ns = self.stream_ns.max(item.scan.stamp_ns);
         let t = self.tracks.get_mut(&item.sensor)?;
@@ -515,10 +520,16 @@ impl Registrar {
         {
             t.scans.pop_front();
         }
-        // A posed sensor without a background takes its first full static view as one.
-        if t.need == Need::Nothing && t.background.is_none() && t.ready(window_s) {
-            let scans: Vec<Scan> = t.scans.iter().cloned().collect();
-            t.background = static_view(&scans, window_s);
+        // A posed sensor takes its static view as its background: through the crowd once the
+        // motion buffer allows, and until then a one-second median, taken again then (in a
+        // crowd the median holds people, and a scan seeing past them once they walked on
+        // looked like a sensor moved). Not while a change is under way: that is what it tests.
+        let through_crowd = t.motion.len() >= PERSIST_MIN_SCANS;
+        let stale = t.background.is_none()
+            || (t.background_provisional && through_crowd && t.changed_since_ns.is_none());
+        if t.need == Need::Nothing && stale && t.ready(window_s) {
+            t.background = t.view(window_s, motion_s).map(|(view, _)| view);
+            t.background_provisional = !through_crowd;
             t.background_model = t
                 .background
                 .as_ref()
@@ -1337,6 +1348,31 @@ mod tests {
             let mut s = scan((t * 1e9) as u64);
             // Three quarters of the view blocked by someone half a metre away.
             s.ranges_m = vec![0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 2.0, 2.0];
+            let moved = r.push(WorkItem {
+                sensor: "b".into(),
+                scan: s,
+                geometry: None,
+            });
+            assert_eq!(moved, None, "at {t:.2} s");
+            t += 0.025;
+        }
+        assert!(r.pending().is_empty());
+    }
+
+    #[test]
+    fn a_crowd_in_view_when_it_was_placed_is_not_a_move_once_it_walks_on() {
+        let mut r = Registrar::new("a", &RegistrationConfig::default());
+        add(&mut r, "a", true);
+        add(&mut r, "b", true);
+        // For 6 s people stand and walk in front of six of b's eight beams, 1 m away, three
+        // scans in five; then they are gone and b sees its 2 m walls again.
+        let mut t: f64 = 0.0;
+        while t < 10.0 {
+            let mut s = scan((t * 1e9) as u64);
+            let step = (t / 0.025).round() as u64;
+            if t < 6.0 && step % 5 < 3 {
+                s.ranges_m[..6].fill(1.0);
+            }
             let moved = r.push(WorkItem {
                 sensor: "b".into(),
                 scan: s,
