@@ -7,7 +7,7 @@
 use super::memo::ScoreMemo;
 use super::{SensorInput, SiteParams};
 use crate::geometry::{Pose2, pose_error, pose2};
-use crate::register::{Candidate, PairResult, RegisterParams};
+use crate::register::{Abstain, Candidate, PairResult, RegisterParams};
 use rayon::prelude::*;
 
 /// What the joins leave: why each group is unplaced (None if joined or not weighed) and the
@@ -329,6 +329,14 @@ pub(super) struct Join {
     pub(super) walked: bool,
 }
 
+/// Whether people walking refuted every candidate of the pair (`Abstain::PeopleDisagree`):
+/// then none proposes a placement or speaks for or against one. Weighed by walls alone
+/// against the placed sensors, a look-alike the walkers had refuted joined six correctly
+/// bound units 12 m and 90° off the anchor (held-out shop, `eval --only drawing`).
+fn refuted_by_people(r: &PairResult) -> bool {
+    matches!(r.verdict, Err(Abstain::PeopleDisagree { .. }))
+}
+
 impl Join {
     pub(super) fn priority(&self) -> f64 {
         self.score.value * (1.0 - self.ambiguity)
@@ -450,6 +458,9 @@ impl JoinContext<'_> {
                     (false, true) => (a, true),
                     _ => return None,
                 };
+                if refuted_by_people(r) {
+                    return None;
+                }
                 let (_, anchor_from_other) = self.placed.iter().find(|(i, _)| *i == other)?;
                 let other_from_k = anchor_from_other.inverse() * anchor_from_k;
                 Some(r.candidates.iter().filter_map(move |c| {
@@ -517,6 +528,9 @@ impl JoinContext<'_> {
         let member = |s: usize| member_at.get(s).copied().flatten();
         let mut proposals: Vec<(f64, Pose2, (usize, usize))> = Vec::new();
         for (k, (&(a, b), r)) in self.pairs.iter().zip(self.results).enumerate() {
+            if refuted_by_people(r) {
+                continue;
+            }
             let (anchor_from_placed, root_from_member, member_is_b) =
                 match (pose_of(a), member(b), pose_of(b), member(a)) {
                     (Some(pa), Some(rb), _, _) => (pa, rb, true),

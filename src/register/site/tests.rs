@@ -683,6 +683,35 @@ fn a_pair_people_placed_joins_where_walls_alone_would_slide_or_share_too_little(
 }
 
 #[test]
+fn candidates_people_refuted_propose_nothing_and_speak_for_nothing() {
+    let two = two_in(&hall(), [pose2(-1.0, 0.0, 0.0), pose2(1.5, 0.5, 0.3)]);
+    let truth = two.pair.a_from_b;
+    let (p, sp) = (RegisterParams::default(), SiteParams::default());
+    let s1 = [(1, Pose2::identity())];
+    // The walls' candidate alone, registered: it places s1 and supports it there.
+    let mut with = TwoSensors {
+        pair: PairResult {
+            verdict: Ok(()),
+            ..two.pair.clone()
+        },
+        sensors: two.sensors.clone(),
+    };
+    assert!(with.context(&p, &sp, |ctx| ctx.weigh(&s1)).is_ok());
+    assert_eq!(with.context(&p, &sp, |ctx| ctx.support(1, truth)), 1);
+    // People saw walkers through it: the same candidate proposes nothing.
+    with.pair.verdict = Err(crate::register::Abstain::PeopleDisagree {
+        seen_through: 35,
+        seen: 40,
+    });
+    let refused = with.context(&p, &sp, |ctx| ctx.weigh(&s1)).err();
+    assert!(
+        matches!(refused, Some(Refusal::NoProposal)),
+        "a refuted candidate proposed: {refused:?}"
+    );
+    assert_eq!(with.context(&p, &sp, |ctx| ctx.support(1, truth)), 0);
+}
+
+#[test]
 fn a_sensor_reached_by_no_edge_stays_unplaced() {
     let truth = [
         pose2(0.0, 0.0, 0.0),
