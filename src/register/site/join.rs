@@ -1,7 +1,9 @@
 //! Joins: each group not yet placed is weighed against every placed sensor jointly (the
 //! placements its pairs' candidates propose, scored against all placed scans; refused when
 //! ambiguous, weak, contradicted or free to slide), and the best-supported acceptable group
-//! joins first, one at a time, since each join is evidence for the rest. Owns `Refusal`, the
+//! joins first, one at a time, since each join is evidence for the rest. People walking weigh
+//! in twice: a placement a pair's walkers decided stands on their walks where walls share too
+//! little or let it slide, and candidates they refuted propose nothing. Owns `Refusal`, the
 //! reasons a group stays unplaced.
 
 use super::memo::ScoreMemo;
