@@ -431,6 +431,10 @@ pub(super) fn print_table(o: &Output) {
                     "placed by people alone: {} sightings both saw over {:.0} s",
                     w.sightings, w.seconds
                 ),
+                (None, Some(w)) if p.evidence == Some("walls+walkers") => format!(
+                    "people chose among the walls' answers: {} sightings both saw over {:.0} s",
+                    w.sightings, w.seconds
+                ),
                 _ => String::new(),
             }
         );
