@@ -717,8 +717,6 @@ mod tests {
         assert_eq!(drawings(&mut page), 1, "a new alignment is sent once");
     }
 
-    /// TRACKS reach a page paced like a sensor's scans; ZONES and CROSSING all reach it, and
-    /// the latest ZONES is among the first lines of a page that opens later.
     /// A hub's task running on an empty site, fed by `publisher`, until stopped.
     struct Running {
         stop: tokio::sync::oneshot::Sender<()>,
@@ -744,6 +742,8 @@ mod tests {
         }
     }
 
+    /// TRACKS reach a page paced like a sensor's scans; ZONES and CROSSING all reach it, and
+    /// the latest ZONES is among the first lines of a page that opens later.
     #[tokio::test]
     async fn people_reach_pages_paced_and_zones_are_kept() {
         use crate::daemon::protocol::{Crossing, Side, Track, Tracks, ZoneCount, Zones};
