@@ -1337,17 +1337,13 @@ mod tests {
         assert_eq!(r.pending(), ["b"]);
     }
 
-    #[test]
-    fn someone_standing_in_front_for_seconds_is_not_a_move() {
-        let mut r = Registrar::new("a", &RegistrationConfig::default());
-        add(&mut r, "a", true);
-        add(&mut r, "b", true);
-        feed(&mut r, "b", 0.0, 1.0);
-        let mut t = 1.1;
-        while t < 4.0 {
+    /// Feeds b a scan every 25 ms from `from_s` until `to_s`, each shaped by `shape` (its
+    /// stamp in s, its 2 m ranges), asserting at each that b is not called moved.
+    fn never_moved(r: &mut Registrar, from_s: f64, to_s: f64, shape: impl Fn(f64, &mut [f32])) {
+        let mut t = from_s;
+        while t < to_s {
             let mut s = scan((t * 1e9) as u64);
-            // Three quarters of the view blocked by someone half a metre away.
-            s.ranges_m = vec![0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 2.0, 2.0];
+            shape(t, &mut s.ranges_m);
             let moved = r.push(WorkItem {
                 sensor: "b".into(),
                 scan: s,
@@ -1356,6 +1352,16 @@ mod tests {
             assert_eq!(moved, None, "at {t:.2} s");
             t += 0.025;
         }
+    }
+
+    #[test]
+    fn someone_standing_in_front_for_seconds_is_not_a_move() {
+        let mut r = Registrar::new("a", &RegistrationConfig::default());
+        add(&mut r, "a", true);
+        add(&mut r, "b", true);
+        feed(&mut r, "b", 0.0, 1.0);
+        // Three quarters of the view blocked by someone half a metre away.
+        never_moved(&mut r, 1.1, 4.0, |_, ranges| ranges[..6].fill(0.5));
         assert!(r.pending().is_empty());
     }
 
@@ -1366,21 +1372,11 @@ mod tests {
         add(&mut r, "b", true);
         // For 6 s people stand and walk in front of six of b's eight beams, 1 m away, three
         // scans in five; then they are gone and b sees its 2 m walls again.
-        let mut t: f64 = 0.0;
-        while t < 10.0 {
-            let mut s = scan((t * 1e9) as u64);
-            let step = (t / 0.025).round() as u64;
-            if t < 6.0 && step % 5 < 3 {
-                s.ranges_m[..6].fill(1.0);
+        never_moved(&mut r, 0.0, 10.0, |t, ranges| {
+            if t < 6.0 && (t / 0.025).round() as u64 % 5 < 3 {
+                ranges[..6].fill(1.0);
             }
-            let moved = r.push(WorkItem {
-                sensor: "b".into(),
-                scan: s,
-                geometry: None,
-            });
-            assert_eq!(moved, None, "at {t:.2} s");
-            t += 0.025;
-        }
+        });
         assert!(r.pending().is_empty());
     }
 

@@ -717,14 +717,15 @@ mod tests {
         assert_eq!(drawings(&mut page), 1, "a new alignment is sent once");
     }
 
-    /// A hub's task running on an empty site, fed by `publisher`, until stopped.
+    /// A hub's task running on an empty site, fed by `publisher`, until stopped; started once
+    /// it takes the publisher's events and people (a page must be open for the people).
     struct Running {
         stop: tokio::sync::oneshot::Sender<()>,
         task: tokio::task::JoinHandle<()>,
     }
 
     impl Running {
-        fn start(hub: &Arc<Hub>, publisher: &Publisher) -> Running {
+        async fn start(hub: &Arc<Hub>, publisher: &Publisher) -> Running {
             let (stop, stop_rx) = tokio::sync::oneshot::channel::<()>();
             let task = tokio::spawn(Arc::clone(hub).run(
                 Arc::new(Site::default()),
@@ -733,6 +734,9 @@ mod tests {
                     let _ = stop_rx.await;
                 },
             ));
+            while publisher.event_watchers() == 0 || publisher.people_watchers() == 0 {
+                tokio::task::yield_now().await;
+            }
             Running { stop, task }
         }
 
@@ -751,10 +755,7 @@ mod tests {
         // One TRACKS per 1000 s: only the first of a burst passes.
         let hub = Hub::new(64, 0.001);
         let (mut page, _) = hub.subscribe();
-        let running = Running::start(&hub, &publisher);
-        while publisher.people_watchers() == 0 {
-            tokio::task::yield_now().await;
-        }
+        let running = Running::start(&hub, &publisher).await;
         let tracks = |t_ns| {
             Message::Tracks(Tracks {
                 t_ns,
@@ -820,10 +821,7 @@ mod tests {
         let publisher = Publisher::new(64);
         let hub = Hub::new(4, 10.0);
         let (mut page, _) = hub.subscribe();
-        let running = Running::start(&hub, &publisher);
-        while publisher.event_watchers() == 0 {
-            tokio::task::yield_now().await;
-        }
+        let running = Running::start(&hub, &publisher).await;
         for i in 0..12 {
             publisher.event(Event::now(EventKind::Saved, None, format!("event {i}")));
         }
