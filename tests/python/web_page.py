@@ -146,20 +146,20 @@ def align_by_pairs(page, sock, screenshot):
         sys.exit("the two pairs are not listed")
     page.screenshot(path=screenshot)
     page.click("#align-pairs")
-    end = time.monotonic() + 30
-    while page.get_attribute("#building", "data-method") != "pairs+lines":
-        if time.monotonic() > end:
-            sys.exit(
-                "timed out after 30 s waiting for the page to show the alignment from the pairs:"
-                f" #building says {page.inner_text('#building')!r}, the toast"
-                f" {page.inner_text('#toast')!r}, pairs"
-                f" {[li.get_attribute('data-pair') for li in page.query_selector_all('#pairs li')]}"
-            )
-        time.sleep(0.25)
+    until(
+        lambda: "the page to show the alignment from the pairs:"
+        f" #building says {page.inner_text('#building')!r}, the toast"
+        f" {page.inner_text('#toast')!r}, pairs"
+        f" {[li.get_attribute('data-pair') for li in page.query_selector_all('#pairs li')]}",
+        30,
+        lambda: page.get_attribute("#building", "data-method") == "pairs+lines",
+    )
     return ask(sock, {"cmd": "poses"})["building_from_site"]
 
 
 def until(what, seconds, check):
+    """`check()` once it is truthy; else exits naming `what` (a string, or a function that
+    describes what the page shows at the time out)."""
     end = time.monotonic() + seconds
     last = None
     while time.monotonic() < end:
@@ -167,7 +167,7 @@ def until(what, seconds, check):
         if last:
             return last
         time.sleep(0.25)
-    sys.exit(f"timed out after {seconds} s waiting for {what}")
+    sys.exit(f"timed out after {seconds} s waiting for {what() if callable(what) else what}")
 
 
 def main():
