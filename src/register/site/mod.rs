@@ -125,13 +125,15 @@ pub struct SiteParams {
     pub confirming_pairs: usize,
     /// Pair selection (`pairs`): register first only each sensor's this many most alike
     /// views, the rest only where sensors stay unplaced or the site puts two sensors' views
-    /// over each other. Off (every pair) by default: on a simulated concourse of 25 scanners
-    /// dropped at random, selection (8) placed two sensors wrong that every pair refused (a
-    /// sensor joined at a look-alike place is never tried against its true neighbours, whose
-    /// pairs would have shown the rival place). Sites of up to this many + 1 sensors register
-    /// every pair either way. On the installed concourse of 100 (eval seed 1) selection (8)
-    /// registered 2418 of 4950 pairs and placed exactly what every pair placed, but took 16
-    /// rounds of joins (concourse-50: 25.9 s, load 7, against 17.8 s for every pair, load 5).
+    /// over each other. Off (every pair) by default: it saves time only on the largest sites.
+    /// On generated concourses (eval seeds 1–3, `--partners 8 --site-compare`) it placed
+    /// exactly what every pair placed, to 0.00 mm, installed and dropped at random, but took
+    /// 1.3–1.7 s against 1.4–1.7 s at 25 scanners and 5.4–9.7 s against 6.3–7.9 s at 50; at
+    /// 100 (seed 1) 24.3 s against 32.6 s, registering 3229 of 4950 pairs. Its ranking is the
+    /// weak part: of the pairs sharing ≥ 30 % of their view, the first 8 partners hold 25 %
+    /// at 100 scanners (a concourse's bays look alike). The joins, not the pairs, were its
+    /// cost (69 s at 100): rounds now close the triangles of registered pairs and widen from
+    /// the groups alone, and join only when neither proposes a pair.
     pub partners: usize,
 }
 
@@ -212,6 +214,7 @@ pub fn register_site(
     let mut selection = pairs::PairSelection::new(sensors, p, sp.partners);
     let mut round = selection.first_round();
     let mut rounds = 0;
+    let mut cheap_done = false;
     // Scores of placements stay valid from round to round: pairs added propose new ones.
     let memo = memo::ScoreMemo::default();
     // Register a round of pairs, place what they place, widen where that leaves gaps.
@@ -224,6 +227,25 @@ pub fn register_site(
             round.len(),
             started.elapsed().as_secs_f64()
         );
+        // Close the triangles the pairs make before weighing anything: cheap, and it binds
+        // chains into groups, which the joins then need not weigh one by one.
+        round = selection.close_triangles();
+        if !round.is_empty() {
+            continue;
+        }
+        // Widen from the groups alone (the anchor's group as placed) while that proposes
+        // pairs: the joins are the dear stage, and more pairs make bigger groups.
+        if !cheap_done {
+            let (pairs, results) = selection.registered();
+            let checked = groups::checked_edges(n, anchor, &pairs, &results, sp);
+            let (placed, groups) = groups::groups(n, anchor, &checked.edges);
+            let is_placed: Vec<bool> = placed.iter().map(Option::is_some).collect();
+            round = selection.widen(&frames(&placed, &groups), &is_placed);
+            if !round.is_empty() {
+                continue;
+            }
+            cheap_done = true;
+        }
         let placing = place(n, anchor, sensors, selection.registered(), p, sp, &memo);
         round = selection.widen(&placing.frame(), &placing.is_placed());
         if round.is_empty() {

@@ -1,11 +1,13 @@
 //! Pair selection: which pairs of sensors are registered. Most pairs of a large site share no
 //! view, and registering one is the dearest step, so a site starts from each sensor's most
-//! likely partners (`descriptor`'s ranking) and widens in rounds, after each of which the
-//! stages place what they can: a sensor still unplaced tries the partners of the sensors it
-//! already shares view with, and when there are none left, the next partners in its ranking
-//! (twice as many each round, down to every other sensor); two sensors that are placed (or in one group) are registered when
-//! their scans overlap where the site puts them, which adds the cycles and pairs that check
-//! them. It stops when a round proposes nothing new. Every other pair is skipped, and why.
+//! likely partners (`descriptor`'s ranking) and widens in rounds. Two pairs registered
+//! through one sensor propose the pair that closes their triangle; then the groups alone, and
+//! once nothing more comes of them the stages (joins), say where every sensor stands: a sensor
+//! still unplaced tries the partners of the sensors it already shares view with, and when
+//! there are none left, the next partners in its ranking (twice as many each round, down to
+//! every other sensor); two sensors placed (or in one group) are registered when their scans
+//! overlap where the site puts them, which adds the cycles and pairs that check them. It
+//! stops when a round proposes nothing new. Every other pair is skipped, and why.
 
 use super::SensorInput;
 use super::descriptor::{ViewDescriptor, rank_partners};
@@ -197,6 +199,41 @@ impl<'a> PairSelection<'a> {
             }
         }
         self.fresh(pairs)
+    }
+
+    /// Pairs that close a triangle: `a` and `c`, each registered with some `b`, that share at
+    /// least `PREDICTED_SHARE` of their view where those two registrations put them. It needs
+    /// no joins, so a chain of pairs becomes cycles (and groups) before the site stages weigh
+    /// it: most of a large site's true pairs are found this way, in few rounds.
+    pub fn close_triangles(&self) -> Vec<(usize, usize)> {
+        let n = self.sensors.len();
+        let mut linked: Vec<Vec<(usize, Pose2)>> = vec![Vec::new(); n];
+        for (&(a, b), r) in &self.results {
+            if r.registered() {
+                linked[a].push((b, r.a_from_b));
+                linked[b].push((a, r.a_from_b.inverse()));
+            }
+        }
+        let candidates: Vec<(usize, usize, Pose2)> = (0..n)
+            .flat_map(|b| {
+                let linked = &linked;
+                linked[b].iter().flat_map(move |&(a, b_from_a)| {
+                    linked[b]
+                        .iter()
+                        .filter(move |&&(c, _)| c > a)
+                        .map(move |&(c, b_from_c)| (a, c, b_from_a.inverse() * b_from_c))
+                })
+            })
+            .filter(|(a, c, _)| !self.results.contains_key(&(*a, *c)))
+            .collect();
+        let mut pairs: Vec<(usize, usize)> = candidates
+            .par_iter()
+            .filter(|(a, c, a_from_c)| self.predicted(*a, *c, a_from_c) >= PREDICTED_SHARE)
+            .map(|&(a, c, _)| (a, c))
+            .collect();
+        pairs.sort_unstable();
+        pairs.dedup();
+        pairs
     }
 
     /// Sensors whose pair with `i` found at least `min_overlap` of shared view.

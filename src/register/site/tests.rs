@@ -800,6 +800,32 @@ fn placed_sensors_are_paired_where_their_views_meet_and_not_across_the_site() {
     );
 }
 
+/// Two pairs registered through one sensor propose the third side of their triangle, where
+/// the two registrations put its ends in view of each other; a pair that did not register
+/// (across the site) proposes nothing, and a closed triangle nothing more.
+#[test]
+fn two_registered_pairs_through_one_sensor_propose_the_pair_that_closes_their_triangle() {
+    let truth = [
+        pose2(-3.0, -1.0, 0.3),
+        pose2(1.0, -2.0, 2.6),
+        pose2(-1.0, 1.5, -0.8),
+        pose2(50.0, 3.5, 2.9),
+    ];
+    let sensors = in_hall_and_far_room(&truth);
+    let p = RegisterParams::default();
+    let mut selection = pairs::PairSelection::new(&sensors, &p, 1);
+    selection.register(&[(0, 1), (0, 2), (0, 3)]);
+    let (_, results) = selection.registered();
+    let verdicts: Vec<_> = results.iter().map(|r| r.verdict.clone()).collect();
+    assert!(
+        results[0].registered() && results[1].registered() && !results[2].registered(),
+        "{verdicts:?}"
+    );
+    assert_eq!(selection.close_triangles(), vec![(1, 2)]);
+    selection.register(&[(1, 2)]);
+    assert_eq!(selection.close_triangles(), Vec::new());
+}
+
 /// Three sensors placed in the hall and one in a room 40 m off it; a fourth hall sensor
 /// added alone lands at its truth after registering only the placed sensors it shares view
 /// with, and a sensor in the far room, which shares no view with any placed one, is refused
