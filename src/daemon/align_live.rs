@@ -69,13 +69,11 @@ pub fn align_scans(
     BuildingFromSite::from_alignment(&align(drawing, &sensors, pairs, false, p))
 }
 
-/// Runs until `stop` resolves: aligns the site to the drawing whenever that is due.
-pub async fn run(
-    pipeline: Arc<Pipeline>,
-    pairs: Vec<PointPair>,
-    stop: impl std::future::Future<Output = ()>,
-) {
+/// Runs until `stop` resolves: aligns the site to its drawing (as it stands: a reload may set,
+/// change or remove it) whenever that is due.
+pub async fn run(pipeline: Arc<Pipeline>, stop: impl std::future::Future<Output = ()>) {
     let mut trigger = Trigger::default();
+    let mut tried_on: Option<Arc<Drawing>> = None;
     let mut tick = tokio::time::interval(TICK);
     tokio::pin!(stop);
     loop {
@@ -87,17 +85,28 @@ pub async fn run(
         let Some(drawing) = pipeline.drawing().filter(|_| !aligned) else {
             continue;
         };
+        // Another drawing: the placed sensors are worth a try again.
+        if !tried_on.as_ref().is_some_and(|d| Arc::ptr_eq(d, &drawing)) {
+            trigger = Trigger::default();
+            tried_on = Some(Arc::clone(&drawing));
+        }
+        let pairs = pipeline.drawing_pairs();
         let scans = pipeline.posed_scans();
         let mut placed: Vec<String> = scans.iter().map(|s| s.id.clone()).collect();
         placed.sort();
         if !trigger.due(placed, 3, !pairs.is_empty()) {
             continue;
         }
-        let pairs = pairs.clone();
+        let on = Arc::clone(&drawing);
         let found = tokio::task::spawn_blocking(move || {
-            align_scans(&drawing, &scans, &pairs, &RegisterParams::default())
+            align_scans(&on, &scans, &pairs, &RegisterParams::default())
         })
         .await;
+        // A reload may have changed the drawing while this one was aligned to.
+        let current = pipeline.drawing();
+        if !current.is_some_and(|d| Arc::ptr_eq(&d, &drawing)) {
+            continue;
+        }
         match found {
             Ok(b) => publish(&pipeline, b),
             Err(e) => tracing::warn!("aligning to the drawing failed: {e}"),

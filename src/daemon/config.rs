@@ -1550,6 +1550,9 @@ pub struct ConfigChanges {
     pub need_restart: Vec<&'static str>,
     /// The anchor changed: every pose is relative to it, so all sensors re-register.
     pub anchor_changed: bool,
+    /// `[site] drawing` (its file, layers, scale or point pairs) changed: the alignment to the
+    /// old one is dropped and the site aligned to the new one.
+    pub drawing_changed: bool,
 }
 
 impl ConfigChanges {
@@ -1586,7 +1589,6 @@ impl Config {
             ("site.socket", a.socket != b.socket),
             ("site.socket_mode", a.socket_mode != b.socket_mode),
             ("site.max_clients", a.max_clients != b.max_clients),
-            ("site.drawing", a.drawing != b.drawing),
             (
                 "publish.watch_backlog",
                 self.publish.watch_backlog != new.publish.watch_backlog,
@@ -1609,6 +1611,7 @@ impl Config {
             }
         }
         changes.anchor_changed = a.anchor != b.anchor;
+        changes.drawing_changed = a.drawing != b.drawing;
         changes
     }
 }
@@ -2167,6 +2170,26 @@ map_cell_m = 0.1
         .unwrap();
         assert_eq!(a.changes_to(&b).need_restart, ["web", "foxglove"]);
         assert!(a.changes_to(&a).is_empty());
+    }
+
+    #[test]
+    fn a_reload_applies_a_changed_drawing_live() {
+        let a = parse(GOOD).unwrap();
+        let drawn = |more: &str| {
+            parse(&GOOD.replace(
+                "anchor = \"entrance\"",
+                &format!(
+                    "anchor = \"entrance\"\ndrawing = \"plan.pgm\"\ndrawing_scale = 0.1{more}"
+                ),
+            ))
+            .unwrap()
+        };
+        let b = drawn("");
+        let changes = a.changes_to(&b);
+        assert!(changes.drawing_changed && changes.need_restart.is_empty());
+        let paired = drawn("\ndrawing_pairs = \"0,0=1,1; 5,0=6,1\"");
+        assert!(b.changes_to(&paired).drawing_changed);
+        assert!(!b.changes_to(&b).drawing_changed && b.changes_to(&a).drawing_changed);
     }
 
     #[test]

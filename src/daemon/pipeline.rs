@@ -226,8 +226,13 @@ pub struct Pipeline {
     drawing: Mutex<PageDrawing>,
 }
 
-/// The drawing, and its page line once the site is aligned to it.
-type PageDrawing = (Option<Arc<crate::drawing::Drawing>>, Option<Arc<str>>);
+/// The drawing, its page line once the site is aligned to it, and the point pairs that align
+/// it (`[site] drawing_pairs`; empty: automatically).
+type PageDrawing = (
+    Option<Arc<crate::drawing::Drawing>>,
+    Option<Arc<str>>,
+    Vec<crate::drawing::align::PointPair>,
+);
 
 /// A sensor's latest scan, placed or not, for outputs that draw scans in the sensor's own
 /// frame (the Foxglove bridge).
@@ -293,7 +298,7 @@ impl Pipeline {
             tracker: std::sync::OnceLock::new(),
             foxglove: Mutex::new(None),
             building_from_site: tokio::sync::watch::Sender::new(None),
-            drawing: Mutex::new((None, None)),
+            drawing: Mutex::new((None, None, Vec::new())),
         }
     }
 
@@ -322,10 +327,24 @@ impl Pipeline {
         self.building_from_site.subscribe()
     }
 
-    /// The building drawing the page draws under the map once the site is aligned to it.
-    pub(super) fn set_drawing(&self, d: Arc<crate::drawing::Drawing>) {
-        lock(&self.drawing).0 = Some(d);
+    /// The building drawing the page draws under the map once the site is aligned to it, and
+    /// the point pairs that align it (none: automatically).
+    pub(super) fn set_drawing(
+        &self,
+        d: Option<Arc<crate::drawing::Drawing>>,
+        pairs: Vec<crate::drawing::align::PointPair>,
+    ) {
+        {
+            let mut held = lock(&self.drawing);
+            held.0 = d;
+            held.2 = pairs;
+        }
         self.update_drawing_line();
+    }
+
+    /// The point pairs that align the site to its drawing (empty: automatically).
+    pub(super) fn drawing_pairs(&self) -> Vec<crate::drawing::align::PointPair> {
+        lock(&self.drawing).2.clone()
     }
 
     /// The page's `DRAWING` line, when there is a drawing and an alignment to it.

@@ -350,8 +350,9 @@ async fn start_sensor(
     Ok(())
 }
 
-/// Reads `[site] drawing` for the page's underlay. A drawing that cannot be read is an error
-/// on the log, the socket and the terminal, and the daemon goes on without it.
+/// Reads `[site] drawing` for the page's underlay and the live alignment. A drawing that
+/// cannot be read is an error on the log, the socket and the terminal, and the daemon goes on
+/// without it.
 async fn load_drawing(d: super::config::DrawingConfig, pipeline: &Pipeline) {
     let opts = crate::drawing::ReadOptions {
         layers: d.layers.clone(),
@@ -360,7 +361,7 @@ async fn load_drawing(d: super::config::DrawingConfig, pipeline: &Pipeline) {
     };
     let path = d.path.clone();
     match tokio::task::spawn_blocking(move || crate::drawing::read(&path, &opts)).await {
-        Ok(Ok(drawing)) => pipeline.set_drawing(Arc::new(drawing)),
+        Ok(Ok(drawing)) => pipeline.set_drawing(Some(Arc::new(drawing)), d.pairs),
         Ok(Err(e)) => pipeline.announce(
             EventKind::Error,
             None,
@@ -505,7 +506,8 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
     ));
     load_saved_poses(&config, &pipeline);
     if let Some(d) = options.drawing.clone() {
-        pipeline.set_drawing(d);
+        let pairs = config.site.drawing.as_ref().map(|d| d.pairs.clone());
+        pipeline.set_drawing(Some(d), pairs.unwrap_or_default());
     } else if let Some(d) = config.site.drawing.clone() {
         load_drawing(d, &pipeline).await;
     }
@@ -597,16 +599,12 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
     } else {
         None
     };
-    if pipeline.drawing().is_some() {
+    // Always: a drawing set at a reload is aligned to as one read at start.
+    {
         let mut rx = server_stop_rx.clone();
-        let pairs = config.site.drawing.as_ref().map(|d| d.pairs.clone());
-        tokio::spawn(super::align_live::run(
-            Arc::clone(&pipeline),
-            pairs.unwrap_or_default(),
-            async move {
-                let _ = rx.wait_for(|s| *s).await;
-            },
-        ));
+        tokio::spawn(super::align_live::run(Arc::clone(&pipeline), async move {
+            let _ = rx.wait_for(|s| *s).await;
+        }));
     }
     // Zones, lines, OSC and MQTT: fed by the people stream (the tracker publishes TRACKS).
     if super::people_out::wanted(&config.people) {
@@ -741,7 +739,7 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
             Some(super::state::keep_building_from_site(
                 p.state_dir(),
                 p.anchor(),
-                found,
+                Some(found),
             ))
         })
         .await
@@ -847,6 +845,9 @@ async fn reload(
     if changes.anchor_changed {
         notes.push("the anchor changes after a restart".to_string());
     }
+    if changes.drawing_changed {
+        notes.push(redraw(pipeline, new.site.drawing.clone()).await);
+    }
     pipeline.announce(
         EventKind::ConfigReloaded,
         None,
@@ -859,10 +860,41 @@ async fn reload(
             notes.join("; ")
         ),
     );
-    // Keep what cannot change live; take the sensors.
+    // Keep what cannot change live; take the sensors and the drawing.
     Config {
         sensors: new.sensors,
+        site: super::config::SiteConfig {
+            drawing: new.site.drawing,
+            ..config.site
+        },
         ..config
+    }
+}
+
+/// A changed `[site] drawing` at a reload: the alignment to the old drawing no longer holds,
+/// so it is forgotten (on the socket, the page and in `poses.toml`), the new drawing is read,
+/// and the live alignment aligns the site to it. Returns what the reload event says of it.
+async fn redraw(pipeline: &Pipeline, d: Option<super::config::DrawingConfig>) -> String {
+    pipeline.set_drawing(None, Vec::new());
+    pipeline.set_building_from_site(None);
+    if let Err(e) =
+        super::state::keep_building_from_site(pipeline.state_dir(), pipeline.anchor(), None)
+    {
+        pipeline.announce(
+            EventKind::Error,
+            None,
+            format!("the alignment to the old drawing is still in poses.toml: {e}"),
+        );
+    }
+    let Some(d) = d else {
+        return "the drawing was removed: poses and maps are in the anchor's frame".to_string();
+    };
+    let path = d.path.display().to_string();
+    load_drawing(d, pipeline).await;
+    if pipeline.drawing().is_some() {
+        format!("the drawing is now {path}: the site is aligned to it again")
+    } else {
+        format!("the drawing {path} could not be read: the site has no drawing")
     }
 }
 
@@ -1019,5 +1051,28 @@ mod tests {
         let p = start(&config);
         load_drawing(config.site.drawing.clone().unwrap(), &p).await;
         assert_eq!(p.drawing_line(), None);
+
+        // A reload with another drawing: the alignment to the old one is forgotten on the
+        // socket, the page and in poses.toml (the poses stay), and the new one is read.
+        std::fs::copy(dir.path().join("plan.pgm"), dir.path().join("plan2.pgm")).unwrap();
+        let config = config_for("plan.pgm");
+        let p = start(&config);
+        load_drawing(config.site.drawing.clone().unwrap(), &p).await;
+        assert!(p.building_from_site().is_some_and(|b| b.aligned));
+        let said = redraw(&p, config_for("plan2.pgm").site.drawing).await;
+        assert!(
+            said.contains("plan2.pgm") && said.contains("aligned to it again"),
+            "{said}"
+        );
+        assert!(p.drawing().is_some_and(|d| d.source.contains("plan2.pgm")));
+        assert_eq!((p.building_from_site(), p.drawing_line()), (None, None));
+        let saved = PosesFile::load(dir.path()).unwrap().unwrap();
+        assert_eq!(saved.building_from_site, None);
+        assert_eq!(saved.sensors.len(), 1);
+        let said = redraw(&p, config_for("gone.pgm").site.drawing).await;
+        assert!(said.contains("could not be read"), "{said}");
+        assert!(p.drawing().is_none());
+        let said = redraw(&p, None).await;
+        assert!(said.contains("removed"), "{said}");
     }
 }

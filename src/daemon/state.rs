@@ -101,21 +101,24 @@ pub struct PosesFile {
 
 /// Sets `building_from_site` in `dir`'s `poses.toml` (a file with no poses yet when there is
 /// none, or one for another anchor), keeping its poses: the next save of the poses and map
-/// files (`pipeline_fuse::save_files`) then writes them in building coordinates.
+/// files (`pipeline_fuse::save_files`) then writes them in building coordinates. `None`
+/// forgets it (the drawing changed); without a file of this anchor there is nothing to forget.
 pub fn keep_building_from_site(
     dir: &Path,
     anchor: &str,
-    building: crate::drawing::BuildingFromSite,
+    building: Option<crate::drawing::BuildingFromSite>,
 ) -> Result<(), StateError> {
-    let mut file = match PosesFile::load(dir)? {
-        Some(f) if f.anchor == anchor => f,
+    let mut file = match (PosesFile::load(dir)?, &building) {
+        (Some(f), _) if f.anchor == anchor => f,
+        // Nothing of this site's to forget.
+        (_, None) => return Ok(()),
         _ => PosesFile {
             anchor: anchor.to_string(),
             sensors: Vec::new(),
             building_from_site: None,
         },
     };
-    file.building_from_site = Some(building);
+    file.building_from_site = building;
     std::fs::create_dir_all(dir).map_err(|source| StateError::Write {
         path: dir.to_path_buf(),
         source,
