@@ -126,14 +126,15 @@ pub struct SiteParams {
     /// Pair selection (`pairs`): register first only each sensor's this many most alike
     /// views, the rest only where sensors stay unplaced or the site puts two sensors' views
     /// over each other. Off (every pair) by default: it saves time only on the largest sites.
-    /// On generated concourses (eval seeds 1–3, `--partners 8 --site-compare`) it placed
-    /// exactly what every pair placed, to 0.00 mm, installed and dropped at random, but took
-    /// 1.3–1.7 s against 1.4–1.7 s at 25 scanners and 5.4–9.7 s against 6.3–7.9 s at 50; at
-    /// 100 (seed 1) 24.3 s against 32.6 s, registering 3229 of 4950 pairs. Its ranking is the
-    /// weak part: of the pairs sharing ≥ 30 % of their view, the first 8 partners hold 25 %
-    /// at 100 scanners (a concourse's bays look alike). The joins, not the pairs, were its
-    /// cost (69 s at 100): rounds now close the triangles of registered pairs and widen from
-    /// the groups alone, and join only when neither proposes a pair.
+    /// Sites of up to this many + 1 sensors register every pair either way. On generated
+    /// concourses (eval seeds 1–3, `--partners 8 --site-compare`) it placed exactly what
+    /// every pair placed, to 0.00 mm (installed at 25, 50 and 100, dropped at random at 25),
+    /// but took 1.3–1.7 s against 1.4–1.7 s at 25 scanners and 5.4–9.7 s against 6.3–7.9 s
+    /// at 50; at 100 (seed 1) 24.3 s against 32.6 s, registering 3229 of 4950 pairs. Its
+    /// ranking is the weak part: of the pairs sharing ≥ 30 % of their view, the first 8
+    /// partners hold 25 % at 100 scanners (a concourse's bays look alike). The joins, not
+    /// the pairs, were its cost (69 s at 100): rounds now close the triangles of registered
+    /// pairs and widen from the groups alone, and join only when neither proposes a pair.
     pub partners: usize,
 }
 
