@@ -75,6 +75,7 @@ fn site() -> FixedSite {
             sensors,
             web: None,
             foxglove: None,
+            zenoh: None,
         },
         poses: Poses {
             anchor: ids[0].clone(),

@@ -33,6 +33,7 @@ impl StatusSource for Site {
             sensors: vec![],
             web: None,
             foxglove: None,
+            zenoh: None,
         }
     }
     fn poses(&self) -> Poses {

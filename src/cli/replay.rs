@@ -175,6 +175,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             ..FoxgloveConfig::default()
         },
         track: config::TrackConfig::default(),
+        // A replay is one machine's site, never a zone of one on the network.
+        zenoh: None,
     };
     if let Some(addr) = args.web
         && !addr.ip().is_loopback()

@@ -487,6 +487,7 @@ mod tests {
             sensors: vec![a, b, c],
             web: None,
             foxglove: None,
+            zenoh: None,
         });
         assert_eq!(
             line,
@@ -524,6 +525,7 @@ mod tests {
             sensors,
             web: None,
             foxglove: None,
+            zenoh: None,
         }
     }
 

@@ -203,6 +203,9 @@ pub fn render_table(status: &Status, poses: &Poses) -> String {
     if let Some(foxglove) = &status.foxglove {
         let _ = write!(out, " · {foxglove}");
     }
+    if let Some(zenoh) = &status.zenoh {
+        let _ = write!(out, " · {zenoh}");
+    }
     out.push('\n');
     let _ = writeln!(
         out,
@@ -426,6 +429,7 @@ mod tests {
             sensors: vec![a, b],
             web: None,
             foxglove: None,
+            zenoh: None,
         };
         let mut pa = SensorPose::unregistered("entrance", "");
         pa.registered = true;

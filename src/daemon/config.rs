@@ -44,6 +44,41 @@ pub struct Config {
     pub foxglove: FoxgloveConfig,
     /// `[track]`: the people tracker.
     pub track: TrackConfig,
+    /// `[zenoh]`: this daemon as one zone of a site spread over several machines; `None`
+    /// runs the site alone.
+    pub zenoh: Option<ZenohConfig>,
+}
+
+/// `[zenoh]`: the zone this daemon holds of a site that spans several machines, and how it
+/// reaches the others (`crate::daemon::zone_net`). Explicit endpoints only: multicast
+/// scouting stays off, as rmw_zenoh has it. (Not `[zone]`: `[[zone]]` is a counting area.)
+#[derive(Debug, Clone, PartialEq)]
+pub struct ZenohConfig {
+    /// This daemon's zone of the site, unique per site; it names its keys
+    /// (`scanfuse/<site>/<zone>/…`), so letters, digits, `-` and `_` only.
+    pub zone: String,
+    /// `tcp/HOST:PORT` endpoints to connect to: another daemon's `listen`, or a router's.
+    pub connect: Vec<String>,
+    /// `tcp/HOST:PORT` endpoints others connect to (a small site needs no router).
+    pub listen: Vec<String>,
+}
+
+impl ZenohConfig {
+    /// "zone east of site hall on Zenoh, listening on …, connecting to …".
+    pub fn describe(&self, site: &str) -> String {
+        let mut ends = Vec::new();
+        if !self.listen.is_empty() {
+            ends.push(format!("listening on {}", self.listen.join(", ")));
+        }
+        if !self.connect.is_empty() {
+            ends.push(format!("connecting to {}", self.connect.join(", ")));
+        }
+        format!(
+            "zone {} of site {site} on Zenoh, {}",
+            self.zone,
+            ends.join(", ")
+        )
+    }
 }
 
 /// `[track]`: whether the daemon follows people, and the two times a site tunes.
@@ -547,6 +582,18 @@ struct RawConfig {
     foxglove: Option<Spanned<RawFoxglove>>,
     #[serde(default)]
     track: Option<Spanned<RawTrack>>,
+    #[serde(default)]
+    zenoh: Option<Spanned<RawZenoh>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawZenoh {
+    zone: Spanned<String>,
+    #[serde(default)]
+    connect: Vec<Spanned<String>>,
+    #[serde(default)]
+    listen: Vec<Spanned<String>>,
 }
 
 #[derive(Deserialize)]
@@ -849,6 +896,7 @@ impl Config {
         let site = raw.site.into_inner();
         let zones_frame = site.zones_frame.clone();
         let name = site.name.get_ref().trim().to_string();
+        let name_span = site.name.span();
         if name.is_empty() {
             return Err(loc.at(
                 site.name.span(),
@@ -1088,6 +1136,10 @@ impl Config {
             Some(t) => parse_track(&loc, t.into_inner())?,
             None => TrackConfig::default(),
         };
+        let zenoh = match raw.zenoh {
+            Some(z) => Some(parse_zenoh(&loc, z, &name, name_span)?),
+            None => None,
+        };
 
         Ok(Config {
             path: path.to_path_buf(),
@@ -1107,6 +1159,7 @@ impl Config {
             people,
             foxglove,
             track,
+            zenoh,
         })
     }
 
@@ -1179,12 +1232,18 @@ impl Config {
                 }
             ));
         }
+        if let Some(z) = &self.zenoh {
+            out.push_str(&format!(
+                "  {} (keys scanfuse/{}/{}/…)\n",
+                z.describe(&self.site.name),
+                self.site.name,
+                z.zone
+            ));
+        }
         out
     }
 }
 
-/// `[foxglove]`, checked. Any address is allowed: the server takes no requests that change
-/// anything (no client publishing, services or parameters).
 /// `[track]`, checked.
 fn parse_track(loc: &Locator<'_>, raw: RawTrack) -> Result<TrackConfig, ConfigError> {
     let mut out = TrackConfig::default();
@@ -1208,6 +1267,78 @@ fn parse_track(loc: &Locator<'_>, raw: RawTrack) -> Result<TrackConfig, ConfigEr
         }
     }
     Ok(out)
+}
+
+/// `[zenoh]`, checked: ids that are safe in a key expression (the site's name names the keys
+/// too), TCP endpoints (the one transport built in), and at least one of them.
+fn parse_zenoh(
+    loc: &Locator<'_>,
+    raw: Spanned<RawZenoh>,
+    site: &str,
+    site_span: Range<usize>,
+) -> Result<ZenohConfig, ConfigError> {
+    let span = raw.span();
+    let z = raw.into_inner();
+    let key_safe = |t: &str| {
+        !t.is_empty()
+            && t.len() <= 64
+            && t.chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+    };
+    if !cfg!(feature = "zenoh") {
+        return Err(loc.at(
+            span,
+            "zenoh",
+            "this scanfuse was built without the `zenoh` feature; build it with `--features zenoh` (on by default)",
+        ));
+    }
+    if !key_safe(site) {
+        return Err(loc.at(
+            site_span,
+            "site.name",
+            format!("{site:?} names the site's Zenoh keys: use letters, digits, - and _ only (at most 64)"),
+        ));
+    }
+    let zone = z.zone.get_ref().trim().to_string();
+    if !key_safe(&zone) {
+        return Err(loc.at(
+            z.zone.span(),
+            "zenoh.zone",
+            format!("{zone:?} is not a zone id: use letters, digits, - and _ only (at most 64), e.g. \"east\""),
+        ));
+    }
+    let endpoints = |list: &[Spanned<String>], key: &str| {
+        list.iter()
+            .map(|e| {
+                let text = e.get_ref().trim();
+                let ok = text
+                    .strip_prefix("tcp/")
+                    .and_then(|a| a.rsplit_once(':'))
+                    .is_some_and(|(host, port)| !host.is_empty() && port.parse::<u16>().is_ok());
+                if ok {
+                    Ok(text.to_string())
+                } else {
+                    Err(loc.at(e.span(), key, format!(
+                        "{text:?} is not an endpoint: write tcp/HOST:PORT, e.g. \"tcp/10.0.0.5:7447\" (TCP is the one transport built in)"
+                    )))
+                }
+            })
+            .collect::<Result<Vec<String>, ConfigError>>()
+    };
+    let connect = endpoints(&z.connect, "zenoh.connect")?;
+    let listen = endpoints(&z.listen, "zenoh.listen")?;
+    if connect.is_empty() && listen.is_empty() {
+        return Err(loc.at(
+            span,
+            "zenoh",
+            "give connect = [\"tcp/HOST:PORT\"] (another daemon's or a router's) and/or listen = [\"tcp/IP:PORT\"]: multicast discovery is off",
+        ));
+    }
+    Ok(ZenohConfig {
+        zone,
+        connect,
+        listen,
+    })
 }
 
 fn parse_foxglove(
@@ -1605,6 +1736,7 @@ impl Config {
             ("web", self.web != new.web),
             ("foxglove", self.foxglove != new.foxglove),
             ("track", self.track != new.track),
+            ("zenoh", self.zenoh != new.zenoh),
         ] {
             if differs {
                 changes.need_restart.push(key);
@@ -2190,6 +2322,60 @@ map_cell_m = 0.1
         let paired = drawn("\ndrawing_pairs = \"0,0=1,1; 5,0=6,1\"");
         assert!(b.changes_to(&paired).drawing_changed);
         assert!(!b.changes_to(&b).drawing_changed && b.changes_to(&a).drawing_changed);
+    }
+
+    #[test]
+    fn zenoh_takes_a_key_safe_zone_and_tcp_endpoints_and_names_the_line_of_a_bad_one() {
+        assert_eq!(parse(GOOD).unwrap().zenoh, None);
+        let with = |table: &str| format!("{GOOD}\n[zenoh]\n{table}\n");
+        let z = parse(&with(
+            "zone = \"east\"\nconnect = [\"tcp/10.0.0.5:7447\"]\nlisten = [\"tcp/0.0.0.0:7447\"]",
+        ))
+        .unwrap()
+        .zenoh
+        .unwrap();
+        assert_eq!(
+            (z.zone.as_str(), z.connect, z.listen),
+            (
+                "east",
+                vec!["tcp/10.0.0.5:7447".to_string()],
+                vec!["tcp/0.0.0.0:7447".to_string()]
+            )
+        );
+        let zenoh_line = GOOD.lines().count() + 2;
+        for (table, key, says, line) in [
+            (
+                "zone = \"east/2\"\nlisten = [\"tcp/1.2.3.4:1\"]",
+                "zenoh.zone",
+                "not a zone id",
+                1,
+            ),
+            (
+                "zone = \"east\"\nconnect = [\"udp/1.2.3.4:7447\"]",
+                "zenoh.connect",
+                "tcp/HOST:PORT",
+                2,
+            ),
+            (
+                "zone = \"east\"\nlisten = [\"tcp/1.2.3.4\"]",
+                "zenoh.listen",
+                "tcp/HOST:PORT",
+                2,
+            ),
+            ("zone = \"east\"", "zenoh", "multicast discovery is off", 0),
+        ] {
+            let (at, k, msg) = invalid(&with(table));
+            assert_eq!((k.as_str(), at), (key, zenoh_line + line), "{table}: {msg}");
+            assert!(msg.contains(says), "{table}: {msg}");
+        }
+        let (_, k, msg) = invalid(&format!(
+            "{}\n[zenoh]\nzone = \"east\"\nlisten = [\"tcp/1.2.3.4:1\"]\n",
+            GOOD.replace("name = \"hall-3f\"", "name = \"hall 3f\"")
+        ));
+        assert_eq!(k, "site.name", "{msg}");
+        let a = parse(GOOD).unwrap();
+        let b = parse(&with("zone = \"east\"\nlisten = [\"tcp/1.2.3.4:1\"]")).unwrap();
+        assert_eq!(a.changes_to(&b).need_restart, ["zenoh"]);
     }
 
     #[test]

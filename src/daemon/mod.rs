@@ -33,3 +33,5 @@ pub mod signals;
 pub mod socket;
 pub mod state;
 pub mod surveys;
+#[cfg(feature = "zenoh")]
+pub mod zone_net;

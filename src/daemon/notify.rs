@@ -125,6 +125,7 @@ mod tests {
             ],
             web: None,
             foxglove: None,
+            zenoh: None,
         };
         let mut a = SensorPose::unregistered("a", "");
         a.registered = true;

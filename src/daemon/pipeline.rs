@@ -218,6 +218,8 @@ pub struct Pipeline {
     tracker: std::sync::OnceLock<DropOldestSender<PosedScan>>,
     /// Where the Foxglove server listens, or why it does not (`status`' `foxglove`).
     foxglove: Mutex<Option<String>>,
+    /// The zone on Zenoh, or why it is not on the network (`status`' `zenoh`).
+    zenoh: Mutex<Option<String>>,
     /// Where the site frame lies in the building drawing's (from `poses.toml`), for `poses`,
     /// the page and the zones drawn in building coordinates (which watch it).
     building_from_site: tokio::sync::watch::Sender<Option<crate::drawing::BuildingFromSite>>,
@@ -297,6 +299,7 @@ impl Pipeline {
             web: Mutex::new(None),
             tracker: std::sync::OnceLock::new(),
             foxglove: Mutex::new(None),
+            zenoh: Mutex::new(None),
             building_from_site: tokio::sync::watch::Sender::new(None),
             drawing: Mutex::new((None, None, Vec::new())),
         }
@@ -365,6 +368,12 @@ impl Pipeline {
     /// What `status` says of the Foxglove server.
     pub(super) fn set_foxglove(&self, line: String) {
         *lock(&self.foxglove) = Some(line);
+    }
+
+    /// What `status` says of the zone on Zenoh.
+    #[cfg_attr(not(feature = "zenoh"), allow(dead_code))]
+    pub(super) fn set_zenoh(&self, line: String) {
+        *lock(&self.zenoh) = Some(line);
     }
 
     /// Every sensor's latest scan (a copy), with its pose when it has one.
@@ -847,6 +856,7 @@ impl StatusSource for Pipeline {
             sensors,
             web: lock(&self.web).clone(),
             foxglove: lock(&self.foxglove).clone(),
+            zenoh: lock(&self.zenoh).clone(),
         }
     }
 

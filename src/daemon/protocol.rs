@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 /// Major protocol version: bumped when a client written for the old one would misread.
 pub const PROTO_MAJOR: u32 = 1;
 /// Minor protocol version: bumped when fields or classes are added.
-pub const PROTO_MINOR: u32 = 5;
+pub const PROTO_MINOR: u32 = 6;
 
 /// Request lines longer than this are rejected (and discarded up to their newline).
 pub const MAX_LINE_BYTES: usize = 64 * 1024;
@@ -180,6 +180,10 @@ pub struct Status {
     /// without one.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub foxglove: Option<String>,
+    /// The zone this daemon holds of a site on Zenoh (`[zenoh]`) and its endpoints, or why it
+    /// is not on the network; since protocol 1.6, absent without `[zenoh]`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub zenoh: Option<String>,
 }
 
 /// One sensor's driver in a [`Status`] reply.
@@ -744,6 +748,7 @@ mod tests {
             sensors: vec![SensorStatus::new("a", SensorState::Connecting)],
             web: None,
             foxglove: None,
+            zenoh: None,
         })
         .to_line();
         assert!(!status.contains("null"), "{status}");
@@ -813,6 +818,7 @@ mod tests {
                 sensors: vec![SensorStatus::new("a", SensorState::Streaming)],
                 web: Some("page at http://127.0.0.1:8080/".into()),
                 foxglove: None,
+                zenoh: None,
             }),
             Message::Poses(Poses {
                 anchor: "a".into(),

@@ -599,6 +599,18 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
     } else {
         None
     };
+    #[cfg(feature = "zenoh")]
+    if let Some(z) = config.zenoh.clone() {
+        let mut rx = server_stop_rx.clone();
+        tokio::spawn(super::zone_net::run(
+            Arc::clone(&pipeline),
+            z,
+            config.site.name.clone(),
+            async move {
+                let _ = rx.wait_for(|s| *s).await;
+            },
+        ));
+    }
     // Always: a drawing set at a reload is aligned to as one read at start.
     {
         let mut rx = server_stop_rx.clone();

@@ -566,6 +566,7 @@ mod tests {
                 sensors: vec![],
                 web: None,
                 foxglove: None,
+                zenoh: None,
             }
         }
         fn poses(&self) -> crate::daemon::protocol::Poses {

@@ -59,6 +59,7 @@ impl MemorySite {
                 sensors: vec![entrance, dock],
                 web: None,
                 foxglove: None,
+                zenoh: None,
             }),
             poses: Mutex::new(Poses {
                 anchor: "entrance".into(),
