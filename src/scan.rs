@@ -9,7 +9,7 @@ use std::f64::consts::TAU;
 use thiserror::Error;
 
 /// Angular and range layout of a SCIP sensor, exactly as its PP reply states it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct ScanGeometry {
     /// Shortest valid range (PP `DMIN`), mm.
     pub dmin_mm: u32,

@@ -1,7 +1,8 @@
 //! A zone daemon on Zenoh, heard by a peer from another codebase (eclipse-zenoh, Python,
 //! tests/python/zenoh_site.py) that stands where the site daemon will: the real `scanfuse
 //! run` with `[zenoh]` replays three hall units, connects to the peer, and the peer hears its
-//! liveliness token and its poses (the socket's `poses` reply, schema-named). Frozen (its
+//! liveliness token and its poses (the socket's `poses` reply, schema-named), and gets each
+//! unit's static view when it asks. Frozen (its
 //! link up but silent, as a zone cut off), the zone is lost to the peer within 2 s (the lease)
 //! and rejoins when it thaws; killed, it is gone at once; started again, it comes back, with
 //! no restart of the peer.
@@ -13,12 +14,14 @@
 mod common;
 mod daemon_run_common;
 
-use std::io::{BufRead, BufReader};
+use std::io::{BufRead, BufReader, Write};
 use std::process::{Child, ChildStdin, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use daemon_run_common::{Client, HALL, Proc, fixture, replay_sensors, start_daemon, write_config};
+use daemon_run_common::{
+    Client, HALL, Proc, fixture, replay_sensors, start_daemon, wait_for, write_config,
+};
 use serde_json::Value;
 
 /// How long any one expected thing may take before the test gives up (not a timing assert).
@@ -27,7 +30,7 @@ const PATIENCE: Duration = Duration::from_secs(60);
 /// The Python peer: its stdin (closing it ends the peer) and its lines as they come.
 struct Peer {
     child: Child,
-    _stdin: ChildStdin,
+    stdin: ChildStdin,
     lines: mpsc::Receiver<Value>,
 }
 
@@ -61,11 +64,26 @@ impl Peer {
         });
         let mut peer = Peer {
             child,
-            _stdin: stdin,
+            stdin,
             lines,
         };
         peer.next_where("the peer listening", |v| v["event"] == "listening");
         peer
+    }
+
+    /// The replies to a query on `key_expr`, as they come, until the peer says it is done.
+    fn get(&mut self, key_expr: &str) -> Vec<Value> {
+        writeln!(self.stdin, "{key_expr}").expect("write to the peer");
+        let mut replies = Vec::new();
+        loop {
+            let v = self.next_where("a reply", |v| {
+                v["event"] == "reply" || v["event"] == "replied"
+            });
+            if v["event"] == "replied" {
+                return replies;
+            }
+            replies.push(v);
+        }
     }
 
     /// The next line that `want`s, skipping the others.
@@ -161,6 +179,22 @@ fn a_zone_is_heard_on_zenoh_lost_when_silent_gone_when_killed_and_comes_back() {
         );
     }
     drop(client);
+    // Static views on request: every unit's, or one.
+    let views = peer.get("scanfuse/test/east/view/*");
+    let mut ids: Vec<&str> = views.iter().filter_map(|v| v["sensor"].as_str()).collect();
+    ids.sort_unstable();
+    assert_eq!(ids, ["dock", "gate", "mezz"], "{views:?}");
+    for v in &views {
+        assert_eq!(v["schema"], "scanfuse.zone.view/1", "{v}");
+        assert_eq!(
+            v["key"],
+            format!("scanfuse/test/east/view/{}", v["sensor"].as_str().unwrap())
+        );
+        assert!(v["ranges_m"].as_u64().is_some_and(|n| n > 500), "{v}");
+        assert!(v["height_m"].as_f64().is_some(), "{v}");
+    }
+    assert_eq!(peer.get("scanfuse/test/east/view/mezz").len(), 1);
+    assert_eq!(peer.get("scanfuse/test/east/view/nobody").len(), 0);
 
     // Frozen (SIGSTOP: its link stays up but goes quiet, as a zone cut off by the network):
     // the peer sees the token go when the lease runs out; thawed, it rejoins by itself.
@@ -189,6 +223,22 @@ fn a_zone_is_heard_on_zenoh_lost_when_silent_gone_when_killed_and_comes_back() {
     let daemon: Proc = start_daemon(&config, dir.path());
     peer.next_where("the zone's token again", alive("put"));
     peer.next_where("the zone's poses again", all_placed);
+    // A second daemon claiming the same zone refuses it, says why, and serves its own socket.
+    let other = tempfile::tempdir().unwrap();
+    let twin_config = write_config(
+        other.path(),
+        "gate",
+        &sensors,
+        &format!("\n[zenoh]\nzone = \"east\"\nconnect = [\"{endpoint}\"]\n"),
+    );
+    let _twin = start_daemon(&twin_config, other.path());
+    let mut twin = Client::connect(&other.path().join("s.sock"), PATIENCE);
+    let said = wait_for(PATIENCE, "the twin to say the zone is taken", || {
+        twin.status()
+            .zenoh
+            .filter(|z| z.contains("already holds zone east"))
+    });
+    println!("the twin: {said}");
     drop(daemon);
     peer.next_where("the zone's token withdrawn again", alive("delete"));
 }

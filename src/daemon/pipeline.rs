@@ -370,6 +370,21 @@ impl Pipeline {
         *lock(&self.foxglove) = Some(line);
     }
 
+    /// Each sensor's static view as the registration worker holds it, waiting at most
+    /// `patience` for its answer (it answers between two scans); empty if it has stopped.
+    /// Blocking: call it off the async threads.
+    #[cfg_attr(not(feature = "zenoh"), allow(dead_code))]
+    pub(super) fn static_views(
+        &self,
+        patience: std::time::Duration,
+    ) -> Vec<super::pipeline_register::StaticView> {
+        let (reply, answer) = crossbeam_channel::bounded(1);
+        if self.commands.send(Command::Views { reply }).is_err() {
+            return Vec::new();
+        }
+        answer.recv_timeout(patience).unwrap_or_default()
+    }
+
     /// What `status` says of the zone on Zenoh.
     #[cfg_attr(not(feature = "zenoh"), allow(dead_code))]
     pub(super) fn set_zenoh(&self, line: String) {

@@ -95,8 +95,23 @@ pub enum Command {
     Finish {
         done: crossbeam_channel::Sender<()>,
     },
+    /// Each sensor's static view as registration sees it now, answered on `reply` (a zone
+    /// serves them to the site daemon on request).
+    Views {
+        reply: crossbeam_channel::Sender<Vec<StaticView>>,
+    },
     /// Stop the worker (shutdown).
     Shutdown,
+}
+
+/// One sensor's static view, with what turns it into points.
+#[derive(Debug, Clone)]
+pub struct StaticView {
+    pub id: String,
+    /// Through a crowd, as registration uses it (`Track::view`).
+    pub view: Scan,
+    pub mount: Mount,
+    pub geometry: Option<ScanGeometry>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -402,6 +417,21 @@ impl Registrar {
             }
             Command::Remove(id) => {
                 self.tracks.remove(&id);
+            }
+            Command::Views { reply } => {
+                let views = self
+                    .tracks
+                    .iter()
+                    .filter_map(|(id, t)| {
+                        Some(StaticView {
+                            id: id.clone(),
+                            view: t.view(self.window_s, self.motion_s)?.0,
+                            mount: t.mount,
+                            geometry: t.geometry,
+                        })
+                    })
+                    .collect();
+                let _ = reply.send(views);
             }
             Command::Shutdown | Command::Finish { .. } => {}
             Command::Survey { id, survey, pinned } => {

@@ -1,6 +1,7 @@
 //! A zone daemon on Zenoh (`[zenoh]`): one site spread over several machines, each daemon
-//! holding one zone of it. This file owns the key space and what a zone puts there. The site
-//! daemon that joins zones into one frame (`site_from_zone`) is not built yet (issue 21).
+//! holding one zone of it. This file owns the key space and what a zone puts there and
+//! answers. The site daemon that joins zones into one frame (`site_from_zone`) is not built
+//! yet (issue 21).
 //!
 //! Under `scanfuse/<site>/<zone>/` (`<site>` the `[site] name`, `<zone>` the `[zenoh] zone`):
 //! - `alive`: a liveliness token, held while the daemon runs. Zenoh withdraws it when the
@@ -11,6 +12,9 @@
 //!   (its anchor's), JSON (`application/json`), every second and within 0.25 s of a change.
 //! - `status`: likewise `scanfuse.zone.status/1` with the socket's `status` reply, every
 //!   second.
+//! - `view/<sensor>`: a queryable, not a stream: each sensor's static view as registration
+//!   sees it (through a crowd), `scanfuse.zone.view/1` ([`ViewPayload`]), for the site daemon
+//!   to register sensors of different zones against each other. `view/*` asks for all.
 //!
 //! `t_ns` is the zone's wall clock (UNIX ns) when it published. The schema's number is its
 //! major version: a reader refuses one it does not know.
@@ -18,16 +22,108 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::config::ZenohConfig;
 use super::pipeline::Pipeline;
+use super::pipeline_register::StaticView;
 use super::protocol::{Poses, Status};
+use crate::geometry::Mount;
+use crate::scan::{Scan, ScanGeometry};
 
 /// The schema of the `poses` key's payload.
 pub const POSES_SCHEMA: &str = "scanfuse.zone.poses/1";
 /// The schema of the `status` key's payload.
 pub const STATUS_SCHEMA: &str = "scanfuse.zone.status/1";
+
+/// The schema of a `view/<sensor>` reply.
+pub const VIEW_SCHEMA: &str = "scanfuse.zone.view/1";
+
+/// A `view/<sensor>` reply: one sensor's static view and what turns it into points
+/// (`ScanModel::from_scan`), with its zone's names around it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ViewPayload {
+    pub schema: String,
+    pub site: String,
+    pub zone: String,
+    pub sensor: String,
+    /// The view's stamp (its newest scan's), UNIX ns.
+    pub t_ns: u64,
+    /// Height of the optical centre above the floor (m), when configured.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub height_m: Option<f64>,
+    /// Pitch of the scan plane, positive up.
+    pub pitch_deg: f64,
+    pub start_angle_rad: f64,
+    pub end_angle_rad: f64,
+    /// Ranges in m; 0 means no return (JSON has no NaN).
+    pub ranges_m: Vec<f32>,
+    /// The unit's PP geometry, once it answered.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub geometry: Option<ScanGeometry>,
+}
+
+impl ViewPayload {
+    pub fn new(site: &str, zone: &str, v: &StaticView) -> ViewPayload {
+        ViewPayload {
+            schema: VIEW_SCHEMA.to_string(),
+            site: site.to_string(),
+            zone: zone.to_string(),
+            sensor: v.id.clone(),
+            t_ns: v.view.stamp_ns,
+            height_m: v.mount.height_m,
+            pitch_deg: v.mount.pitch_rad.to_degrees(),
+            start_angle_rad: v.view.start_angle_rad,
+            end_angle_rad: v.view.end_angle_rad,
+            ranges_m: v
+                .view
+                .ranges_m
+                .iter()
+                .map(|r| if r.is_finite() { *r } else { 0.0 })
+                .collect(),
+            geometry: v.geometry,
+        }
+    }
+
+    /// Reads a reply; refuses a schema this build does not know.
+    pub fn parse(bytes: &[u8]) -> Result<ViewPayload, String> {
+        let v: ViewPayload =
+            serde_json::from_slice(bytes).map_err(|e| format!("not a view reply: {e}"))?;
+        if v.schema != VIEW_SCHEMA {
+            return Err(format!(
+                "schema {:?}: this scanfuse reads {VIEW_SCHEMA}",
+                v.schema
+            ));
+        }
+        Ok(v)
+    }
+
+    /// The view as the scan, mount and geometry it came from.
+    pub fn into_view(self) -> StaticView {
+        StaticView {
+            id: self.sensor,
+            view: Scan {
+                stamp_ns: self.t_ns,
+                sensor_stamp_ms: None,
+                start_angle_rad: self.start_angle_rad,
+                end_angle_rad: self.end_angle_rad,
+                ranges_m: self.ranges_m,
+                intensities: Vec::new(),
+            },
+            mount: Mount {
+                height_m: self.height_m,
+                pitch_rad: self.pitch_deg.to_radians(),
+            },
+            geometry: self.geometry,
+        }
+    }
+}
+
+/// How long a starting zone asks whether its zone is already held.
+const TAKEN_PATIENCE: Duration = Duration::from_millis(1200);
+
+/// How long a query waits for the registration worker's views.
+const VIEWS_PATIENCE: Duration = Duration::from_secs(2);
 
 /// Zenoh's link lease (ms): a peer silent this long is gone, its tokens withdrawn.
 const LEASE_MS: u64 = 1000;
@@ -91,12 +187,19 @@ fn now_ns() -> u64 {
 /// lease.
 fn session_config(cfg: &ZenohConfig) -> Result<zenoh::Config, String> {
     let list = |v: &[String]| serde_json::to_string(v).unwrap_or_else(|_| "[]".into());
+    // A peer that listens nowhere never has its liveliness queries answered (zenoh 1.10: seen
+    // with eclipse-zenoh's peer too), so one not told where listens on loopback only.
+    let listen = if cfg.listen.is_empty() {
+        vec!["tcp/127.0.0.1:0".to_string()]
+    } else {
+        cfg.listen.clone()
+    };
     let mut c = zenoh::Config::default();
     for (key, value) in [
         ("mode", "\"peer\"".to_string()),
         ("scouting/multicast/enabled", "false".to_string()),
         ("connect/endpoints", list(&cfg.connect)),
-        ("listen/endpoints", list(&cfg.listen)),
+        ("listen/endpoints", list(&listen)),
         ("transport/link/tx/lease", LEASE_MS.to_string()),
         ("transport/link/tx/keep_alive", "4".to_string()),
     ] {
@@ -137,6 +240,10 @@ pub async fn run(
         key(&site, &cfg.zone, "poses"),
         key(&site, &cfg.zone, "status"),
     );
+    // Two daemons holding one zone would publish two frames under one key: the second refuses.
+    if let Some(why) = zone_taken(&session, &alive, &cfg.zone).await {
+        return refuse(why);
+    }
     let token = match session.liveliness().declare_token(&alive).await {
         Ok(t) => t,
         Err(e) => return refuse(format!("{alive} was not declared: {e}")),
@@ -156,6 +263,11 @@ pub async fn run(
         Ok(p) => p,
         Err(e) => return refuse(format!("its publishers were not declared: {e}")),
     };
+    let views_key = key(&site, &cfg.zone, "view/*");
+    let views = match session.declare_queryable(views_key.clone()).await {
+        Ok(q) => q,
+        Err(e) => return refuse(format!("{views_key} was not declared: {e}")),
+    };
     let described = cfg.describe(&site);
     tracing::info!("{described}");
     pipeline.set_zenoh(format!("{described} (scanfuse/{site}/{}/…)", cfg.zone));
@@ -166,6 +278,21 @@ pub async fn run(
         tokio::select! {
             _ = &mut stop => break,
             _ = look.tick() => {}
+            query = views.recv_async() => {
+                match query {
+                    // Off the loop: the worker may take a moment, and the poses go on.
+                    Ok(query) => {
+                        tokio::spawn(answer_views(
+                            Arc::clone(&pipeline),
+                            site.clone(),
+                            cfg.zone.clone(),
+                            query,
+                        ));
+                    }
+                    Err(e) => tracing::warn!("the views queryable ended: {e}"),
+                }
+                continue;
+            }
         }
         let poses = pipeline.poses();
         let placed = placed_key(&poses);
@@ -209,6 +336,68 @@ pub async fn run(
     }
 }
 
+/// Why this daemon may not hold `zone`: another's token is already at `alive`. Asked a few
+/// times over `TAKEN_PATIENCE`: a peer's routes settle some 0.1–0.2 s after its session opens,
+/// and a query before then reaches no one. Nobody reachable at all: it cannot know, and holds it.
+async fn zone_taken(session: &zenoh::Session, alive: &str, zone: &str) -> Option<String> {
+    const TRIES: u32 = 4;
+    for _ in 0..TRIES {
+        let replies = match session
+            .liveliness()
+            .get(alive)
+            .timeout(TAKEN_PATIENCE / TRIES)
+            .await
+        {
+            Ok(r) => r,
+            Err(e) => return Some(format!("could not ask whether zone {zone} is taken: {e}")),
+        };
+        let started = tokio::time::Instant::now();
+        while let Ok(reply) = replies.recv_async().await {
+            if reply.result().is_ok() {
+                return Some(format!(
+                    "another daemon already holds zone {zone} of this site; give each daemon its own [zenoh] zone"
+                ));
+            }
+        }
+        tokio::time::sleep_until(started + TAKEN_PATIENCE / TRIES).await;
+    }
+    None
+}
+
+/// Answers a query on `view/…` with each sensor's view whose key it matches.
+async fn answer_views(
+    pipeline: Arc<Pipeline>,
+    site: String,
+    zone: String,
+    query: zenoh::query::Query,
+) {
+    use zenoh::bytes::Encoding;
+    use zenoh::key_expr::KeyExpr;
+
+    let views = tokio::task::spawn_blocking(move || pipeline.static_views(VIEWS_PATIENCE))
+        .await
+        .unwrap_or_default();
+    let (site, zone) = (site.as_str(), zone.as_str());
+    for v in &views {
+        let Ok(k) = KeyExpr::try_from(key(site, zone, &format!("view/{}", v.id))) else {
+            continue;
+        };
+        if !query.key_expr().intersects(&k) {
+            continue;
+        }
+        let Ok(bytes) = serde_json::to_vec(&ViewPayload::new(site, zone, v)) else {
+            continue;
+        };
+        if let Err(e) = query
+            .reply(k, bytes)
+            .encoding(Encoding::APPLICATION_JSON)
+            .await
+        {
+            tracing::warn!("replying with {}'s view failed: {e}", v.id);
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -234,5 +423,44 @@ mod tests {
         a.x_m = Some(1.002);
         assert_ne!(placed, placed_key(&poses(&a)));
         assert_eq!(key("hall", "east", "poses"), "scanfuse/hall/east/poses");
+    }
+
+    /// A view read back is the view that was sent: the same points (a return lost to NaN
+    /// stays no return), and a schema this build does not know is refused.
+    #[test]
+    fn a_view_reply_reads_back_as_the_view() {
+        let mut ranges: Vec<f32> = (0..541).map(|k| 2.0 + (k % 37) as f32 * 0.1).collect();
+        ranges[7] = f32::NAN;
+        let sent = StaticView {
+            id: "gate".into(),
+            view: Scan {
+                stamp_ns: 1_700_000_000_000_000_000,
+                sensor_stamp_ms: Some(5),
+                start_angle_rad: -2.356,
+                end_angle_rad: 2.356,
+                ranges_m: ranges,
+                intensities: Vec::new(),
+            },
+            mount: Mount {
+                height_m: Some(1.1),
+                pitch_rad: -0.1,
+            },
+            geometry: None,
+        };
+        let bytes = serde_json::to_vec(&ViewPayload::new("hall", "east", &sent)).unwrap();
+        let got = ViewPayload::parse(&bytes).unwrap();
+        assert_eq!((got.zone.as_str(), got.sensor.as_str()), ("east", "gate"));
+        let back = got.into_view();
+        let p = crate::register::RegisterParams::default();
+        let model = |v: &StaticView| {
+            crate::register::ScanModel::from_scan(&v.view, v.geometry.as_ref(), &v.mount, &p)
+        };
+        assert_eq!(model(&back).points(), model(&sent).points());
+        assert!((back.mount.pitch_rad - sent.mount.pitch_rad).abs() < 1e-12);
+        let other = String::from_utf8(bytes)
+            .unwrap()
+            .replace(VIEW_SCHEMA, "scanfuse.zone.view/2");
+        let why = ViewPayload::parse(other.as_bytes()).unwrap_err();
+        assert!(why.contains("view/2"), "{why}");
     }
 }
