@@ -64,7 +64,8 @@ pub struct ZenohConfig {
 }
 
 impl ZenohConfig {
-    /// "zone east of site hall on Zenoh, listening on …, connecting to …".
+    /// "zone east of site hall on Zenoh, listening on …, connecting to … (keys
+    /// scanfuse/hall/east/…)", for `check` and `status`.
     pub fn describe(&self, site: &str) -> String {
         let mut ends = Vec::new();
         if !self.listen.is_empty() {
@@ -74,9 +75,9 @@ impl ZenohConfig {
             ends.push(format!("connecting to {}", self.connect.join(", ")));
         }
         format!(
-            "zone {} of site {site} on Zenoh, {}",
-            self.zone,
-            ends.join(", ")
+            "zone {zone} of site {site} on Zenoh, {} (keys scanfuse/{site}/{zone}/…)",
+            ends.join(", "),
+            zone = self.zone,
         )
     }
 }
@@ -1233,12 +1234,7 @@ impl Config {
             ));
         }
         if let Some(z) = &self.zenoh {
-            out.push_str(&format!(
-                "  {} (keys scanfuse/{}/{}/…)\n",
-                z.describe(&self.site.name),
-                self.site.name,
-                z.zone
-            ));
+            out.push_str(&format!("  {}\n", z.describe(&self.site.name)));
         }
         out
     }
@@ -1341,6 +1337,8 @@ fn parse_zenoh(
     })
 }
 
+/// `[foxglove]`, checked. Any address is allowed: the server takes no requests that change
+/// anything (no client publishing, services or parameters).
 fn parse_foxglove(
     loc: &Locator<'_>,
     raw: Spanned<RawFoxglove>,

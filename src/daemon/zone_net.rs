@@ -270,7 +270,7 @@ pub async fn run(
     };
     let described = cfg.describe(&site);
     tracing::info!("{described}");
-    pipeline.set_zenoh(format!("{described} (scanfuse/{site}/{}/…)", cfg.zone));
+    pipeline.set_zenoh(described);
     let mut look = tokio::time::interval(LOOK);
     let mut last: Option<(std::time::Instant, Placed)> = None;
     tokio::pin!(stop);
