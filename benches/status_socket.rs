@@ -76,6 +76,7 @@ fn site() -> FixedSite {
             web: None,
             foxglove: None,
             zenoh: None,
+            zones: Vec::new(),
         },
         poses: Poses {
             anchor: ids[0].clone(),

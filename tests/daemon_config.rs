@@ -35,6 +35,7 @@ fn the_example_sets_every_key() {
         "socket",
         "socket_mode",
         "anchor",
+        "role",
         "max_clients",
         "zones_frame", // [site]
         "id",

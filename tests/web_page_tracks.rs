@@ -34,6 +34,7 @@ impl StatusSource for Site {
             web: None,
             foxglove: None,
             zenoh: None,
+            zones: Vec::new(),
         }
     }
     fn poses(&self) -> Poses {

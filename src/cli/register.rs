@@ -332,6 +332,8 @@ pub(super) fn to_output(
                     age_s: None,
                     source: None,
                     evidence: index.and_then(|i| site.evidence(i)).map(str::to_string),
+                    zone: None,
+                    stale: false,
                 },
                 Some(Err(reason)) => unregistered(reason.clone()),
                 None => unregistered("not registered".into()),

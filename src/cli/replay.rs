@@ -149,6 +149,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             socket: args.socket.clone().unwrap_or_default(),
             socket_mode: config::DEFAULT_SOCKET_MODE,
             anchor,
+            role: config::Role::Zone,
             max_clients: config::DEFAULT_MAX_CLIENTS,
             // The page draws it under the map once the site is aligned to it.
             drawing: args.drawing.clone().map(|path| config::DrawingConfig {

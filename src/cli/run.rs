@@ -45,6 +45,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ))
         .into());
     }
+    if config.site.role == scanfuse::daemon::config::Role::Site {
+        return run_site(config, args.duration);
+    }
     let (truth, moved) = replay_truth(&config);
     let (tap, reports) = mpsc::channel();
     let options = RunOptions {
@@ -81,6 +84,46 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let summary = daemon_runtime()?.block_on(run_daemon(config.clone(), options));
     let _ = printer.join();
     finish(summary?, &config.site.state_dir)
+}
+
+/// The site daemon in the foreground: what happens to the zones, one line each.
+#[cfg(feature = "zenoh")]
+fn run_site(config: Config, duration: Option<Duration>) -> anyhow::Result<()> {
+    let mut out = std::io::stdout();
+    writeln!(
+        out,
+        "site {:?}: the site daemon, joining zones on Zenoh into the frame of zone {}; status socket {}",
+        config.site.name,
+        config.site.anchor,
+        config.site.socket.display()
+    )
+    .map_err(stdout_error)?;
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<std::sync::Arc<str>>();
+    let printer = std::thread::spawn(move || {
+        while let Some(line) = rx.blocking_recv() {
+            let message = serde_json::from_str::<Event>(&line)
+                .map(|e| e.message)
+                .unwrap_or_else(|_| line.to_string());
+            if writeln!(std::io::stdout(), "{message}").is_err() {
+                break;
+            }
+        }
+    });
+    let ran = daemon_runtime()?.block_on(scanfuse::daemon::site_net::run_site_daemon(
+        config,
+        duration,
+        Some(tx),
+    ));
+    let _ = printer.join();
+    Ok(ran?)
+}
+
+#[cfg(not(feature = "zenoh"))]
+fn run_site(_config: Config, _duration: Option<Duration>) -> anyhow::Result<()> {
+    Err(BadInput(
+        "this scanfuse was built without the `zenoh` feature: a site daemon needs it".into(),
+    )
+    .into())
 }
 
 /// A multi-threaded runtime: driver tasks, the socket and the emulators share it.
@@ -488,6 +531,7 @@ mod tests {
             web: None,
             foxglove: None,
             zenoh: None,
+            zones: Vec::new(),
         });
         assert_eq!(
             line,
@@ -526,6 +570,7 @@ mod tests {
             web: None,
             foxglove: None,
             zenoh: None,
+            zones: Vec::new(),
         }
     }
 

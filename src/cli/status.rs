@@ -11,7 +11,7 @@ use anyhow::{Context as _, bail};
 use scanfuse::daemon::config::{self, Config};
 use scanfuse::daemon::protocol::{
     Crossing, Event, Message, PROTO_MAJOR, PoseSource, Poses, SensorPose, SensorStatus, Side,
-    Status, Tracks, Zones,
+    Status, Tracks, ZoneStatus, Zones,
 };
 
 use super::{BadInput, stdout_error};
@@ -235,6 +235,13 @@ pub fn render_table(status: &Status, poses: &Poses) -> String {
             _ => {}
         }
     }
+    // A site daemon's zones, in the same columns: where each zone's frame lies in the site's.
+    for z in &status.zones {
+        let _ = writeln!(out, "{}", zone_row(z));
+        if let Some(why) = &z.reason {
+            notes.push(format!("zone {}: {why}", z.zone));
+        }
+    }
     // Where the site frame lies in the building drawing, in the same columns: the row a
     // person reads to turn the poses above into drawing coordinates.
     if let Some(b) = &poses.building_from_site {
@@ -280,6 +287,39 @@ fn building_row(b: &scanfuse::drawing::BuildingFromSite) -> String {
     )
 }
 
+/// A zone of a site daemon as a row of the table: its frame's place in the site's.
+fn zone_row(z: &ZoneStatus) -> String {
+    let f = z.site_from_zone.as_ref();
+    let num = |v: Option<f64>, decimals: usize| match v {
+        Some(v) => format!("{v:.decimals$}"),
+        None => "-".to_string(),
+    };
+    let from = match f {
+        Some(f) if f.pairs == 0 => "anchor zone".to_string(),
+        Some(f) => format!("{} pairs", f.pairs),
+        None => "unplaced".to_string(),
+    };
+    format!(
+        "{:<16} {:<12} {:>8} {:>9} {:>9} {:>8} {:>7} {:>7} {:>7}  {:<14} {} of {} sensors placed in the zone",
+        format!("zone {}", z.zone),
+        format!(
+            "{} {}",
+            if z.alive { "alive" } else { "lost" },
+            duration(z.for_s)
+        ),
+        "-",
+        num(f.map(|f| f.x_m), 3),
+        num(f.map(|f| f.y_m), 3),
+        num(f.map(|f| f.yaw_deg), 2),
+        num(f.map(|f| f.sigma_x_m), 3),
+        num(f.map(|f| f.sigma_y_m), 3),
+        num(f.map(|f| f.sigma_yaw_deg), 2),
+        from,
+        z.placed,
+        z.sensors,
+    )
+}
+
 fn row(id: &str, s: Option<&SensorStatus>, p: Option<&SensorPose>) -> String {
     let num = |v: Option<f64>, decimals: usize| match v {
         Some(v) => format!("{v:.decimals$}"),
@@ -307,10 +347,17 @@ fn row(id: &str, s: Option<&SensorStatus>, p: Option<&SensorPose>) -> String {
         },
         None => "-".to_string(),
     };
+    // On a site daemon a sensor has no driver here: its zone stands in for its state.
+    let state = match (s, p.and_then(|p| p.zone.as_ref().map(|z| (z, p.stale)))) {
+        (Some(s), _) => s.state.as_str().to_string(),
+        (None, Some((zone, false))) => format!("zone {zone}"),
+        (None, Some((zone, true))) => format!("{zone} stale"),
+        (None, None) => "unknown".to_string(),
+    };
     format!(
         "{:<16} {:<12} {:>8} {:>9} {:>9} {:>8} {:>7} {:>7} {:>7}  {:<14} {}",
         id,
-        s.map_or("unknown", |s| s.state.as_str()),
+        state,
         num(s.and_then(|s| s.rate_hz), 1),
         num(field(|p| p.x_m), 3),
         num(field(|p| p.y_m), 3),
@@ -430,6 +477,7 @@ mod tests {
             web: None,
             foxglove: None,
             zenoh: None,
+            zones: Vec::new(),
         };
         let mut pa = SensorPose::unregistered("entrance", "");
         pa.registered = true;

@@ -65,17 +65,29 @@ pub struct ZenohConfig {
 
 impl ZenohConfig {
     /// "zone east of site hall on Zenoh, listening on …, connecting to … (keys
-    /// scanfuse/hall/east/…)", for `check` and `status`.
+    /// scanfuse/hall/east/…)", or for the site daemon "the site daemon of site hall on Zenoh,
+    /// hosting the router on …", for `check` and `status`.
     pub fn describe(&self, site: &str) -> String {
         let mut ends = Vec::new();
+        let site_daemon = self.zone == SITE_KEY;
         if !self.listen.is_empty() {
-            ends.push(format!("listening on {}", self.listen.join(", ")));
+            let verb = if site_daemon {
+                "hosting the router on"
+            } else {
+                "listening on"
+            };
+            ends.push(format!("{verb} {}", self.listen.join(", ")));
         }
         if !self.connect.is_empty() {
             ends.push(format!("connecting to {}", self.connect.join(", ")));
         }
+        let who = if site_daemon {
+            "the site daemon".to_string()
+        } else {
+            format!("zone {}", self.zone)
+        };
         format!(
-            "zone {zone} of site {site} on Zenoh, {} (keys scanfuse/{site}/{zone}/…)",
+            "{who} of site {site} on Zenoh, {} (keys scanfuse/{site}/{zone}/…)",
             ends.join(", "),
             zone = self.zone,
         )
@@ -257,8 +269,12 @@ pub struct SiteConfig {
     pub socket: PathBuf,
     /// Permission bits of the socket file.
     pub socket_mode: u32,
-    /// The sensor whose frame is the site frame.
+    /// The sensor whose frame is the site frame; for a site daemon (`role = "site"`), the
+    /// zone whose frame is.
     pub anchor: String,
+    /// `role`: a daemon that holds sensors (alone, or as one zone of a site with `[zenoh]`),
+    /// or the site daemon that joins zones on Zenoh and holds none.
+    pub role: Role,
     /// Status-socket clients served at once; more are refused.
     pub max_clients: usize,
     /// The building drawing (`drawing`, `drawing_layers`, `drawing_scale`, `drawing_pairs`):
@@ -266,6 +282,20 @@ pub struct SiteConfig {
     /// page once `building_from_site` is known.
     pub drawing: Option<DrawingConfig>,
 }
+
+/// What a daemon is (`[site] role`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Role {
+    /// It holds sensors (`"zone"`, the default): the whole site, or one zone of it.
+    #[default]
+    Zone,
+    /// It holds no sensors and joins the zones on Zenoh into one site frame (`"site"`).
+    Site,
+}
+
+/// The zone name a site daemon takes in the key space (`scanfuse/<site>/site/…`); no zone may
+/// be called so.
+pub const SITE_KEY: &str = "site";
 
 /// `[site] drawing = "FILE"` with its layers and scale (as `scanfuse align` takes them).
 #[derive(Debug, Clone, PartialEq)]
@@ -590,7 +620,7 @@ struct RawConfig {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawZenoh {
-    zone: Spanned<String>,
+    zone: Option<Spanned<String>>,
     #[serde(default)]
     connect: Vec<Spanned<String>>,
     #[serde(default)]
@@ -663,6 +693,7 @@ struct RawSite {
     socket: Option<Spanned<String>>,
     socket_mode: Option<Spanned<String>>,
     anchor: Spanned<String>,
+    role: Option<Spanned<String>>,
     max_clients: Option<Spanned<i64>>,
     drawing: Option<Spanned<String>>,
     drawing_layers: Option<Spanned<Vec<String>>>,
@@ -986,7 +1017,36 @@ impl Config {
             None => DEFAULT_MAX_CLIENTS,
         };
 
-        if raw.sensor.is_empty() {
+        let role = match &site.role {
+            None => Role::Zone,
+            Some(r) => match r.get_ref().trim() {
+                "zone" => Role::Zone,
+                "site" => Role::Site,
+                other => {
+                    return Err(loc.at(
+                        r.span(),
+                        "site.role",
+                        format!("{other:?} is not a role: \"zone\" (holds sensors, the default) or \"site\" (joins zones on Zenoh, holds none)"),
+                    ));
+                }
+            },
+        };
+        if role == Role::Site {
+            if let Some(first) = raw.sensor.first() {
+                return Err(loc.at(
+                    first.span(),
+                    "sensor",
+                    "a site daemon (role = \"site\") holds no sensors: give them to a zone daemon's config",
+                ));
+            }
+            if raw.zenoh.is_none() {
+                return Err(loc.at(
+                    site_span,
+                    "site.role",
+                    "a site daemon joins zones on Zenoh: add [zenoh] with listen = [\"tcp/0.0.0.0:7447\"] (the zones connect there)",
+                ));
+            }
+        } else if raw.sensor.is_empty() {
             return Err(loc.at(
                 site_span,
                 "sensor",
@@ -1064,7 +1124,15 @@ impl Config {
             });
         }
         let anchor = site.anchor.get_ref().clone();
-        if !first_line.contains_key(&anchor) {
+        if role == Role::Site {
+            if anchor == SITE_KEY || !key_safe(&anchor) {
+                return Err(loc.at(
+                    site.anchor.span(),
+                    "site.anchor",
+                    format!("{anchor:?} is not a zone id: a site daemon's anchor is the zone whose frame is the site's"),
+                ));
+            }
+        } else if !first_line.contains_key(&anchor) {
             let ids: Vec<&str> = sensors.iter().map(|s| s.id.as_str()).collect();
             return Err(loc.at(
                 site.anchor.span(),
@@ -1138,7 +1206,7 @@ impl Config {
             None => TrackConfig::default(),
         };
         let zenoh = match raw.zenoh {
-            Some(z) => Some(parse_zenoh(&loc, z, &name, name_span)?),
+            Some(z) => Some(parse_zenoh(&loc, z, &name, name_span, role)?),
             None => None,
         };
 
@@ -1150,6 +1218,7 @@ impl Config {
                 socket,
                 socket_mode,
                 anchor,
+                role,
                 max_clients,
                 drawing,
             },
@@ -1166,6 +1235,21 @@ impl Config {
 
     /// A few lines for `scanfuse check`.
     pub fn summary(&self) -> String {
+        if self.site.role == Role::Site {
+            let mut out = format!(
+                "{}: site {:?}, the site daemon (role = \"site\"): holds no sensors, joins the zones into the frame of zone {}\n  socket {} (mode {:04o}, at most {} clients); no page or map files of its own yet\n",
+                self.path.display(),
+                self.site.name,
+                self.site.anchor,
+                self.site.socket.display(),
+                self.site.socket_mode,
+                self.site.max_clients,
+            );
+            if let Some(z) = &self.zenoh {
+                out.push_str(&format!("  {}\n", z.describe(&self.site.name)));
+            }
+            return out;
+        }
         let mut out = format!(
             "{}: site {:?}, {} sensor{}, anchor {}\n  state in {}, socket {} (mode {:04o}, at most {} clients)\n",
             self.path.display(),
@@ -1272,15 +1356,10 @@ fn parse_zenoh(
     raw: Spanned<RawZenoh>,
     site: &str,
     site_span: Range<usize>,
+    role: Role,
 ) -> Result<ZenohConfig, ConfigError> {
     let span = raw.span();
     let z = raw.into_inner();
-    let key_safe = |t: &str| {
-        !t.is_empty()
-            && t.len() <= 64
-            && t.chars()
-                .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
-    };
     if !cfg!(feature = "zenoh") {
         return Err(loc.at(
             span,
@@ -1295,14 +1374,34 @@ fn parse_zenoh(
             format!("{site:?} names the site's Zenoh keys: use letters, digits, - and _ only (at most 64)"),
         ));
     }
-    let zone = z.zone.get_ref().trim().to_string();
-    if !key_safe(&zone) {
-        return Err(loc.at(
-            z.zone.span(),
-            "zenoh.zone",
-            format!("{zone:?} is not a zone id: use letters, digits, - and _ only (at most 64), e.g. \"east\""),
-        ));
-    }
+    let zone = match (role, &z.zone) {
+        (Role::Site, None) => SITE_KEY.to_string(),
+        (Role::Site, Some(zone)) => {
+            return Err(loc.at(
+                zone.span(),
+                "zenoh.zone",
+                "a site daemon holds no zone: leave zone out (its keys are scanfuse/<site>/site/…)",
+            ));
+        }
+        (Role::Zone, None) => {
+            return Err(loc.at(
+                span,
+                "zenoh.zone",
+                "name this daemon's zone of the site, e.g. zone = \"east\"",
+            ));
+        }
+        (Role::Zone, Some(zone)) => {
+            let id = zone.get_ref().trim().to_string();
+            if !key_safe(&id) || id == SITE_KEY {
+                return Err(loc.at(
+                    zone.span(),
+                    "zenoh.zone",
+                    format!("{id:?} is not a zone id: use letters, digits, - and _ only (at most 64; not \"{SITE_KEY}\"), e.g. \"east\""),
+                ));
+            }
+            id
+        }
+    };
     let endpoints = |list: &[Spanned<String>], key: &str| {
         list.iter()
             .map(|e| {
@@ -1335,6 +1434,14 @@ fn parse_zenoh(
         connect,
         listen,
     })
+}
+
+/// A name safe in a Zenoh key expression: a site, a zone.
+fn key_safe(t: &str) -> bool {
+    !t.is_empty()
+        && t.len() <= 64
+        && t.chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
 }
 
 /// `[foxglove]`, checked. Any address is allowed: the server takes no requests that change
@@ -1735,6 +1842,7 @@ impl Config {
             ("foxglove", self.foxglove != new.foxglove),
             ("track", self.track != new.track),
             ("zenoh", self.zenoh != new.zenoh),
+            ("site.role", a.role != b.role),
         ] {
             if differs {
                 changes.need_restart.push(key);
@@ -2374,6 +2482,58 @@ map_cell_m = 0.1
         let a = parse(GOOD).unwrap();
         let b = parse(&with("zone = \"east\"\nlisten = [\"tcp/1.2.3.4:1\"]")).unwrap();
         assert_eq!(a.changes_to(&b).need_restart, ["zenoh"]);
+    }
+
+    #[test]
+    fn a_site_daemon_holds_no_sensors_and_anchors_on_a_zone_it_reaches_on_zenoh() {
+        let site = "[site]\nname = \"hall\"\nrole = \"site\"\nanchor = \"west\"\n";
+        let zenoh = "\n[zenoh]\nlisten = [\"tcp/0.0.0.0:7447\"]\n";
+        let c = parse(&format!("{site}{zenoh}")).unwrap();
+        assert_eq!((c.site.role, c.site.anchor.as_str()), (Role::Site, "west"));
+        assert_eq!(c.zenoh.as_ref().map(|z| z.zone.as_str()), Some(SITE_KEY));
+        assert!(c.summary().contains("the site daemon"), "{}", c.summary());
+        assert!(
+            c.summary()
+                .contains("hosting the router on tcp/0.0.0.0:7447")
+        );
+        let sensor = "\n[[sensor]]\nid = \"a\"\nconnect = \"tcp://10.0.0.1:10940\"\n";
+        for (text, key, says) in [
+            (site.to_string(), "site.role", "add [zenoh]"),
+            (
+                format!("{site}{zenoh}{sensor}"),
+                "sensor",
+                "holds no sensors",
+            ),
+            (
+                format!("{site}{zenoh}zone = \"west\"\n"),
+                "zenoh.zone",
+                "holds no zone",
+            ),
+            (
+                format!("{}{zenoh}", site.replace("\"west\"", "\"a/b\"")),
+                "site.anchor",
+                "not a zone id",
+            ),
+            (
+                format!("{}{zenoh}", site.replace("\"site\"", "\"router\"")),
+                "site.role",
+                "not a role",
+            ),
+            (
+                format!("{GOOD}\n[zenoh]\nzone = \"site\"\nlisten = [\"tcp/1.2.3.4:1\"]\n"),
+                "zenoh.zone",
+                "not \"site\"",
+            ),
+            (
+                format!("{GOOD}\n[zenoh]\nlisten = [\"tcp/1.2.3.4:1\"]\n"),
+                "zenoh.zone",
+                "name this daemon's zone",
+            ),
+        ] {
+            let (_, k, msg) = invalid(&text);
+            assert_eq!(k, key, "{text}: {msg}");
+            assert!(msg.contains(says), "{text}: {msg}");
+        }
     }
 
     #[test]

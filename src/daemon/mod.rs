@@ -30,6 +30,8 @@ pub mod reorder;
 pub mod returns;
 pub mod run;
 pub mod signals;
+#[cfg(feature = "zenoh")]
+pub mod site_net;
 pub mod socket;
 pub mod state;
 pub mod surveys;

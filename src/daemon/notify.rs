@@ -126,6 +126,7 @@ mod tests {
             web: None,
             foxglove: None,
             zenoh: None,
+            zones: Vec::new(),
         };
         let mut a = SensorPose::unregistered("a", "");
         a.registered = true;

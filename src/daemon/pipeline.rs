@@ -131,6 +131,8 @@ impl PoseEntry {
                 self.source
             }),
             evidence: self.evidence.map(str::to_string),
+            zone: None,
+            stale: false,
         }
     }
 }
@@ -872,6 +874,7 @@ impl StatusSource for Pipeline {
             web: lock(&self.web).clone(),
             foxglove: lock(&self.foxglove).clone(),
             zenoh: lock(&self.zenoh).clone(),
+            zones: Vec::new(),
         }
     }
 

@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 /// Major protocol version: bumped when a client written for the old one would misread.
 pub const PROTO_MAJOR: u32 = 1;
 /// Minor protocol version: bumped when fields or classes are added.
-pub const PROTO_MINOR: u32 = 6;
+pub const PROTO_MINOR: u32 = 7;
 
 /// Request lines longer than this are rejected (and discarded up to their newline).
 pub const MAX_LINE_BYTES: usize = 64 * 1024;
@@ -184,6 +184,43 @@ pub struct Status {
     /// is not on the network; since protocol 1.6, absent without `[zenoh]`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub zenoh: Option<String>,
+    /// A site daemon's zones, each with where it stands in the site frame or why it does not;
+    /// since protocol 1.7, absent on a daemon that holds sensors.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub zones: Vec<ZoneStatus>,
+}
+
+/// One zone of a site, as the site daemon sees it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ZoneStatus {
+    pub zone: String,
+    /// Its liveliness token is held: the zone daemon runs and its link is up.
+    pub alive: bool,
+    /// Seconds since it became alive or was lost.
+    pub for_s: f64,
+    /// Its sensors, and how many of them its own registration placed, from its last poses.
+    pub sensors: usize,
+    pub placed: usize,
+    /// Where the zone's frame stands in the site frame; absent when it is not placed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub site_from_zone: Option<ZoneFrame>,
+    /// Why it is not placed (or what its placement rests on).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reason: Option<String>,
+}
+
+/// `site_from_zone`: a zone frame's pose in the site frame, with σ, in the pose vocabulary's
+/// units.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ZoneFrame {
+    pub x_m: f64,
+    pub y_m: f64,
+    pub yaw_deg: f64,
+    pub sigma_x_m: f64,
+    pub sigma_y_m: f64,
+    pub sigma_yaw_deg: f64,
+    /// Cross-zone sensor pairs its link rests on (0 for the anchor zone).
+    pub pairs: usize,
 }
 
 /// One sensor's driver in a [`Status`] reply.
@@ -337,6 +374,13 @@ pose_vocabulary! {
         /// loaded or surveyed, and a sensor not placed.
         #[serde(default, skip_serializing_if = "Option::is_none")]
         pub evidence: Option<String>,
+        /// The zone that holds it, on a site daemon's socket (since protocol 1.7); absent
+        /// elsewhere.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        pub zone: Option<String>,
+        /// Its zone is lost: this is the last pose heard from it, not a live one (since 1.7).
+        #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+        pub stale: bool,
     }
 }
 
@@ -358,6 +402,8 @@ impl SensorPose {
             age_s: None,
             source: None,
             evidence: None,
+            zone: None,
+            stale: false,
         }
     }
 }
@@ -749,6 +795,7 @@ mod tests {
             web: None,
             foxglove: None,
             zenoh: None,
+            zones: Vec::new(),
         })
         .to_line();
         assert!(!status.contains("null"), "{status}");
@@ -819,6 +866,7 @@ mod tests {
                 web: Some("page at http://127.0.0.1:8080/".into()),
                 foxglove: None,
                 zenoh: None,
+                zones: Vec::new(),
             }),
             Message::Poses(Poses {
                 anchor: "a".into(),

@@ -184,6 +184,8 @@ impl SavedPose {
             age_s,
             source: self.registered.then_some(PoseSource::Saved),
             evidence: None,
+            zone: None,
+            stale: false,
         }
     }
 }

@@ -1,7 +1,7 @@
 //! A zone daemon on Zenoh (`[zenoh]`): one site spread over several machines, each daemon
 //! holding one zone of it. This file owns the key space and what a zone puts there and
-//! answers. The site daemon that joins zones into one frame (`site_from_zone`) is not built
-//! yet (issue 21).
+//! answers. The site daemon (`site_net`) joins the zones into one frame; a zone hears where it
+//! puts it (`site/frame`) and says so on its status line.
 //!
 //! Under `scanfuse/<site>/<zone>/` (`<site>` the `[site] name`, `<zone>` the `[zenoh] zone`):
 //! - `alive`: a liveliness token, held while the daemon runs. Zenoh withdraws it when the
@@ -24,10 +24,11 @@ use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
-use super::config::ZenohConfig;
+use super::config::{SITE_KEY, ZenohConfig};
 use super::pipeline::Pipeline;
 use super::pipeline_register::StaticView;
 use super::protocol::{Poses, Status};
+use super::site_net::FramePayload;
 use crate::geometry::Mount;
 use crate::scan::{Scan, ScanGeometry};
 
@@ -158,11 +159,11 @@ enum Body<'a> {
 }
 
 /// Each sensor: id, registered, pose in mm and thousandths of a degree.
-type Placed = Vec<(String, bool, [i64; 3])>;
+pub(super) type Placed = Vec<(String, bool, [i64; 3])>;
 
 /// What of the poses counts as a change worth publishing at once: who is placed, and where
 /// to the millimetre and the thousandth of a degree (not the ages that tick every second).
-fn placed_key(poses: &Poses) -> Placed {
+pub(super) fn placed_key(poses: &Poses) -> Placed {
     let q = |v: Option<f64>, per: f64| v.map_or(i64::MIN, |v| (v * per).round() as i64);
     poses
         .sensors
@@ -177,7 +178,7 @@ fn placed_key(poses: &Poses) -> Placed {
         .collect()
 }
 
-fn now_ns() -> u64 {
+pub(super) fn now_ns() -> u64 {
     std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_nanos() as u64)
@@ -185,7 +186,7 @@ fn now_ns() -> u64 {
 
 /// The Zenoh session config: peer mode, the endpoints given, no multicast scouting, a short
 /// lease.
-fn session_config(cfg: &ZenohConfig) -> Result<zenoh::Config, String> {
+pub(super) fn session_config(cfg: &ZenohConfig) -> Result<zenoh::Config, String> {
     let list = |v: &[String]| serde_json::to_string(v).unwrap_or_else(|_| "[]".into());
     // A peer that listens nowhere never has its liveliness queries answered (zenoh 1.10: seen
     // with eclipse-zenoh's peer too), so one not told where listens on loopback only.
@@ -268,9 +269,18 @@ pub async fn run(
         Ok(q) => q,
         Err(e) => return refuse(format!("{views_key} was not declared: {e}")),
     };
+    // Where the site daemon puts this zone, said on its status line.
+    let frames = match session
+        .declare_subscriber(key(&site, SITE_KEY, "frame"))
+        .await
+    {
+        Ok(s) => s,
+        Err(e) => return refuse(format!("the site frame was not subscribed to: {e}")),
+    };
     let described = cfg.describe(&site);
     tracing::info!("{described}");
-    pipeline.set_zenoh(described);
+    pipeline.set_zenoh(described.clone());
+    let mut in_site: Option<String> = None;
     let mut look = tokio::time::interval(LOOK);
     let mut last: Option<(std::time::Instant, Placed)> = None;
     tokio::pin!(stop);
@@ -278,6 +288,18 @@ pub async fn run(
         tokio::select! {
             _ = &mut stop => break,
             _ = look.tick() => {}
+            sample = frames.recv_async() => {
+                let Ok(sample) = sample else { break };
+                let said = match FramePayload::parse(&sample.payload().to_bytes()) {
+                    Ok(frame) => in_site_frame(&frame, &cfg.zone),
+                    Err(e) => format!("the site daemon's frame is unreadable: {e}"),
+                };
+                if in_site.as_ref() != Some(&said) {
+                    pipeline.set_zenoh(format!("{described}; {said}"));
+                    in_site = Some(said);
+                }
+                continue;
+            }
             query = views.recv_async() => {
                 match query {
                     // Off the loop: the worker may take a moment, and the poses go on.
@@ -340,10 +362,39 @@ pub async fn run(
     }
 }
 
+/// Where the site daemon's `frame` puts `zone`, as a clause of the status line.
+fn in_site_frame(frame: &FramePayload, zone: &str) -> String {
+    match frame.zones.iter().find(|z| z.zone == zone) {
+        Some(z) => match (&z.site_from_zone, &z.reason) {
+            (Some(_), _) if z.zone == frame.anchor => {
+                "the site frame's anchor zone: its frame is the site's".to_string()
+            }
+            (Some(f), _) => format!(
+                "in the site frame (zone {}'s) at ({:.3} m, {:.3} m, {:.2}°), σ ({:.3} m, {:.3} m, {:.2}°), from {} pairs across zones",
+                frame.anchor,
+                f.x_m,
+                f.y_m,
+                f.yaw_deg,
+                f.sigma_x_m,
+                f.sigma_y_m,
+                f.sigma_yaw_deg,
+                f.pairs
+            ),
+            (None, Some(why)) => format!("not placed in the site frame: {why}"),
+            (None, None) => "not placed in the site frame yet".to_string(),
+        },
+        None => "the site daemon has not heard this zone yet".to_string(),
+    }
+}
+
 /// Why this daemon may not hold `zone`: another's token is already at `alive`. Asked a few
 /// times over `TAKEN_PATIENCE`: a peer's routes settle some 0.1–0.2 s after its session opens,
 /// and a query before then reaches no one. Nobody reachable at all: it cannot know, and holds it.
-async fn zone_taken(session: &zenoh::Session, alive: &str, zone: &str) -> Option<String> {
+pub(super) async fn zone_taken(
+    session: &zenoh::Session,
+    alive: &str,
+    zone: &str,
+) -> Option<String> {
     const TRIES: u32 = 4;
     for _ in 0..TRIES {
         let replies = match session

@@ -14,6 +14,7 @@ pub mod score;
 pub mod site;
 pub mod telling;
 pub mod walkers;
+pub mod zones;
 
 pub use model::ScanModel;
 pub use pair::{Abstain, Candidate, PairResult, polish, register_pair};

@@ -567,6 +567,7 @@ mod tests {
                 web: None,
                 foxglove: None,
                 zenoh: None,
+                zones: Vec::new(),
             }
         }
         fn poses(&self) -> crate::daemon::protocol::Poses {

@@ -60,6 +60,7 @@ impl MemorySite {
                 web: None,
                 foxglove: None,
                 zenoh: None,
+                zones: Vec::new(),
             }),
             poses: Mutex::new(Poses {
                 anchor: "entrance".into(),
@@ -194,7 +195,7 @@ impl LineClient {
     pub async fn connect_past_banner(path: &Path) -> LineClient {
         let mut client = LineClient::connect(path).await;
         match client.message().await {
-            Some(Message::Version(v)) => assert_eq!((v.proto_major, v.proto_minor), (1, 6)),
+            Some(Message::Version(v)) => assert_eq!((v.proto_major, v.proto_minor), (1, 7)),
             other => panic!("expected a VERSION banner, got {other:?}"),
         }
         client

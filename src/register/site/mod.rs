@@ -19,7 +19,7 @@ mod second_opinion;
 mod settle;
 mod solve;
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 pub use add::{AddedSensor, add_sensor};
 pub use descriptor::{ViewDescriptor, rank_partners};

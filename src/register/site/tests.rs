@@ -169,7 +169,7 @@ fn hall() -> Vec<Wall> {
 }
 
 /// The scan of a sensor at `site_from_sensor` over `fov_rad` centred ahead, 0.5° steps.
-pub(super) fn sensor_at(
+pub(crate) fn sensor_at(
     walls: &[Wall],
     site_from_sensor: Pose2,
     fov_rad: f64,

@@ -1,0 +1,479 @@
+//! Zones joined into one site frame (issue 21). Each zone places its own sensors in its own
+//! frame and stays authoritative for them; this finds where each zone stands in the anchor
+//! zone's frame (`site_from_zone`) from pairs of sensors of different zones, registered on
+//! their static views by the same `register_pair` as inside a zone.
+//!
+//! Every registered cross pair (s of zone A, t of zone B) says where B stands in A:
+//! `a_from_b = a_from_s · s_from_t · (b_from_t)⁻¹`. The pairs between two zones must agree:
+//! the largest set that agrees (the site's cycle tolerance) is the link, and a rival set half
+//! its size or more leaves the two unlinked (a look-alike across zones). Links that disagree
+//! around triangles of zones are dropped as inside a site (`consistent_edges`), and the weighted
+//! least squares of the site (`solve`) places every zone the links reach, with σ.
+
+use nalgebra::Matrix3;
+use rayon::prelude::*;
+
+use super::site::{Edge, SiteParams, ViewDescriptor, consistent_edges, solve};
+use super::{PairResult, RegisterParams, ScanModel, register_pair};
+use crate::geometry::{Pose2, pose_error, pose2, wrap_angle_rad};
+
+/// One placed sensor of a zone.
+#[derive(Debug, Clone)]
+pub struct ZoneSensor {
+    pub id: String,
+    pub model: ScanModel,
+    /// Its pose in its zone's frame, and σ (x m, y m, yaw rad) there.
+    pub zone_from_sensor: Pose2,
+    pub sigma: [f64; 3],
+}
+
+/// One zone: its id and its placed sensors.
+#[derive(Debug, Clone)]
+pub struct ZoneInput {
+    pub id: String,
+    pub sensors: Vec<ZoneSensor>,
+}
+
+/// How the zones are joined.
+#[derive(Debug, Clone)]
+pub struct ZoneParams {
+    pub register: RegisterParams,
+    pub site: SiteParams,
+    /// Every cross pair is registered while there are at most this many; beyond, each sensor
+    /// only with its `partners` most alike views in other zones (`ViewDescriptor`).
+    pub all_pairs_up_to: usize,
+    pub partners: usize,
+}
+
+impl Default for ZoneParams {
+    fn default() -> Self {
+        ZoneParams {
+            register: RegisterParams::default(),
+            site: SiteParams::default(),
+            all_pairs_up_to: 400,
+            partners: 8,
+        }
+    }
+}
+
+/// Where one zone stands, or why it does not.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ZonePlacement {
+    pub id: String,
+    /// `site_from_zone` and its σ (x m, y m, yaw rad).
+    pub site_from_zone: Result<(Pose2, [f64; 3]), String>,
+    /// Cross pairs the link to it rests on (0 for the anchor).
+    pub pairs: usize,
+}
+
+/// One cross pair registered: sensor `s` of zone `za` against `t` of zone `zb`.
+#[derive(Debug, Clone)]
+pub struct CrossPair {
+    pub za: usize,
+    pub s: usize,
+    pub zb: usize,
+    pub t: usize,
+    pub result: PairResult,
+    /// It is part of the link between its two zones.
+    pub used: bool,
+}
+
+#[derive(Debug, Clone)]
+pub struct ZonesResult {
+    pub anchor: usize,
+    pub zones: Vec<ZonePlacement>,
+    pub pairs: Vec<CrossPair>,
+}
+
+/// A sensor by its zone and index in it.
+type At = (usize, usize);
+
+/// Places every zone it can in the frame of zone `anchor`.
+pub fn join_zones(zones: &[ZoneInput], anchor: usize, p: &ZoneParams) -> ZonesResult {
+    let tried = cross_pairs(zones, p);
+    let pairs: Vec<CrossPair> = tried
+        .par_iter()
+        .map(|&((za, s), (zb, t))| CrossPair {
+            za,
+            s,
+            zb,
+            t,
+            result: register_pair(
+                &zones[za].sensors[s].model,
+                &zones[zb].sensors[t].model,
+                &p.register,
+            ),
+            used: false,
+        })
+        .collect();
+    link(zones, anchor, pairs, &p.site)
+}
+
+/// The cross pairs worth registering, each once, the lower zone first.
+fn cross_pairs(zones: &[ZoneInput], p: &ZoneParams) -> Vec<(At, At)> {
+    let all: Vec<At> = zones
+        .iter()
+        .enumerate()
+        .flat_map(|(z, zone)| (0..zone.sensors.len()).map(move |s| (z, s)))
+        .collect();
+    let mut pairs: Vec<(At, At)> = Vec::new();
+    for (i, a) in all.iter().enumerate() {
+        for b in &all[i + 1..] {
+            if a.0 != b.0 {
+                pairs.push((*a, *b));
+            }
+        }
+    }
+    if pairs.len() <= p.all_pairs_up_to {
+        return pairs;
+    }
+    let descriptors: Vec<ViewDescriptor> = all
+        .iter()
+        .map(|&(z, s)| ViewDescriptor::of(&zones[z].sensors[s].model))
+        .collect();
+    let mut chosen = std::collections::BTreeSet::new();
+    for (i, a) in all.iter().enumerate() {
+        let mut others: Vec<(f64, usize)> = (0..all.len())
+            .filter(|&j| all[j].0 != a.0)
+            .map(|j| (descriptors[i].distance(&descriptors[j]), j))
+            .collect();
+        others.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+        for &(_, j) in others.iter().take(p.partners) {
+            chosen.insert((i.min(j), i.max(j)));
+        }
+    }
+    chosen.into_iter().map(|(i, j)| (all[i], all[j])).collect()
+}
+
+/// The (x, y, yaw) of a pose.
+fn params(p: &Pose2) -> [f64; 3] {
+    [p.translation.x, p.translation.y, p.rotation.angle()]
+}
+
+/// Covariance of `f(x)` for `x` with covariance `cov`, by a numeric Jacobian.
+fn propagate(x: &Pose2, cov: &Matrix3<f64>, f: impl Fn(&Pose2) -> Pose2) -> Matrix3<f64> {
+    let base = params(&f(x));
+    let xp = params(x);
+    let mut j = Matrix3::zeros();
+    for k in 0..3 {
+        let eps = 1e-6;
+        let mut moved = xp;
+        moved[k] += eps;
+        let out = params(&f(&pose2(moved[0], moved[1], moved[2])));
+        for m in 0..3 {
+            let d = if m == 2 {
+                wrap_angle_rad(out[m] - base[m])
+            } else {
+                out[m] - base[m]
+            };
+            j[(m, k)] = d / eps;
+        }
+    }
+    j * cov * j.transpose()
+}
+
+fn diag(sigma: &[f64; 3]) -> Matrix3<f64> {
+    Matrix3::from_diagonal(&nalgebra::Vector3::new(
+        sigma[0] * sigma[0],
+        sigma[1] * sigma[1],
+        sigma[2] * sigma[2],
+    ))
+}
+
+/// What one registered cross pair says of zone `zb` in zone `za`'s frame.
+fn zone_edge(zones: &[ZoneInput], c: &CrossPair) -> Edge {
+    let s = &zones[c.za].sensors[c.s];
+    let t = &zones[c.zb].sensors[c.t];
+    let (za_s, s_t, zb_t) = (s.zone_from_sensor, c.result.a_from_b, t.zone_from_sensor);
+    let a_from_b = za_s * s_t * zb_t.inverse();
+    let covariance = propagate(&s_t, &c.result.covariance, |x| za_s * x * zb_t.inverse())
+        + propagate(&za_s, &diag(&s.sigma), |x| x * s_t * zb_t.inverse())
+        + propagate(&zb_t, &diag(&t.sigma), |x| za_s * s_t * x.inverse());
+    Edge {
+        a: c.za,
+        b: c.zb,
+        a_from_b,
+        covariance,
+        strength: c.result.overlap * c.result.match_score,
+    }
+}
+
+/// The link between two zones from their registered cross pairs (`edges[k]` from `pairs[k]`):
+/// the indices of the largest agreeing set, or why there is none.
+fn agreeing(edges: &[&Edge], sp: &SiteParams) -> Result<Vec<usize>, String> {
+    let agrees = |x: &Edge, y: &Edge| {
+        let (dt, dyaw) = pose_error(&x.a_from_b, &y.a_from_b);
+        dt <= sp.cycle_m && dyaw <= sp.cycle_rad
+    };
+    let cluster = |k: usize, among: &[usize]| -> Vec<usize> {
+        among
+            .iter()
+            .copied()
+            .filter(|&m| agrees(edges[k], edges[m]))
+            .collect()
+    };
+    let largest = |among: &[usize]| -> Vec<usize> {
+        among
+            .iter()
+            .map(|&k| cluster(k, among))
+            .max_by(|x, y| {
+                let strength = |c: &[usize]| c.iter().map(|&m| edges[m].strength).sum::<f64>();
+                x.len()
+                    .cmp(&y.len())
+                    .then(strength(x).total_cmp(&strength(y)))
+            })
+            .unwrap_or_default()
+    };
+    let all: Vec<usize> = (0..edges.len()).collect();
+    let best = largest(&all);
+    let rest: Vec<usize> = all.into_iter().filter(|k| !best.contains(k)).collect();
+    let rival = largest(&rest);
+    if !rival.is_empty() && 2 * rival.len() >= best.len() {
+        let at = |c: &[usize]| {
+            let e = edges[c[0]];
+            format!(
+                "{} at ({:.2}, {:.2}) m, {:.1}°",
+                c.len(),
+                e.a_from_b.translation.x,
+                e.a_from_b.translation.y,
+                e.a_from_b.rotation.angle().to_degrees()
+            )
+        };
+        return Err(format!(
+            "their sensor pairs disagree: {} against {}",
+            at(&best),
+            at(&rival)
+        ));
+    }
+    Ok(best)
+}
+
+/// Links the zones from their registered cross pairs and solves where each stands.
+fn link(
+    zones: &[ZoneInput],
+    anchor: usize,
+    mut pairs: Vec<CrossPair>,
+    sp: &SiteParams,
+) -> ZonesResult {
+    let n = zones.len();
+    let mut edges: Vec<Edge> = Vec::new();
+    let mut from_pair: Vec<usize> = Vec::new();
+    let mut why_not: Vec<Vec<String>> = vec![Vec::new(); n];
+    for za in 0..n {
+        for zb in za + 1..n {
+            let between: Vec<usize> = (0..pairs.len())
+                .filter(|&k| {
+                    let c = &pairs[k];
+                    c.za == za && c.zb == zb && c.result.registered()
+                })
+                .collect();
+            if between.is_empty() {
+                continue;
+            }
+            let found: Vec<Edge> = between
+                .iter()
+                .map(|&k| zone_edge(zones, &pairs[k]))
+                .collect();
+            match agreeing(&found.iter().collect::<Vec<_>>(), sp) {
+                Ok(mut kept) => {
+                    // The strongest first: the cycle check takes the first edge of each pair.
+                    kept.sort_by(|&x, &y| found[y].strength.total_cmp(&found[x].strength));
+                    for k in kept {
+                        edges.push(found[k].clone());
+                        from_pair.push(between[k]);
+                    }
+                }
+                Err(why) => {
+                    let line = |other: usize| format!("with zone {}, {why}", zones[other].id);
+                    why_not[za].push(line(zb));
+                    why_not[zb].push(line(za));
+                }
+            }
+        }
+    }
+    let kept = consistent_edges(n, anchor, &edges, sp);
+    let used: Vec<Edge> = kept.iter().map(|&k| edges[k].clone()).collect();
+    for &k in &kept {
+        pairs[from_pair[k]].used = true;
+    }
+    let solved = solve(n, anchor, &used, &[], sp);
+    let tried = |z: usize| pairs.iter().filter(|c| c.za == z || c.zb == z).count();
+    let zones_out = (0..n)
+        .map(|z| {
+            let rests_on = used.iter().filter(|e| e.a == z || e.b == z).count();
+            let site_from_zone = match solved.get(z).copied().flatten() {
+                Some(found) => Ok(found),
+                None if !why_not[z].is_empty() => Err(why_not[z].join("; ")),
+                None if rests_on > 0 => Err(format!(
+                    "it is linked to other zones, but no chain of them reaches zone {}",
+                    zones[anchor].id
+                )),
+                None => Err(format!(
+                    "none of its {} sensor(s) registered with a sensor of another zone ({} pairs tried); its sensors must share a view with another zone's",
+                    zones[z].sensors.len(),
+                    tried(z)
+                )),
+            };
+            ZonePlacement {
+                id: zones[z].id.clone(),
+                site_from_zone,
+                pairs: if z == anchor { 0 } else { rests_on },
+            }
+        })
+        .collect();
+    ZonesResult {
+        anchor,
+        zones: zones_out,
+        pairs,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::raycast::{Wall, polygon};
+    use crate::register::site::tests::sensor_at;
+
+    /// An L-shaped hall with a pillar, scanned by six sensors in three zones of two. Each zone's
+    /// frame is its first sensor's; the anchor zone's is the site's.
+    fn hall() -> (Vec<Wall>, Vec<(usize, Pose2)>) {
+        let mut walls = polygon(&[
+            (0.0, 0.0),
+            (24.0, 0.0),
+            (24.0, 8.0),
+            (14.0, 8.0),
+            (14.0, 18.0),
+            (0.0, 18.0),
+        ]);
+        walls.extend(polygon(&[(5.0, 5.0), (6.0, 5.0), (6.0, 6.5), (5.0, 6.5)]));
+        walls.extend(polygon(&[
+            (18.0, 3.0),
+            (19.5, 3.0),
+            (19.5, 4.0),
+            (18.0, 4.0),
+        ]));
+        walls.extend(polygon(&[
+            (7.0, 12.0),
+            (9.0, 12.0),
+            (9.0, 12.6),
+            (7.0, 12.6),
+        ]));
+        let sensors = vec![
+            (0, pose2(2.0, 2.0, 0.4)),
+            (0, pose2(10.0, 3.0, 1.9)),
+            (1, pose2(20.0, 6.5, -2.6)),
+            (1, pose2(15.0, 1.5, 2.2)),
+            (2, pose2(3.0, 15.0, -0.8)),
+            (2, pose2(11.0, 10.0, 2.6)),
+        ];
+        (walls, sensors)
+    }
+
+    fn zones_of(walls: &[Wall], sensors: &[(usize, Pose2)]) -> Vec<ZoneInput> {
+        let fov = 270f64.to_radians();
+        let mut zones: Vec<ZoneInput> = (0..3)
+            .map(|z| ZoneInput {
+                id: ["west", "east", "north"][z].to_string(),
+                sensors: Vec::new(),
+            })
+            .collect();
+        for (k, &(z, site_from_sensor)) in sensors.iter().enumerate() {
+            let first = sensors.iter().find(|(zz, _)| *zz == z).map(|(_, p)| *p);
+            let zone_from_sensor = first.unwrap_or(site_from_sensor).inverse() * site_from_sensor;
+            let id = format!("s{k}");
+            zones[z].sensors.push(ZoneSensor {
+                model: sensor_at(walls, site_from_sensor, fov, &id).model,
+                id,
+                zone_from_sensor,
+                sigma: [0.01, 0.01, 0.002],
+            });
+        }
+        zones
+    }
+
+    #[test]
+    fn zones_that_share_views_are_placed_where_their_first_sensors_stand() {
+        let (walls, sensors) = hall();
+        let zones = zones_of(&walls, &sensors);
+        let got = join_zones(&zones, 0, &ZoneParams::default());
+        let site_from_west = sensors[0].1;
+        for (z, first) in [(1, 2), (2, 4)] {
+            let truth = site_from_west.inverse() * sensors[first].1;
+            let placement = &got.zones[z];
+            let (pose, sigma) = placement
+                .site_from_zone
+                .as_ref()
+                .unwrap_or_else(|why| panic!("zone {} unplaced: {why}", placement.id));
+            let (dt, dyaw) = pose_error(pose, &truth);
+            assert!(
+                dt < 0.05 && dyaw < 0.5f64.to_radians(),
+                "zone {}: {dt:.3} m, {:.2}° off",
+                placement.id,
+                dyaw.to_degrees()
+            );
+            assert!(sigma.iter().all(|s| *s > 0.0 && *s < 0.1), "{sigma:?}");
+            assert!(placement.pairs >= 1);
+        }
+        assert_eq!(
+            got.zones[0].site_from_zone.as_ref().ok().map(|p| p.0),
+            Some(Pose2::identity())
+        );
+    }
+
+    #[test]
+    fn a_zone_that_shares_no_view_stays_unplaced_and_says_why() {
+        let (mut walls, mut sensors) = hall();
+        // North's sensors moved into a room of their own, far off and closed.
+        walls.extend(polygon(&[
+            (100.0, 0.0),
+            (107.0, 0.0),
+            (107.0, 5.0),
+            (100.0, 5.0),
+        ]));
+        sensors[4].1 = pose2(101.0, 1.0, 0.3);
+        sensors[5].1 = pose2(106.0, 4.0, -2.5);
+        let zones = zones_of(&walls, &sensors);
+        let got = join_zones(&zones, 0, &ZoneParams::default());
+        assert!(got.zones[1].site_from_zone.is_ok());
+        let why = got.zones[2].site_from_zone.as_ref().unwrap_err();
+        assert!(why.contains("share a view"), "{why}");
+    }
+
+    #[test]
+    fn cross_pairs_that_disagree_link_nothing() {
+        let (walls, sensors) = hall();
+        let zones = zones_of(&walls, &sensors);
+        let good = join_zones(&zones, 0, &ZoneParams::default());
+        // The same pairs, with every second registered pair between west and east turned by
+        // 90°: two sets of equal standing.
+        let mut pairs = good.pairs.clone();
+        let mut flip = false;
+        for c in pairs
+            .iter_mut()
+            .filter(|c| c.za == 0 && c.zb == 1 && c.result.registered())
+        {
+            if flip {
+                c.result.a_from_b = pose2(3.0, -4.0, 1.57) * c.result.a_from_b;
+            }
+            flip = !flip;
+        }
+        let between = pairs
+            .iter()
+            .filter(|c| c.za == 0 && c.zb == 1 && c.result.registered())
+            .count();
+        assert!(
+            between >= 2,
+            "west and east share {between} registered pairs"
+        );
+        let got = link(&zones, 0, pairs, &SiteParams::default());
+        let east = &got.zones[1].site_from_zone;
+        // East may still be placed through north (a chain that does agree), but never at
+        // the rival's pose.
+        if let Ok((pose, _)) = east {
+            let truth = sensors[0].1.inverse() * sensors[2].1;
+            assert!(pose_error(pose, &truth).0 < 0.05);
+        } else {
+            assert!(east.as_ref().unwrap_err().contains("disagree"), "{east:?}");
+        }
+    }
+}

@@ -1,0 +1,234 @@
+//! One site across several machines: the site daemon (`[site] role = "site"`, hosting the
+//! Zenoh router) joins two zone daemons into one frame, all real `scanfuse run` processes on
+//! 127.0.0.1. The hall's five units, four in one zone and one in the other, come out in the
+//! site frame as each zone places them relative to one another (to the millimetre: zones
+//! stay authoritative), and where one daemon holding all five puts them, within 5 cm and
+//! 0.3°: a zone solves its units from its own pairs only, so its poses differ from one
+//! daemon's by up to a few cm, and that carries into the link. The table prints each unit's
+//! Δ. A zone killed is lost within 2 s, its poses kept and marked stale, and started again it
+//! rejoins with nothing else restarted; the site daemon restarted rebuilds the site from the
+//! zones.
+#![cfg(feature = "zenoh")]
+
+mod daemon_run_common;
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use daemon_run_common::{
+    Client, HALL, Proc, fixture, replay_sensors, start_daemon, wait_for, write_config,
+};
+use scanfuse::daemon::protocol::{Poses, SensorPose};
+
+/// How long any one expected thing may take before the test gives up (not a timing assert).
+const PATIENCE: Duration = Duration::from_secs(90);
+
+fn site_config(dir: &Path, endpoint: &str) -> std::path::PathBuf {
+    let text = format!(
+        "[site]\nname = \"test\"\nrole = \"site\"\nanchor = \"west\"\nstate_dir = \"{}\"\nsocket = \"{}\"\n\n[zenoh]\nlisten = [\"{endpoint}\"]\n",
+        dir.join("state").display(),
+        dir.join("s.sock").display()
+    );
+    let path = dir.join("site.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// A zone daemon holding `units` of the hall, its first the zone's anchor.
+fn zone(dir: &Path, zone: &str, units: &[(&'static str, &'static str)], endpoint: &str) -> Proc {
+    let sensors = replay_sensors(&fixture("hall.mcap"), units);
+    let config = write_config(
+        dir,
+        units[0].0,
+        &sensors,
+        &format!("\n[zenoh]\nzone = \"{zone}\"\nconnect = [\"{endpoint}\"]\n"),
+    );
+    start_daemon(&config, dir)
+}
+
+fn sensor<'a>(poses: &'a Poses, id: &str) -> Option<&'a SensorPose> {
+    poses.sensors.iter().find(|s| s.id == id)
+}
+
+/// Waits for every one of `ids` placed in the site frame; on timeout, says what the site
+/// daemon showed last.
+fn wait_all_placed(client: &mut Client, ids: &[&str], what: &str) -> Poses {
+    let start = Instant::now();
+    loop {
+        if let Some(p) = all_placed(client, ids) {
+            return p;
+        }
+        if start.elapsed() > PATIENCE {
+            panic!(
+                "timed out waiting for {what}; the site daemon shows {:?}\n{:?}",
+                client.status().zones,
+                client.poses().sensors
+            );
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+}
+
+/// Poses with every one of `ids` placed (and live).
+fn all_placed(client: &mut Client, ids: &[&str]) -> Option<Poses> {
+    let poses = client.poses();
+    ids.iter()
+        .all(|id| sensor(&poses, id).is_some_and(|s| s.registered && !s.stale))
+        .then_some(poses)
+}
+
+#[test]
+fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let dirs: Vec<tempfile::TempDir> = (0..4).map(|_| tempfile::tempdir().unwrap()).collect();
+    let ids = ["gate", "dock", "mezz", "tough", "tilt"];
+    // West holds four units, east the dock's; two pairs across them register (the dock with
+    // mezz and with tough). The hall's units share too little for a two-unit east to place
+    // both its units in good time: its own registration, not the join, would set the pace.
+    let west_units = [HALL[0], HALL[4], HALL[2], HALL[3]];
+    let east_units = [HALL[1]];
+
+    // One daemon holding all five: the frame the site must reproduce.
+    let whole = write_config(
+        dirs[3].path(),
+        "gate",
+        &replay_sensors(&fixture("hall.mcap"), &HALL),
+        "",
+    );
+    let _whole = start_daemon(&whole, dirs[3].path());
+
+    let started = Instant::now();
+    let mut site_daemon = start_daemon(&site_config(dirs[0].path(), &endpoint), dirs[0].path());
+    let _west = zone(dirs[1].path(), "west", &west_units, &endpoint);
+    let mut east = zone(dirs[2].path(), "east", &east_units, &endpoint);
+
+    let mut site = Client::connect(&dirs[0].path().join("s.sock"), PATIENCE);
+    let line = wait_for(PATIENCE, "the site daemon on Zenoh", || {
+        site.status()
+            .zenoh
+            .filter(|z| z.contains("the site daemon"))
+    });
+    assert!(
+        line.contains(&endpoint) && line.contains("anchor zone west"),
+        "{line}"
+    );
+    let joined = wait_all_placed(
+        &mut site,
+        &ids,
+        "every unit of both zones in the site frame",
+    );
+    println!(
+        "both zones in the site frame {:?} after start",
+        started.elapsed()
+    );
+    let mut reference = Client::connect(&dirs[3].path().join("s.sock"), PATIENCE);
+    let whole = wait_for(PATIENCE, "the one daemon to place all five", || {
+        all_placed(&mut reference, &ids)
+    });
+    check_site(&joined, &whole, &dirs);
+    let status = site.status();
+    let east_status = status.zones.iter().find(|z| z.zone == "east").unwrap();
+    let frame = east_status.site_from_zone.expect("east is placed");
+    assert!(frame.pairs >= 1 && frame.sigma_x_m > 0.0, "{frame:?}");
+
+    // East killed: lost within the lease, its poses kept, marked stale.
+    let killed = Instant::now();
+    east.0.kill().unwrap();
+    let _ = east.0.wait();
+    wait_for(PATIENCE, "east lost", || {
+        site.status()
+            .zones
+            .iter()
+            .find(|z| z.zone == "east" && !z.alive)
+            .map(|_| ())
+    });
+    let lost = killed.elapsed();
+    println!("east killed → lost to the site daemon in {lost:?}");
+    assert!(lost < Duration::from_secs(2), "{lost:?}");
+    // Past the next join (which no longer sees east), east's poses still stand, stale.
+    std::thread::sleep(Duration::from_secs(4));
+    let poses = site.poses();
+    let dock = sensor(&poses, "dock").expect("dock's last pose kept");
+    assert!(dock.stale && dock.registered, "{dock:?}");
+    assert!(!sensor(&poses, "gate").unwrap().stale);
+
+    // Started again, it rejoins; nothing else was restarted.
+    let _east = zone(dirs[2].path(), "east", &east_units, &endpoint);
+    wait_all_placed(&mut site, &ids, "east back and placed");
+
+    // The site daemon restarted rebuilds the site from the zones.
+    drop(site);
+    site_daemon.signal("TERM");
+    site_daemon.wait_exit(PATIENCE);
+    let restarted = Instant::now();
+    let _site_daemon = start_daemon(&site_config(dirs[0].path(), &endpoint), dirs[0].path());
+    let mut site = Client::connect(&dirs[0].path().join("s.sock"), PATIENCE);
+    let again = wait_all_placed(
+        &mut site,
+        &ids,
+        "the restarted site daemon to place every unit",
+    );
+    println!(
+        "site daemon restarted → all placed in {:?}",
+        restarted.elapsed()
+    );
+    check_site(&again, &whole, &dirs);
+}
+
+/// The site's poses against one daemon's (printed; within 5 cm and 0.3°) and against each
+/// zone's own (to the millimetre: the site frame moves each zone whole).
+fn check_site(site: &Poses, whole: &Poses, dirs: &[tempfile::TempDir]) {
+    println!("unit   zone  site frame (m, °)            one daemon            Δ (mm, °)");
+    for a in &site.sensors {
+        let b = sensor(whole, &a.id).unwrap();
+        let (dx, dy) = (
+            a.x_m.unwrap() - b.x_m.unwrap(),
+            a.y_m.unwrap() - b.y_m.unwrap(),
+        );
+        let dyaw = (a.yaw_deg.unwrap() - b.yaw_deg.unwrap() + 540.0).rem_euclid(360.0) - 180.0;
+        let dt = dx.hypot(dy);
+        println!(
+            "{:<6} {:<5} ({:7.3}, {:7.3}, {:7.2})  ({:7.3}, {:7.3}, {:7.2})  {:5.1}, {:5.3}",
+            a.id,
+            a.zone.as_deref().unwrap_or("?"),
+            a.x_m.unwrap(),
+            a.y_m.unwrap(),
+            a.yaw_deg.unwrap(),
+            b.x_m.unwrap(),
+            b.y_m.unwrap(),
+            b.yaw_deg.unwrap(),
+            dt * 1e3,
+            dyaw.abs()
+        );
+        let zone = if a.id == "dock" { "east" } else { "west" };
+        assert_eq!(a.zone.as_deref(), Some(zone), "{}", a.id);
+        assert!(
+            dt < 0.05 && dyaw.abs() < 0.3,
+            "{}: {dt:.4} m, {dyaw:.3}°",
+            a.id
+        );
+    }
+    for (zone, dir) in [("west", &dirs[1]), ("east", &dirs[2])] {
+        let own = Client::connect(&dir.path().join("s.sock"), PATIENCE).poses();
+        let units: Vec<&SensorPose> = own.sensors.iter().filter(|s| s.registered).collect();
+        for pair in units.windows(2) {
+            let (p, q) = (pair[0], pair[1]);
+            let apart = |p: &SensorPose, q: &SensorPose| {
+                (p.x_m.unwrap() - q.x_m.unwrap()).hypot(p.y_m.unwrap() - q.y_m.unwrap())
+            };
+            let in_zone = apart(p, q);
+            let in_site = apart(sensor(site, &p.id).unwrap(), sensor(site, &q.id).unwrap());
+            assert!(
+                (in_zone - in_site).abs() < 1e-3,
+                "zone {zone}: {} to {} is {in_zone:.4} m in the zone, {in_site:.4} m in the site",
+                p.id,
+                q.id
+            );
+        }
+    }
+}
