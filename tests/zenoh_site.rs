@@ -132,6 +132,22 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
     });
     check_site(&joined, &whole, &dirs);
     let status = site.status();
+    for z in &status.zones {
+        println!(
+            "zone {} sends the site daemon {:.0} bytes/s (poses and status of {} unit(s))",
+            z.zone,
+            z.bytes_per_s.unwrap_or(0.0),
+            z.sensors
+        );
+        assert!(z.bytes_per_s.is_some_and(|b| b > 0.0), "{z:?}");
+    }
+    // The zones' drivers, as each zone says.
+    for id in ids {
+        assert!(
+            status.sensors.iter().any(|s| s.id == id),
+            "{id} has no driver status"
+        );
+    }
     let east_status = status.zones.iter().find(|z| z.zone == "east").unwrap();
     let frame = east_status.site_from_zone.expect("east is placed");
     assert!(frame.pairs >= 1 && frame.sigma_x_m > 0.0, "{frame:?}");

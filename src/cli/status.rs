@@ -299,8 +299,11 @@ fn zone_row(z: &ZoneStatus) -> String {
         Some(f) => format!("{} pairs", f.pairs),
         None => "unplaced".to_string(),
     };
+    let rate = z
+        .bytes_per_s
+        .map_or_else(String::new, |b| format!(", sends {:.1} kB/s", b / 1e3));
     format!(
-        "{:<16} {:<12} {:>8} {:>9} {:>9} {:>8} {:>7} {:>7} {:>7}  {:<14} {} of {} sensors placed in the zone",
+        "{:<16} {:<12} {:>8} {:>9} {:>9} {:>8} {:>7} {:>7} {:>7}  {:<14} {} of {} sensors placed in the zone{rate}",
         format!("zone {}", z.zone),
         format!(
             "{} {}",

@@ -32,6 +32,8 @@ pub mod run;
 pub mod signals;
 #[cfg(feature = "zenoh")]
 pub mod site_net;
+#[cfg(feature = "zenoh")]
+pub mod site_view;
 pub mod socket;
 pub mod state;
 pub mod surveys;

@@ -201,6 +201,13 @@ pub struct ZoneStatus {
     /// Its sensors, and how many of them its own registration placed, from its last poses.
     pub sensors: usize,
     pub placed: usize,
+    /// Bytes a second it sends the site daemon (poses and status), over the last 10 s.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bytes_per_s: Option<f64>,
+    /// Its clock minus the site daemon's (s), from its payloads' stamps (the link's delay
+    /// included: ms on a LAN); an error event names a zone more than 0.5 s off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub clock_offset_s: Option<f64>,
     /// Where the zone's frame stands in the site frame; absent when it is not placed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub site_from_zone: Option<ZoneFrame>,

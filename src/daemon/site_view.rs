@@ -1,0 +1,702 @@
+//! What the site daemon knows and shows (no I/O): each zone's liveliness and last poses,
+//! where each zone stands in the site frame, and from these every sensor of every zone in the
+//! site frame, served on the status socket (`StatusSource`). `join_frame` turns what the zones
+//! sent (poses and static views) into the site frame (`register::zones`). `site_net` feeds it
+//! from Zenoh.
+
+use std::collections::{BTreeMap, VecDeque};
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use super::protocol::{
+    EventKind, Poses, Saved, SensorPose, SensorStatus, Status, ZoneFrame, ZoneStatus,
+};
+use super::socket::{Publisher, Refused, StatusSource};
+use super::zone_net::{Placed as PlacedKey, ViewPayload, placed_key};
+use crate::geometry::{Pose2, pose2};
+use crate::register::zones::{ZoneInput, ZoneParams, ZoneSensor, join_zones};
+use crate::register::{RegisterParams, ScanModel};
+
+/// What the site daemon knows of one zone.
+#[derive(Debug, Clone)]
+struct Zone {
+    alive: bool,
+    /// When it became alive or was lost.
+    since: Instant,
+    /// Its last poses, in its own frame.
+    poses: Option<Poses>,
+    /// The poses were heard since it was last alive (a zone back from the dead may have
+    /// re-registered: until it speaks, its old poses are stale).
+    fresh: bool,
+    /// Its last status: its sensors' drivers.
+    status: Option<Status>,
+    /// Bytes of poses and status heard from it, by when, over the last `RATE_OVER`.
+    heard: VecDeque<(Instant, usize)>,
+    /// Its clock minus the site daemon's (s) as its last payloads said, newest last.
+    clock: VecDeque<f64>,
+    /// Its clock was said to be off (so it is said once, and again when it is right).
+    clock_off: bool,
+}
+
+/// A zone clock this far (s) from the site daemon's is named: walkers are compared by time,
+/// and the zones' stamps must agree.
+const CLOCK_OFF_S: f64 = 0.5;
+/// The clock offset is the median of this many payloads' (a second or two of them).
+const CLOCK_OVER: usize = 8;
+
+/// What a zone sends is averaged over this long.
+const RATE_OVER: Duration = Duration::from_secs(10);
+
+impl Zone {
+    fn new(alive: bool) -> Zone {
+        Zone {
+            alive,
+            since: Instant::now(),
+            poses: None,
+            fresh: false,
+            status: None,
+            heard: VecDeque::new(),
+            clock: VecDeque::new(),
+            clock_off: false,
+        }
+    }
+}
+
+/// Where a zone stands in the site frame, or why it does not.
+pub(super) type Placed = Result<(Pose2, [f64; 3], usize), String>;
+
+#[derive(Debug, Default)]
+struct Zones {
+    zones: BTreeMap<String, Zone>,
+    frame: BTreeMap<String, Placed>,
+}
+
+/// The site daemon's state, served on the socket.
+pub struct SiteView {
+    pub(super) site: String,
+    /// The zone whose frame is the site's.
+    pub(super) anchor: String,
+    started: Instant,
+    /// The status line of its Zenoh side.
+    zenoh: Mutex<String>,
+    state: Mutex<Zones>,
+    publisher: Publisher,
+}
+
+impl SiteView {
+    /// The view of site `site` whose frame is zone `anchor`'s.
+    pub fn new(site: &str, anchor: &str, publisher: Publisher) -> SiteView {
+        SiteView {
+            site: site.to_string(),
+            anchor: anchor.to_string(),
+            started: Instant::now(),
+            zenoh: Mutex::new("opening its Zenoh session".into()),
+            state: Mutex::new(Zones::default()),
+            publisher,
+        }
+    }
+
+    /// Says how its Zenoh side stands (`status.zenoh`).
+    pub(super) fn set_zenoh(&self, line: String) {
+        *self.zenoh.lock().unwrap_or_else(|e| e.into_inner()) = line;
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, Zones> {
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    pub(super) fn announce(&self, kind: EventKind, message: String) {
+        if kind == EventKind::Error {
+            tracing::warn!(target: "scanfuse::event", "{message}");
+        } else {
+            tracing::info!(target: "scanfuse::event", "{message}");
+        }
+        self.publisher.announce(kind, None, message);
+    }
+
+    /// A zone's liveliness token came or went.
+    pub(super) fn liveliness(&self, zone: &str, alive: bool) {
+        let changed = {
+            let mut s = self.lock();
+            let z = s
+                .zones
+                .entry(zone.to_string())
+                .or_insert_with(|| Zone::new(!alive));
+            let changed = z.alive != alive;
+            if changed {
+                z.alive = alive;
+                z.since = Instant::now();
+                z.fresh = false;
+            }
+            changed
+        };
+        if changed && alive {
+            self.announce(EventKind::Connected, format!("zone {zone} is alive"));
+        } else if changed {
+            self.announce(
+                EventKind::Disconnected,
+                format!("zone {zone} is lost: its poses stay as last heard, marked stale"),
+            );
+        }
+    }
+
+    pub(super) fn heard_poses(&self, zone: &str, poses: Poses) {
+        let mut s = self.lock();
+        let z = s
+            .zones
+            .entry(zone.to_string())
+            .or_insert_with(|| Zone::new(true));
+        z.poses = Some(poses);
+        z.fresh = z.alive;
+    }
+
+    pub(super) fn heard_status(&self, zone: &str, status: Status) {
+        let mut s = self.lock();
+        let z = s
+            .zones
+            .entry(zone.to_string())
+            .or_insert_with(|| Zone::new(true));
+        z.status = Some(status);
+    }
+
+    /// A zone's payload was stamped `offset_s` from the site daemon's clock when it arrived.
+    /// Says so when the zone's clock is off by more than `CLOCK_OFF_S`, and when it is right
+    /// again.
+    pub(super) fn heard_clock(&self, zone: &str, offset_s: f64) {
+        let said = {
+            let mut s = self.lock();
+            let z = s
+                .zones
+                .entry(zone.to_string())
+                .or_insert_with(|| Zone::new(true));
+            z.clock.push_back(offset_s);
+            while z.clock.len() > CLOCK_OVER {
+                z.clock.pop_front();
+            }
+            let offset = clock_offset(z);
+            let off = offset.is_some_and(|o| o.abs() > CLOCK_OFF_S);
+            let changed = offset.is_some() && off != z.clock_off;
+            if changed {
+                z.clock_off = off;
+            }
+            changed.then(|| (off, offset.unwrap_or(0.0)))
+        };
+        match said {
+            Some((true, o)) => self.announce(
+                EventKind::Error,
+                format!(
+                    "zone {zone}'s clock is {:.2} s {} the site daemon's: set both to one time source (NTP, chrony); times compared across zones are wrong until then",
+                    o.abs(),
+                    if o > 0.0 { "ahead of" } else { "behind" }
+                ),
+            ),
+            Some((false, o)) => self.announce(
+                EventKind::Connected,
+                format!("zone {zone}'s clock agrees with the site daemon's again ({o:+.3} s)"),
+            ),
+            None => {}
+        }
+    }
+
+    /// `bytes` of a zone's poses or status arrived.
+    pub(super) fn heard_bytes(&self, zone: &str, bytes: usize) {
+        let mut s = self.lock();
+        let z = s
+            .zones
+            .entry(zone.to_string())
+            .or_insert_with(|| Zone::new(true));
+        let now = Instant::now();
+        z.heard.push_back((now, bytes));
+        while z
+            .heard
+            .front()
+            .is_some_and(|(at, _)| now.duration_since(*at) > RATE_OVER)
+        {
+            z.heard.pop_front();
+        }
+    }
+
+    /// What a join depends on: the alive zones' placed sensors, to the cm and 0.1°.
+    pub(super) fn join_key(&self) -> Vec<(String, PlacedKey)> {
+        let s = self.lock();
+        s.zones
+            .iter()
+            .filter(|(_, z)| z.alive && z.fresh)
+            .map(|(id, z)| {
+                let mut placed = z.poses.as_ref().map(placed_key).unwrap_or_default();
+                for p in &mut placed {
+                    p.2 = [p.2[0] / 10, p.2[1] / 10, p.2[2] / 100];
+                }
+                (id.clone(), placed)
+            })
+            .collect()
+    }
+
+    /// Some alive zone with placed sensors is not placed in the site frame.
+    pub(super) fn someone_unplaced(&self) -> bool {
+        let s = self.lock();
+        s.zones.iter().any(|(id, z)| {
+            z.alive && placed_sensors(z) > 0 && !matches!(s.frame.get(id), Some(Ok(_)))
+        })
+    }
+
+    /// Takes a join's result. A zone the join did not see (lost meanwhile) keeps where it
+    /// stood, as its poses do. Says what changed: a zone placed, moved by more than 1 cm or
+    /// 0.1°, or newly unplaced and why.
+    pub(super) fn set_frame(&self, frame: BTreeMap<String, Placed>) {
+        let before = {
+            let mut s = self.lock();
+            let before = s.frame.clone();
+            s.frame.extend(frame.clone());
+            before
+        };
+        for (zone, placed) in &frame {
+            let was = before.get(zone);
+            match placed {
+                Ok((pose, _, pairs)) => {
+                    let moved = match was {
+                        Some(Ok((old, _, _))) => {
+                            let (dt, dyaw) = crate::geometry::pose_error(pose, old);
+                            dt > 0.01 || dyaw > 0.1f64.to_radians()
+                        }
+                        _ => true,
+                    };
+                    if !moved {
+                        continue;
+                    }
+                    let from = if *zone == self.anchor {
+                        " (the anchor zone)".to_string()
+                    } else {
+                        format!(" from {pairs} sensor pair(s) across zones")
+                    };
+                    self.announce(
+                        EventKind::Registered,
+                        format!(
+                            "zone {zone} placed in the site frame at ({:.3} m, {:.3} m, {:.2}°){from}",
+                            pose.translation.x,
+                            pose.translation.y,
+                            pose.rotation.angle().to_degrees(),
+                        ),
+                    );
+                }
+                Err(why) if was != Some(placed) => self.announce(
+                    EventKind::Registering,
+                    format!("zone {zone} is not placed in the site frame: {why}"),
+                ),
+                Err(_) => {}
+            }
+        }
+    }
+
+    pub(super) fn zone_statuses(&self) -> Vec<ZoneStatus> {
+        let s = self.lock();
+        s.zones
+            .iter()
+            .map(|(id, z)| {
+                let (site_from_zone, reason) = match s.frame.get(id) {
+                    Some(Ok((pose, sigma, pairs))) => (
+                        Some(ZoneFrame {
+                            x_m: pose.translation.x,
+                            y_m: pose.translation.y,
+                            yaw_deg: pose.rotation.angle().to_degrees(),
+                            sigma_x_m: sigma[0],
+                            sigma_y_m: sigma[1],
+                            sigma_yaw_deg: sigma[2].to_degrees(),
+                            pairs: *pairs,
+                        }),
+                        None,
+                    ),
+                    Some(Err(why)) => (None, Some(why.clone())),
+                    None => (None, Some("not joined yet".into())),
+                };
+                ZoneStatus {
+                    zone: id.clone(),
+                    alive: z.alive,
+                    for_s: z.since.elapsed().as_secs_f64(),
+                    sensors: z.poses.as_ref().map_or(0, |p| p.sensors.len()),
+                    placed: placed_sensors(z),
+                    bytes_per_s: bytes_per_s(z, self.started),
+                    clock_offset_s: clock_offset(z),
+                    site_from_zone,
+                    reason,
+                }
+            })
+            .collect()
+    }
+}
+
+/// What a zone sent of poses and status a second, over the last `RATE_OVER` (or since the
+/// site daemon started); absent before anything came.
+fn bytes_per_s(z: &Zone, started: Instant) -> Option<f64> {
+    let total: usize = z.heard.iter().map(|(_, b)| b).sum();
+    let over = started.elapsed().min(RATE_OVER).as_secs_f64();
+    (total > 0 && over > 0.0).then(|| total as f64 / over)
+}
+
+/// The zone's clock minus the site daemon's (s): the median of its last payloads' stamps
+/// against their arrival, once there are a few.
+fn clock_offset(z: &Zone) -> Option<f64> {
+    if z.clock.len() < CLOCK_OVER / 2 {
+        return None;
+    }
+    let mut v: Vec<f64> = z.clock.iter().copied().collect();
+    v.sort_by(f64::total_cmp);
+    Some(v[v.len() / 2])
+}
+
+fn placed_sensors(z: &Zone) -> usize {
+    z.poses
+        .as_ref()
+        .map_or(0, |p| p.sensors.iter().filter(|s| s.registered).count())
+}
+
+/// A sensor's pose in its zone's frame, with σ (x, y, yaw rad), when its zone placed it.
+fn zone_pose(s: &SensorPose) -> Option<(Pose2, [f64; 3])> {
+    if !s.registered {
+        return None;
+    }
+    let pose = pose2(s.x_m?, s.y_m?, s.yaw_deg?.to_radians());
+    let sigma = [
+        s.sigma_x_m.unwrap_or(0.0),
+        s.sigma_y_m.unwrap_or(0.0),
+        s.sigma_yaw_deg.unwrap_or(0.0).to_radians(),
+    ];
+    Some((pose, sigma))
+}
+
+impl StatusSource for SiteView {
+    fn status(&self) -> Status {
+        Status {
+            site: self.site.clone(),
+            uptime_s: self.started.elapsed().as_secs_f64(),
+            queue_drops: 0,
+            sensors: self.sensor_statuses(),
+            web: None,
+            foxglove: None,
+            zenoh: Some(self.zenoh.lock().unwrap_or_else(|e| e.into_inner()).clone()),
+            zones: self.zone_statuses(),
+        }
+    }
+
+    /// Every sensor of every zone, in the site frame where its zone is placed.
+    fn poses(&self) -> Poses {
+        let s = self.lock();
+        let anchor = s
+            .zones
+            .get(&self.anchor)
+            .and_then(|z| z.poses.as_ref())
+            .map_or_else(|| format!("zone {}", self.anchor), |p| p.anchor.clone());
+        let mut sensors = Vec::new();
+        for (id, z) in &s.zones {
+            let Some(poses) = &z.poses else { continue };
+            let frame = s.frame.get(id);
+            for p in &poses.sensors {
+                let mut out = match (frame, zone_pose(p)) {
+                    (Some(Ok((site_from_zone, zs, _))), Some((pose, sigma))) => {
+                        let site = site_from_zone * pose;
+                        // The zone's σ and the sensor's within it, as independent; the zone's
+                        // yaw σ moves the sensor by its distance from the zone's origin.
+                        let lever = pose.translation.vector.norm() * zs[2];
+                        let add = |a: f64, b: f64| (a * a + b * b).sqrt();
+                        SensorPose {
+                            x_m: Some(site.translation.x),
+                            y_m: Some(site.translation.y),
+                            yaw_deg: Some(site.rotation.angle().to_degrees()),
+                            sigma_x_m: Some(add(add(zs[0], sigma[0]), lever)),
+                            sigma_y_m: Some(add(add(zs[1], sigma[1]), lever)),
+                            sigma_yaw_deg: Some(add(zs[2], sigma[2]).to_degrees()),
+                            ..p.clone()
+                        }
+                    }
+                    (_, Some(_)) => {
+                        let why = match frame {
+                            Some(Err(why)) => why.clone(),
+                            _ => "not joined yet".into(),
+                        };
+                        SensorPose::unregistered(
+                            p.id.clone(),
+                            format!(
+                                "placed in zone {id}, but zone {id} is not placed in the site frame: {why}"
+                            ),
+                        )
+                    }
+                    (_, None) => p.clone(),
+                };
+                out.zone = Some(id.clone());
+                out.stale = !(z.alive && z.fresh);
+                sensors.push(out);
+            }
+        }
+        Poses {
+            anchor,
+            sensors,
+            building_from_site: None,
+        }
+    }
+
+    fn reregister(&self, sensor: &str) -> Result<String, Refused> {
+        let zone = self.lock().zones.iter().find_map(|(id, z)| {
+            z.poses
+                .as_ref()
+                .is_some_and(|p| p.sensors.iter().any(|s| s.id == sensor))
+                .then(|| id.clone())
+        });
+        Err(Refused(match zone {
+            Some(z) => {
+                format!("this is the site daemon; {sensor} is zone {z}'s: ask zone {z}'s daemon")
+            }
+            None => format!("this is the site daemon, and no zone has a sensor {sensor}"),
+        }))
+    }
+
+    fn save(&self) -> Result<Saved, Refused> {
+        Err(Refused(
+            "the site daemon saves nothing: the zones save their own poses, and it rebuilds the site frame from them"
+                .into(),
+        ))
+    }
+}
+
+/// A zone's placed sensors: id, pose in the zone's frame, σ (x m, y m, yaw rad).
+pub(super) type PlacedInZone = Vec<(String, Pose2, [f64; 3])>;
+
+/// What one zone sent for a join: its placed sensors and the static views it answered with.
+pub(super) struct Heard {
+    pub zone: String,
+    pub placed: PlacedInZone,
+    pub views: Vec<ViewPayload>,
+}
+
+impl SiteView {
+    /// Every zone's sensors' drivers, as their zones last said.
+    fn sensor_statuses(&self) -> Vec<SensorStatus> {
+        let s = self.lock();
+        s.zones
+            .values()
+            .filter_map(|z| z.status.as_ref())
+            .flat_map(|st| st.sensors.iter().cloned())
+            .collect()
+    }
+
+    /// The zones to ask for views: alive, heard since, each with its placed sensors.
+    pub(super) fn to_ask(&self) -> Vec<(String, PlacedInZone)> {
+        let s = self.lock();
+        s.zones
+            .iter()
+            .filter(|(_, z)| z.alive && z.fresh)
+            .filter_map(|(id, z)| {
+                let placed = z
+                    .poses
+                    .as_ref()?
+                    .sensors
+                    .iter()
+                    .filter_map(|s| zone_pose(s).map(|(p, sigma)| (s.id.clone(), p, sigma)))
+                    .collect();
+                Some((id.clone(), placed))
+            })
+            .collect()
+    }
+}
+
+/// Where each zone that sent something stands in the frame of zone `anchor`, or why not.
+/// CPU-bound (it registers the cross pairs): run it off the async runtime.
+pub(super) fn join_frame(anchor: &str, heard: Vec<Heard>) -> BTreeMap<String, Placed> {
+    let params = RegisterParams::default();
+    let mut unanswered: Vec<String> = Vec::new();
+    let zones: Vec<ZoneInput> = heard
+        .into_iter()
+        .map(|h| {
+            if h.views.is_empty() && !h.placed.is_empty() {
+                unanswered.push(h.zone.clone());
+            }
+            let sensors = h
+                .placed
+                .into_iter()
+                .filter_map(|(sensor, zone_from_sensor, sigma)| {
+                    let v = h.views.iter().find(|v| v.sensor == sensor)?;
+                    let v = v.clone().into_view();
+                    let model =
+                        ScanModel::from_scan(&v.view, v.geometry.as_ref(), &v.mount, &params);
+                    Some(ZoneSensor {
+                        model,
+                        id: sensor,
+                        zone_from_sensor,
+                        sigma,
+                    })
+                })
+                .collect();
+            ZoneInput {
+                id: h.zone,
+                sensors,
+            }
+        })
+        .collect();
+    let Some(a) = zones.iter().position(|z| z.id == anchor) else {
+        let why = format!(
+            "the anchor zone {anchor} has not been heard from; the site frame is its frame"
+        );
+        return zones
+            .iter()
+            .map(|z| (z.id.clone(), Err(why.clone())))
+            .collect();
+    };
+    let p = ZoneParams {
+        register: params,
+        ..ZoneParams::default()
+    };
+    let result = join_zones(&zones, a, &p);
+    zones
+        .iter()
+        .zip(result.zones)
+        .map(|(z, placement)| {
+            let placed = match placement.site_from_zone {
+                Ok((pose, sigma)) => Ok((pose, sigma, placement.pairs)),
+                Err(_) if z.sensors.is_empty() && unanswered.contains(&z.id) => Err(format!(
+                    "zone {} sent no static views when asked (it may still be starting)",
+                    z.id
+                )),
+                Err(_) if z.sensors.is_empty() => {
+                    Err(format!("zone {} has no placed sensors yet", z.id))
+                }
+                Err(why) => Err(why),
+            };
+            (z.id.clone(), placed)
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn placed(id: &str, x: f64, y: f64, yaw_deg: f64) -> SensorPose {
+        SensorPose {
+            registered: true,
+            x_m: Some(x),
+            y_m: Some(y),
+            yaw_deg: Some(yaw_deg),
+            sigma_x_m: Some(0.01),
+            sigma_y_m: Some(0.01),
+            sigma_yaw_deg: Some(0.1),
+            reason: None,
+            ..SensorPose::unregistered(id, "")
+        }
+    }
+
+    fn poses(anchor: &str, sensors: Vec<SensorPose>) -> Poses {
+        Poses {
+            anchor: anchor.into(),
+            sensors,
+            building_from_site: None,
+        }
+    }
+
+    #[test]
+    fn a_zone_whose_clock_is_off_is_named_once_and_again_when_it_is_right() {
+        let publisher = Publisher::new(16);
+        let mut events = publisher.subscribe_events();
+        let view = SiteView::new("hall", "west", publisher);
+        view.liveliness("east", true);
+        let _ = events.try_recv();
+        // A few ms of link delay is no offset; a jitter of one payload is outvoted.
+        for o in [-0.004, -0.003, 2.0, -0.005, -0.004] {
+            view.heard_clock("east", o);
+        }
+        assert!(events.try_recv().is_err(), "a right clock was named");
+        let offset = view.status().zones[0].clock_offset_s.unwrap();
+        assert!(offset.abs() < 0.01, "{offset}");
+        for _ in 0..CLOCK_OVER {
+            view.heard_clock("east", -12.5);
+        }
+        let said = events.try_recv().expect("the clock named");
+        assert!(said.contains("12.50 s behind"), "{said}");
+        assert!(events.try_recv().is_err(), "named twice");
+        for _ in 0..CLOCK_OVER {
+            view.heard_clock("east", 0.002);
+        }
+        let said = events.try_recv().expect("the clock right again");
+        assert!(said.contains("agrees"), "{said}");
+    }
+
+    #[test]
+    fn a_zone_is_moved_whole_into_the_site_frame_and_kept_stale_when_lost() {
+        let view = SiteView::new("hall", "west", Publisher::new(16));
+        view.liveliness("west", true);
+        view.liveliness("east", true);
+        view.heard_poses("west", poses("gate", vec![placed("gate", 0.0, 0.0, 0.0)]));
+        view.heard_poses(
+            "east",
+            poses(
+                "dock",
+                vec![
+                    placed("dock", 0.0, 0.0, 0.0),
+                    placed("tough", 2.0, 0.0, 90.0),
+                    SensorPose::unregistered("far", "waiting"),
+                ],
+            ),
+        );
+        // East's frame stands 10 m along x, turned 90°, in the site's.
+        let frame = BTreeMap::from([
+            ("west".to_string(), Ok((Pose2::identity(), [0.0; 3], 0))),
+            (
+                "east".to_string(),
+                Ok((pose2(10.0, 0.0, 90f64.to_radians()), [0.02, 0.02, 0.001], 2)),
+            ),
+        ]);
+        view.set_frame(frame);
+        let got = view.poses();
+        assert_eq!(got.anchor, "gate");
+        let by = |id: &str| got.sensors.iter().find(|s| s.id == id).unwrap().clone();
+        let tough = by("tough");
+        assert_eq!(tough.zone.as_deref(), Some("east"));
+        assert!((tough.x_m.unwrap() - 10.0).abs() < 1e-9, "{tough:?}");
+        assert!((tough.y_m.unwrap() - 2.0).abs() < 1e-9, "{tough:?}");
+        assert!((tough.yaw_deg.unwrap() - 180.0).abs() < 1e-9, "{tough:?}");
+        // Its σ holds the zone's, and the zone's yaw σ over its 2 m from the zone's origin.
+        assert!(tough.sigma_x_m.unwrap() > 0.02 && tough.sigma_x_m.unwrap() < 0.03);
+        assert!(!by("far").registered && !tough.stale);
+        let status = view.status();
+        let east = status.zones.iter().find(|z| z.zone == "east").unwrap();
+        assert_eq!((east.sensors, east.placed), (3, 2));
+        assert_eq!(east.site_from_zone.map(|f| f.pairs), Some(2));
+
+        // Lost: its poses stay, stale, through a join that no longer sees it.
+        view.liveliness("east", false);
+        view.set_frame(BTreeMap::from([(
+            "west".to_string(),
+            Ok((Pose2::identity(), [0.0; 3], 0)),
+        )]));
+        let tough = view
+            .poses()
+            .sensors
+            .into_iter()
+            .find(|s| s.id == "tough")
+            .unwrap();
+        assert!(tough.registered && tough.stale, "{tough:?}");
+        // Back: stale until it speaks again.
+        view.liveliness("east", true);
+        assert!(
+            view.poses()
+                .sensors
+                .iter()
+                .any(|s| s.id == "tough" && s.stale)
+        );
+        assert!(view.join_key().iter().all(|(z, _)| z != "east"));
+        view.heard_poses("east", poses("dock", vec![placed("dock", 0.0, 0.0, 0.0)]));
+        assert!(view.poses().sensors.iter().all(|s| !s.stale));
+
+        // A zone the join could not place says why on each of its sensors.
+        view.set_frame(BTreeMap::from([(
+            "east".to_string(),
+            Err("their sensor pairs disagree".to_string()),
+        )]));
+        let dock = view
+            .poses()
+            .sensors
+            .into_iter()
+            .find(|s| s.id == "dock")
+            .unwrap();
+        assert!(!dock.registered);
+        assert!(dock.reason.unwrap().contains("disagree"));
+    }
+}
