@@ -6,7 +6,7 @@
 //! router) on loopback. It prints, until every zone is placed in the site frame or
 //! `SCANFUSE_BENCH_S` s (default 600) pass: when each zone's own units were placed and when the
 //! zone was placed in the site frame (from the zones' start), each placed unit's error in the
-//! site frame against the recording's truth, and per process its CPU (share of one core over
+//! site frame against the recording's truth (median and worst per zone), and per process its CPU (share of one core over
 //! the run), RSS and peak RSS, and the bytes a second each zone sends the site daemon.
 //!
 //! Run: `cargo bench --bench zones_site` (`SCANFUSE_BIN` picks the binary; default the one
@@ -185,7 +185,11 @@ fn main() -> Result<(), Error> {
                 site_at[k] = Some(t);
             }
         }
-        let done = site_at.iter().all(Option::is_some) && own_at.iter().all(Option::is_some);
+        // Done when every zone is in the site frame and every zone has placed all its own
+        // units, or a minute after the last zone joined (a zone may leave a unit unplaced).
+        let last_joined = site_at.iter().flatten().fold(0.0f64, |a, &t| a.max(t));
+        let done = site_at.iter().all(Option::is_some)
+            && (own_at.iter().all(Option::is_some) || t > last_joined + 60.0);
         last = Some((status, poses));
         if done {
             break;
@@ -215,15 +219,25 @@ fn main() -> Result<(), Error> {
     }
 
     println!(
-        "\nzone  units  own units placed at  in the site frame at  pairs  sends B/s  CPU of a core  RSS MiB (peak)"
+        "\nzone  units  own units placed at  in the site frame at  pairs  error median/max cm  sends B/s  CPU of a core  RSS MiB (peak)"
     );
     for (k, (zone, _, d)) in daemons.iter().enumerate() {
         let z = status.zones.iter().find(|z| z.zone == *zone);
         let cpu = (common::cpu_ticks(d.0.id()).unwrap_or(0) - ticks0[k]) as f64 / tps / elapsed;
         let (rss, peak) = rss_mib(d.0.id());
         let at = |v: Option<f64>| v.map_or("never".to_string(), |t| format!("{t:.1} s"));
+        let mut mine: Vec<f64> = errors
+            .iter()
+            .filter(|e| zone_of.get(&e.0) == Some(zone))
+            .map(|e| e.1 * 100.0)
+            .collect();
+        mine.sort_by(f64::total_cmp);
+        let error = match (mine.get(mine.len() / 2), mine.last()) {
+            (Some(mid), Some(max)) => format!("{mid:.1} / {max:.1}"),
+            _ => "-".to_string(),
+        };
         println!(
-            "{zone}  {:>5}  {:>19}  {:>20}  {:>5}  {:>9.0}  {:>13.2}  {rss:>6.0} ({peak:.0})",
+            "{zone}  {:>5}  {:>19}  {:>20}  {:>5}  {error:>19}  {:>9.0}  {:>13.2}  {rss:>6.0} ({peak:.0})",
             z.map_or(0, |z| z.sensors),
             at(own_at[k]),
             at(site_at[k]),

@@ -222,6 +222,9 @@ pub struct Pipeline {
     foxglove: Mutex<Option<String>>,
     /// The zone on Zenoh, or why it is not on the network (`status`' `zenoh`).
     zenoh: Mutex<Option<String>>,
+    /// The static views the registration worker last kept, for a site daemon's question;
+    /// `None` until someone wants them (`want_views`).
+    views: Mutex<Option<Vec<super::pipeline_register::StaticView>>>,
     /// Where the site frame lies in the building drawing's (from `poses.toml`), for `poses`,
     /// the page and the zones drawn in building coordinates (which watch it).
     building_from_site: tokio::sync::watch::Sender<Option<crate::drawing::BuildingFromSite>>,
@@ -302,6 +305,7 @@ impl Pipeline {
             tracker: std::sync::OnceLock::new(),
             foxglove: Mutex::new(None),
             zenoh: Mutex::new(None),
+            views: Mutex::new(None),
             building_from_site: tokio::sync::watch::Sender::new(None),
             drawing: Mutex::new((None, None, Vec::new())),
         }
@@ -372,19 +376,41 @@ impl Pipeline {
         *lock(&self.foxglove) = Some(line);
     }
 
-    /// Each sensor's static view as the registration worker holds it, waiting at most
-    /// `patience` for its answer (it answers between two scans); empty if it has stopped.
+    /// Each sensor's static view as the registration worker holds it: the ones it keeps
+    /// (refreshed every 2 s once wanted), or asked of it, waiting at most `patience` (it
+    /// answers between two scans, and not during a registration); empty if it has stopped.
     /// Blocking: call it off the async threads.
     #[cfg_attr(not(feature = "zenoh"), allow(dead_code))]
     pub(super) fn static_views(
         &self,
         patience: std::time::Duration,
     ) -> Vec<super::pipeline_register::StaticView> {
+        if let Some(kept) = lock(&self.views).clone().filter(|v| !v.is_empty()) {
+            return kept;
+        }
         let (reply, answer) = crossbeam_channel::bounded(1);
         if self.commands.send(Command::Views { reply }).is_err() {
             return Vec::new();
         }
         answer.recv_timeout(patience).unwrap_or_default()
+    }
+
+    /// From now on the registration worker keeps the static views at hand (a zone on Zenoh
+    /// serves them on request).
+    #[cfg_attr(not(feature = "zenoh"), allow(dead_code))]
+    pub(super) fn want_views(&self) {
+        let mut views = lock(&self.views);
+        if views.is_none() {
+            *views = Some(Vec::new());
+        }
+    }
+
+    pub(super) fn wants_views(&self) -> bool {
+        lock(&self.views).is_some()
+    }
+
+    pub(super) fn keep_views(&self, views: Vec<super::pipeline_register::StaticView>) {
+        *lock(&self.views) = Some(views);
     }
 
     /// What `status` says of the zone on Zenoh.

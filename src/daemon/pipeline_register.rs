@@ -373,6 +373,21 @@ impl Registrar {
         self.stream_ns
     }
 
+    /// Each sensor's static view as registration sees it (through a crowd).
+    pub fn views(&self) -> Vec<StaticView> {
+        self.tracks
+            .iter()
+            .filter_map(|(id, t)| {
+                Some(StaticView {
+                    id: id.clone(),
+                    view: t.view(self.window_s, self.motion_s)?.0,
+                    mount: t.mount,
+                    geometry: t.geometry,
+                })
+            })
+            .collect()
+    }
+
     pub fn command(&mut self, command: Command, now_ns: u64) {
         match command {
             Command::Add {
@@ -419,19 +434,7 @@ impl Registrar {
                 self.tracks.remove(&id);
             }
             Command::Views { reply } => {
-                let views = self
-                    .tracks
-                    .iter()
-                    .filter_map(|(id, t)| {
-                        Some(StaticView {
-                            id: id.clone(),
-                            view: t.view(self.window_s, self.motion_s)?.0,
-                            mount: t.mount,
-                            geometry: t.geometry,
-                        })
-                    })
-                    .collect();
-                let _ = reply.send(views);
+                let _ = reply.send(self.views());
             }
             Command::Shutdown | Command::Finish { .. } => {}
             Command::Survey { id, survey, pinned } => {
@@ -1087,6 +1090,9 @@ pub struct Consumed {
     pub base_ns: u64,
 }
 
+/// How often the worker refreshes the static views kept for a site daemon.
+const VIEWS_EVERY: Duration = Duration::from_secs(2);
+
 /// The worker thread: takes scans and commands until both channels close, registering when
 /// [`Registrar::due`] says so (on the scans' clock), and publishes and saves each outcome.
 pub fn run_worker(
@@ -1124,7 +1130,14 @@ pub fn run_worker(
         }
         order.push(&item.sensor.clone(), item.scan.stamp_ns, item);
     };
+    // The views a site daemon asks for, kept fresh here so that its question never waits on
+    // a registration under way (`Pipeline::static_views`).
+    let mut views_at: Option<std::time::Instant> = None;
     loop {
+        if pipeline.wants_views() && views_at.is_none_or(|at| at.elapsed() >= VIEWS_EVERY) {
+            pipeline.keep_views(registrar.views());
+            views_at = Some(std::time::Instant::now());
+        }
         select! {
             recv(scans) -> item => match item {
                 Ok(item) => {

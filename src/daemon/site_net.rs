@@ -349,18 +349,27 @@ async fn join(
     if zones.is_empty() {
         return None;
     }
+    // Every zone asked at once: one slow zone does not hold up the others' answers.
+    let asked = zones.into_iter().map(|(zone, placed)| {
+        let (session, site) = (Arc::clone(&session), site.clone());
+        tokio::spawn(async move {
+            let views = if placed.is_empty() {
+                Vec::new()
+            } else {
+                query_views(&session, &site, &zone).await
+            };
+            Heard {
+                zone,
+                placed,
+                views,
+            }
+        })
+    });
     let mut heard = Vec::new();
-    for (zone, placed) in zones {
-        let views = if placed.is_empty() {
-            Vec::new()
-        } else {
-            query_views(&session, &site, &zone).await
-        };
-        heard.push(Heard {
-            zone,
-            placed,
-            views,
-        });
+    for a in asked.collect::<Vec<_>>() {
+        if let Ok(h) = a.await {
+            heard.push(h);
+        }
     }
     let anchor = view.anchor.clone();
     tokio::task::spawn_blocking(move || join_frame(&anchor, heard))

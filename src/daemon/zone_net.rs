@@ -277,6 +277,7 @@ pub async fn run(
         Ok(s) => s,
         Err(e) => return refuse(format!("the site frame was not subscribed to: {e}")),
     };
+    pipeline.want_views();
     let described = cfg.describe(&site);
     tracing::info!("{described}");
     pipeline.set_zenoh(described.clone());

@@ -13,7 +13,7 @@
 use nalgebra::Matrix3;
 use rayon::prelude::*;
 
-use super::site::{Edge, SiteParams, ViewDescriptor, consistent_edges, solve};
+use super::site::{Edge, SiteParams, consistent_edges, solve};
 use super::{PairResult, RegisterParams, ScanModel, register_pair};
 use crate::geometry::{Pose2, pose_error, pose2, wrap_angle_rad};
 
@@ -39,10 +39,10 @@ pub struct ZoneInput {
 pub struct ZoneParams {
     pub register: RegisterParams,
     pub site: SiteParams,
-    /// Every cross pair is registered while there are at most this many; beyond, each sensor
-    /// only with its `partners` most alike views in other zones (`ViewDescriptor`).
+    /// Every cross pair is registered while there are at most this many; beyond, only the
+    /// pairs among each zone's `outward` sensors that see most past their zone ([`outward`]).
     pub all_pairs_up_to: usize,
-    pub partners: usize,
+    pub outward: usize,
 }
 
 impl Default for ZoneParams {
@@ -51,7 +51,7 @@ impl Default for ZoneParams {
             register: RegisterParams::default(),
             site: SiteParams::default(),
             all_pairs_up_to: 400,
-            partners: 8,
+            outward: 6,
         }
     }
 }
@@ -127,22 +127,53 @@ fn cross_pairs(zones: &[ZoneInput], p: &ZoneParams) -> Vec<(At, At)> {
     if pairs.len() <= p.all_pairs_up_to {
         return pairs;
     }
-    let descriptors: Vec<ViewDescriptor> = all
+    // A zone meets its neighbours where its sensors see past it: pairs between the sensors
+    // that look outward most. (Views alike in kind rank poorly where bays repeat.)
+    let chosen: Vec<At> = zones
         .iter()
-        .map(|&(z, s)| ViewDescriptor::of(&zones[z].sensors[s].model))
+        .enumerate()
+        .flat_map(|(z, zone)| {
+            let share = outward(zone);
+            let mut order: Vec<usize> = (0..zone.sensors.len()).collect();
+            order.sort_by(|&a, &b| share[b].total_cmp(&share[a]).then(a.cmp(&b)));
+            order.truncate(p.outward);
+            order.into_iter().map(move |s| (z, s))
+        })
         .collect();
-    let mut chosen = std::collections::BTreeSet::new();
-    for (i, a) in all.iter().enumerate() {
-        let mut others: Vec<(f64, usize)> = (0..all.len())
-            .filter(|&j| all[j].0 != a.0)
-            .map(|j| (descriptors[i].distance(&descriptors[j]), j))
-            .collect();
-        others.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
-        for &(_, j) in others.iter().take(p.partners) {
-            chosen.insert((i.min(j), i.max(j)));
-        }
+    pairs.retain(|(a, b)| chosen.contains(a) && chosen.contains(b));
+    pairs
+}
+
+/// Each sensor's share of its view that no other sensor of its zone sees (0.5 m cells in the
+/// zone's frame): high for a sensor that looks past its zone, towards the zones beside it.
+pub fn outward(zone: &ZoneInput) -> Vec<f64> {
+    const CELL_M: f64 = 0.5;
+    let cells: Vec<std::collections::HashSet<(i64, i64)>> = zone
+        .sensors
+        .iter()
+        .map(|s| {
+            s.model
+                .points()
+                .iter()
+                .map(|p| {
+                    let q = s.zone_from_sensor * p;
+                    ((q.x / CELL_M).floor() as i64, (q.y / CELL_M).floor() as i64)
+                })
+                .collect()
+        })
+        .collect();
+    let mut seen_by: std::collections::HashMap<(i64, i64), usize> =
+        std::collections::HashMap::new();
+    for c in cells.iter().flatten() {
+        *seen_by.entry(*c).or_insert(0) += 1;
     }
-    chosen.into_iter().map(|(i, j)| (all[i], all[j])).collect()
+    cells
+        .iter()
+        .map(|mine| {
+            let alone = mine.iter().filter(|c| seen_by.get(c) == Some(&1)).count();
+            alone as f64 / mine.len().max(1) as f64
+        })
+        .collect()
 }
 
 /// The (x, y, yaw) of a pose.
@@ -418,6 +449,38 @@ mod tests {
             got.zones[0].site_from_zone.as_ref().ok().map(|p| p.0),
             Some(Pose2::identity())
         );
+    }
+
+    #[test]
+    fn beyond_the_limit_only_the_sensors_that_look_past_their_zone_are_paired() {
+        let (walls, sensors) = hall();
+        let zones = zones_of(&walls, &sensors);
+        for zone in &zones {
+            let share = outward(zone);
+            assert!(share.iter().all(|s| (0.0..=1.0).contains(s)), "{share:?}");
+        }
+        let all = cross_pairs(&zones, &ZoneParams::default());
+        assert_eq!(all.len(), 12, "3 zones of 2: every cross pair");
+        let one_each = ZoneParams {
+            all_pairs_up_to: 0,
+            outward: 1,
+            ..ZoneParams::default()
+        };
+        let few = cross_pairs(&zones, &one_each);
+        assert_eq!(
+            few.len(),
+            3,
+            "one sensor of each zone, paired across: {few:?}"
+        );
+        for (z, zone) in zones.iter().enumerate() {
+            let share = outward(zone);
+            let most = if share[0] >= share[1] { 0 } else { 1 };
+            assert!(
+                few.iter()
+                    .all(|(a, b)| (a.0 != z || a.1 == most) && (b.0 != z || b.1 == most)),
+                "zone {z}: {share:?} {few:?}"
+            );
+        }
     }
 
     #[test]
