@@ -20,7 +20,7 @@
 mod common;
 
 use std::io::{BufRead, BufReader, Write};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
@@ -104,42 +104,6 @@ fn log_tail(log: &Path) -> String {
     tail.join("\n")
 }
 
-/// The recording of the concourse, made with the daemon's binary the first time.
-fn recording(bin: &str, sensors: usize, seconds: f64, crowd: u32) -> Result<PathBuf, Error> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/bench-data");
-    std::fs::create_dir_all(&dir)?;
-    let path = dir.join(format!(
-        "concourse-{sensors}-{seconds}s-crowd{crowd}-seed1.mcap"
-    ));
-    if !path.exists() {
-        let partial = path.with_extension("partial");
-        let started = Instant::now();
-        let status = Command::new(bin)
-            .args(["simulate", "--generate", &format!("concourse:{sensors}")])
-            .args(["--seed", "1", "--crowd", &crowd.to_string()])
-            .args([
-                "--seconds",
-                &seconds.to_string(),
-                "--zstd-level",
-                "1",
-                "--out",
-            ])
-            .arg(&partial)
-            .stdout(Stdio::null())
-            .status()?;
-        if !status.success() {
-            return Err(format!("simulating the concourse failed: {status}").into());
-        }
-        std::fs::rename(&partial, &path)?;
-        println!(
-            "  recorded {} in {:.0} s",
-            path.display(),
-            started.elapsed().as_secs_f64()
-        );
-    }
-    Ok(path)
-}
-
 fn main() -> Result<(), Error> {
     let n = common::env_f64("SCANFUSE_BENCH_SENSORS", 100.0) as usize;
     let window_s = common::env_f64("SCANFUSE_BENCH_S", 20.0);
@@ -148,7 +112,7 @@ fn main() -> Result<(), Error> {
     let bin = std::env::var("SCANFUSE_BIN")
         .unwrap_or_else(|_| env!("CARGO_BIN_EXE_scanfuse").to_string());
     println!("daemon_site: {bin}, a concourse of {n} sensors, {crowd} people, looped at ×1");
-    let file = recording(&bin, n, rec_s, crowd)?;
+    let file = common::concourse(&bin, n, rec_s, crowd)?;
     let rec = scanfuse::record::read(&file)?;
 
     // The emulators: one loopback port each, on this process's runtime.

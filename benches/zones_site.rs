@@ -16,7 +16,7 @@
 mod common;
 
 use std::io::BufReader;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -24,28 +24,6 @@ use scanfuse::daemon::protocol::{Message, Poses, Status};
 use scanfuse::geometry::{pose_error, pose2};
 
 type Error = Box<dyn std::error::Error>;
-
-/// The concourse recording, made with the bench's binary the first time.
-fn recording(bin: &str, sensors: usize, seconds: f64) -> Result<PathBuf, Error> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/bench-data");
-    std::fs::create_dir_all(&dir)?;
-    let path = dir.join(format!("concourse-{sensors}-{seconds}s-crowd0-seed1.mcap"));
-    if !path.exists() {
-        let partial = path.with_extension("partial");
-        let status = Command::new(bin)
-            .args(["simulate", "--generate", &format!("concourse:{sensors}")])
-            .args(["--seed", "1", "--seconds", &seconds.to_string()])
-            .args(["--zstd-level", "1", "--out"])
-            .arg(&partial)
-            .stdout(Stdio::null())
-            .status()?;
-        if !status.success() {
-            return Err(format!("simulating the concourse failed: {status}").into());
-        }
-        std::fs::rename(&partial, &path)?;
-    }
-    Ok(path)
-}
 
 /// `status` and `poses` of a daemon.
 fn ask(socket: &Path) -> Result<(Status, Poses), Error> {
@@ -82,7 +60,7 @@ fn main() -> Result<(), Error> {
     let bin = std::env::var("SCANFUSE_BIN")
         .unwrap_or_else(|_| env!("CARGO_BIN_EXE_scanfuse").to_string());
     println!("zones_site: {bin}, a concourse of {n} scanners in {zones} zones, looped at ×1");
-    let file = recording(&bin, n, rec_s)?;
+    let file = common::concourse(&bin, n, rec_s, 0)?;
     let rec = scanfuse::record::read(&file)?;
     let mut ids: Vec<&scanfuse::scan::SensorInfo> = rec.sensors.iter().collect();
     // Along the concourse: its units are named by bay, so their ids sort by place.

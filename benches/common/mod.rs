@@ -154,3 +154,41 @@ pub fn ask(stream: &mut BufReader<UnixStream>, req: &str) -> Result<Message, Str
         }
     }
 }
+
+/// A generated concourse of `sensors` scanners (seed 1, `crowd` people walking, `seconds` s),
+/// recorded with `bin` the first time and cached under `target/bench-data/`.
+#[allow(dead_code)] // not every bench replays a concourse
+pub fn concourse(
+    bin: &str,
+    sensors: usize,
+    seconds: f64,
+    crowd: u32,
+) -> Result<std::path::PathBuf, Box<dyn std::error::Error>> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/bench-data");
+    std::fs::create_dir_all(&dir)?;
+    let path = dir.join(format!(
+        "concourse-{sensors}-{seconds}s-crowd{crowd}-seed1.mcap"
+    ));
+    if !path.exists() {
+        let partial = path.with_extension("partial");
+        let started = Instant::now();
+        let status = Command::new(bin)
+            .args(["simulate", "--generate", &format!("concourse:{sensors}")])
+            .args(["--seed", "1", "--crowd", &crowd.to_string()])
+            .args(["--seconds", &seconds.to_string(), "--zstd-level", "1"])
+            .arg("--out")
+            .arg(&partial)
+            .stdout(std::process::Stdio::null())
+            .status()?;
+        if !status.success() {
+            return Err(format!("simulating the concourse failed: {status}").into());
+        }
+        std::fs::rename(&partial, &path)?;
+        println!(
+            "  recorded {} in {:.0} s",
+            path.display(),
+            started.elapsed().as_secs_f64()
+        );
+    }
+    Ok(path)
+}

@@ -577,11 +577,7 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
             &config.site.socket,
             Arc::clone(&pipeline),
             publisher.clone(),
-            ServerOptions {
-                socket_mode: config.site.socket_mode,
-                max_clients: config.site.max_clients,
-                ..ServerOptions::default()
-            },
+            ServerOptions::of(&config.site),
         )?;
         let mut rx = server_stop_rx.clone();
         Some(tokio::spawn(async move {

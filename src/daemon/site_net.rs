@@ -110,11 +110,7 @@ pub async fn run_site_daemon(
         &config.site.socket,
         Arc::clone(&view),
         publisher.clone(),
-        ServerOptions {
-            socket_mode: config.site.socket_mode,
-            max_clients: config.site.max_clients,
-            ..ServerOptions::default()
-        },
+        ServerOptions::of(&config.site),
     )?;
     let (stop_tx, stop_rx) = watch::channel(false);
     let stopped = |mut rx: watch::Receiver<bool>| async move {

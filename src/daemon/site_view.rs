@@ -71,6 +71,15 @@ struct Zones {
     frame: BTreeMap<String, Placed>,
 }
 
+impl Zones {
+    /// The zone something was just heard from (alive, if it is new).
+    fn heard(&mut self, zone: &str) -> &mut Zone {
+        self.zones
+            .entry(zone.to_string())
+            .or_insert_with(|| Zone::new(true))
+    }
+}
+
 /// The site daemon's state, served on the socket.
 pub struct SiteView {
     pub(super) site: String,
@@ -142,20 +151,14 @@ impl SiteView {
 
     pub(super) fn heard_poses(&self, zone: &str, poses: Poses) {
         let mut s = self.lock();
-        let z = s
-            .zones
-            .entry(zone.to_string())
-            .or_insert_with(|| Zone::new(true));
+        let z = s.heard(zone);
         z.poses = Some(poses);
         z.fresh = z.alive;
     }
 
     pub(super) fn heard_status(&self, zone: &str, status: Status) {
         let mut s = self.lock();
-        let z = s
-            .zones
-            .entry(zone.to_string())
-            .or_insert_with(|| Zone::new(true));
+        let z = s.heard(zone);
         z.status = Some(status);
     }
 
@@ -165,10 +168,7 @@ impl SiteView {
     pub(super) fn heard_clock(&self, zone: &str, offset_s: f64) {
         let said = {
             let mut s = self.lock();
-            let z = s
-                .zones
-                .entry(zone.to_string())
-                .or_insert_with(|| Zone::new(true));
+            let z = s.heard(zone);
             z.clock.push_back(offset_s);
             while z.clock.len() > CLOCK_OVER {
                 z.clock.pop_front();
@@ -201,10 +201,7 @@ impl SiteView {
     /// `bytes` of a zone's poses or status arrived.
     pub(super) fn heard_bytes(&self, zone: &str, bytes: usize) {
         let mut s = self.lock();
-        let z = s
-            .zones
-            .entry(zone.to_string())
-            .or_insert_with(|| Zone::new(true));
+        let z = s.heard(zone);
         let now = Instant::now();
         z.heard.push_back((now, bytes));
         while z

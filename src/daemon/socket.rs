@@ -196,6 +196,17 @@ pub struct ServerOptions {
     pub first_request_within: Duration,
 }
 
+impl ServerOptions {
+    /// The site file's socket settings (`[site] socket_mode`, `max_clients`).
+    pub fn of(site: &super::config::SiteConfig) -> ServerOptions {
+        ServerOptions {
+            socket_mode: site.socket_mode,
+            max_clients: site.max_clients,
+            ..ServerOptions::default()
+        }
+    }
+}
+
 impl Default for ServerOptions {
     fn default() -> Self {
         ServerOptions {
