@@ -335,7 +335,8 @@ fn heard(view: &SiteView, sample: &zenoh::sample::Sample) {
     }
 }
 
-/// Asks every alive zone for its views and joins the zones; `None` when no zone was heard.
+/// Asks every alive zone for its views and joins the zones; `None` when no zone, or not the
+/// anchor zone, was heard.
 async fn join(
     view: Arc<SiteView>,
     session: Arc<zenoh::Session>,
@@ -371,6 +372,7 @@ async fn join(
     tokio::task::spawn_blocking(move || join_frame(&anchor, heard))
         .await
         .ok()
+        .flatten()
 }
 
 /// Every view zone `zone` serves (`view/*`); none when it does not answer.

@@ -229,6 +229,18 @@ impl SiteView {
             .collect()
     }
 
+    /// Why a zone has not been joined yet.
+    fn not_joined(&self, s: &Zones) -> String {
+        if s.zones.get(&self.anchor).is_some_and(|z| z.alive) {
+            "not joined yet".to_string()
+        } else {
+            format!(
+                "waiting for the anchor zone {} (the site frame is its frame)",
+                self.anchor
+            )
+        }
+    }
+
     /// Some alive zone with placed sensors is not placed in the site frame.
     pub(super) fn someone_unplaced(&self) -> bool {
         let s = self.lock();
@@ -304,7 +316,7 @@ impl SiteView {
                         None,
                     ),
                     Some(Err(why)) => (None, Some(why.clone())),
-                    None => (None, Some("not joined yet".into())),
+                    None => (None, Some(self.not_joined(&s))),
                 };
                 ZoneStatus {
                     zone: id.clone(),
@@ -408,7 +420,7 @@ impl StatusSource for SiteView {
                     (_, Some(_)) => {
                         let why = match frame {
                             Some(Err(why)) => why.clone(),
-                            _ => "not joined yet".into(),
+                            _ => self.not_joined(&s),
                         };
                         SensorPose::unregistered(
                             p.id.clone(),
@@ -495,9 +507,13 @@ impl SiteView {
     }
 }
 
-/// Where each zone that sent something stands in the frame of zone `anchor`, or why not.
-/// CPU-bound (it registers the cross pairs): run it off the async runtime.
-pub(super) fn join_frame(anchor: &str, heard: Vec<Heard>) -> BTreeMap<String, Placed> {
+/// Where each zone that sent something stands in the frame of zone `anchor`, or why not;
+/// `None` without the anchor zone among them (the frame is its frame: what was placed before
+/// stays placed). CPU-bound (it registers the cross pairs): run it off the async runtime.
+pub(super) fn join_frame(anchor: &str, heard: Vec<Heard>) -> Option<BTreeMap<String, Placed>> {
+    if !heard.iter().any(|h| h.zone == anchor) {
+        return None;
+    }
     let params = RegisterParams::default();
     let mut unanswered: Vec<String> = Vec::new();
     let zones: Vec<ZoneInput> = heard
@@ -528,38 +544,32 @@ pub(super) fn join_frame(anchor: &str, heard: Vec<Heard>) -> BTreeMap<String, Pl
             }
         })
         .collect();
-    let Some(a) = zones.iter().position(|z| z.id == anchor) else {
-        let why = format!(
-            "the anchor zone {anchor} has not been heard from; the site frame is its frame"
-        );
-        return zones
-            .iter()
-            .map(|z| (z.id.clone(), Err(why.clone())))
-            .collect();
-    };
+    let a = zones.iter().position(|z| z.id == anchor)?;
     let p = ZoneParams {
         register: params,
         ..ZoneParams::default()
     };
     let result = join_zones(&zones, a, &p);
-    zones
-        .iter()
-        .zip(result.zones)
-        .map(|(z, placement)| {
-            let placed = match placement.site_from_zone {
-                Ok((pose, sigma)) => Ok((pose, sigma, placement.pairs)),
-                Err(_) if z.sensors.is_empty() && unanswered.contains(&z.id) => Err(format!(
-                    "zone {} sent no static views when asked (it may still be starting)",
-                    z.id
-                )),
-                Err(_) if z.sensors.is_empty() => {
-                    Err(format!("zone {} has no placed sensors yet", z.id))
-                }
-                Err(why) => Err(why),
-            };
-            (z.id.clone(), placed)
-        })
-        .collect()
+    Some(
+        zones
+            .iter()
+            .zip(result.zones)
+            .map(|(z, placement)| {
+                let placed = match placement.site_from_zone {
+                    Ok((pose, sigma)) => Ok((pose, sigma, placement.pairs)),
+                    Err(_) if z.sensors.is_empty() && unanswered.contains(&z.id) => Err(format!(
+                        "zone {} sent no static views when asked (it may still be starting)",
+                        z.id
+                    )),
+                    Err(_) if z.sensors.is_empty() => {
+                        Err(format!("zone {} has no placed sensors yet", z.id))
+                    }
+                    Err(why) => Err(why),
+                };
+                (z.id.clone(), placed)
+            })
+            .collect(),
+    )
 }
 
 #[cfg(test)]
@@ -586,6 +596,26 @@ mod tests {
             sensors,
             building_from_site: None,
         }
+    }
+
+    #[test]
+    fn without_the_anchor_zone_nothing_is_joined_and_the_others_wait_for_it() {
+        let heard = |zone: &str| Heard {
+            zone: zone.into(),
+            placed: Vec::new(),
+            views: Vec::new(),
+        };
+        assert!(join_frame("west", vec![heard("east")]).is_none());
+        let frame = join_frame("west", vec![heard("west"), heard("east")]).unwrap();
+        let east = frame["east"].as_ref().unwrap_err();
+        assert!(east.contains("no placed sensors"), "{east}");
+        let view = SiteView::new("hall", "west", Publisher::new(16));
+        view.liveliness("east", true);
+        let reason = view.status().zones[0].reason.clone().unwrap();
+        assert!(
+            reason.contains("waiting for the anchor zone west"),
+            "{reason}"
+        );
     }
 
     #[test]
