@@ -69,6 +69,8 @@ pub(super) type Placed = Result<(Pose2, [f64; 3], usize), String>;
 struct Zones {
     zones: BTreeMap<String, Zone>,
     frame: BTreeMap<String, Placed>,
+    /// Sensor ids two zones share, as already said.
+    clashes: std::collections::BTreeSet<String>,
 }
 
 impl Zones {
@@ -149,11 +151,39 @@ impl SiteView {
         }
     }
 
+    /// A zone's poses. A sensor id another zone uses too is named once: the site's lists
+    /// and the `reregister` request go by id, so ids must be unique across the site.
     pub(super) fn heard_poses(&self, zone: &str, poses: Poses) {
-        let mut s = self.lock();
-        let z = s.heard(zone);
-        z.poses = Some(poses);
-        z.fresh = z.alive;
+        let clashes: Vec<String> = {
+            let mut s = self.lock();
+            let clashes: Vec<String> = poses
+                .sensors
+                .iter()
+                .filter_map(|p| {
+                    let other = s.zones.iter().find(|(id, z)| {
+                        id.as_str() != zone
+                            && z.poses
+                                .as_ref()
+                                .is_some_and(|o| o.sensors.iter().any(|q| q.id == p.id))
+                    })?;
+                    Some(format!(
+                        "sensor id {} is used by zone {zone} and by zone {}: give each sensor an id of its own across the site",
+                        p.id, other.0
+                    ))
+                })
+                .collect();
+            let fresh: Vec<String> = clashes
+                .into_iter()
+                .filter(|c| s.clashes.insert(c.clone()))
+                .collect();
+            let z = s.heard(zone);
+            z.poses = Some(poses);
+            z.fresh = z.alive;
+            fresh
+        };
+        for c in clashes {
+            self.announce(EventKind::Error, c);
+        }
     }
 
     pub(super) fn heard_status(&self, zone: &str, status: Status) {
@@ -616,6 +646,25 @@ mod tests {
             reason.contains("waiting for the anchor zone west"),
             "{reason}"
         );
+    }
+
+    #[test]
+    fn a_sensor_id_two_zones_use_is_named_once() {
+        let publisher = Publisher::new(16);
+        let mut events = publisher.subscribe_events();
+        let view = SiteView::new("hall", "west", publisher);
+        view.heard_poses("west", poses("gate", vec![placed("gate", 0.0, 0.0, 0.0)]));
+        view.heard_poses("east", poses("dock", vec![placed("dock", 0.0, 0.0, 0.0)]));
+        assert!(events.try_recv().is_err());
+        for _ in 0..3 {
+            view.heard_poses("east", poses("gate", vec![placed("gate", 0.0, 0.0, 0.0)]));
+        }
+        let said = events.try_recv().expect("the clash named");
+        assert!(
+            said.contains("sensor id gate is used by zone east and by zone west"),
+            "{said}"
+        );
+        assert!(events.try_recv().is_err(), "named more than once");
     }
 
     #[test]
