@@ -1131,11 +1131,14 @@ pub fn run_worker(
         order.push(&item.sensor.clone(), item.scan.stamp_ns, item);
     };
     // The views a site daemon asks for, kept fresh here so that its question never waits on
-    // a registration under way (`Pipeline::static_views`).
+    // a registration under way (`Pipeline::static_views`). Whether anyone wants them is looked
+    // at on the same 2 s beat, not at every scan.
     let mut views_at: Option<std::time::Instant> = None;
     loop {
-        if pipeline.wants_views() && views_at.is_none_or(|at| at.elapsed() >= VIEWS_EVERY) {
-            pipeline.keep_views(registrar.views());
+        if views_at.is_none_or(|at| at.elapsed() >= VIEWS_EVERY) {
+            if pipeline.wants_views() {
+                pipeline.keep_views(registrar.views());
+            }
             views_at = Some(std::time::Instant::now());
         }
         select! {
