@@ -196,6 +196,7 @@ fn little_view_pairs(plan: &Plan, seed: u64, params: &RegisterParams) -> Result<
                     }
                 }
                 Err(why) => {
+                    explain_abstention(plan, seed, a, b, &truth, &why.to_string(), params);
                     out.abstained += 1;
                     let key = why.to_string();
                     let key = key.split([':', '(']).next().unwrap_or("").trim();
@@ -205,6 +206,62 @@ fn little_view_pairs(plan: &Plan, seed: u64, params: &RegisterParams) -> Result<
         }
     }
     Ok(out)
+}
+
+/// Why a little-shared-view pair abstained, in the debug log: the people's own fit (decisive
+/// or not) against the truth, and each of the thresholds that keep it from placing the pair.
+fn explain_abstention(
+    plan: &Plan,
+    seed: u64,
+    a: &SensorInput,
+    b: &SensorInput,
+    truth: &Pose2,
+    why: &str,
+    params: &RegisterParams,
+) {
+    if !tracing::enabled!(tracing::Level::DEBUG) {
+        return;
+    }
+    let (Some(ma), Some(mb)) = (&a.model.motion, &b.model.motion) else {
+        return;
+    };
+    let w = &params.walkers;
+    let Some(fit) = scanfuse::register::walkers::fit_walkers(ma, mb, w, &params.motion) else {
+        tracing::debug!(
+            "{} seed {seed} {}–{}: {why}; no walker fit",
+            plan.name,
+            a.id,
+            b.id
+        );
+        return;
+    };
+    let (dt, dyaw) = pose_error(&fit.a_from_b, truth);
+    let (sigma_m, sigma_rad) = scanfuse::register::pair::pose_sigmas(&fit.covariance);
+    let walls = scanfuse::register::score::score(&a.model, &b.model, &fit.a_from_b, params);
+    let people = scanfuse::register::motion::co_motion(ma, mb, &fit.a_from_b, &params.motion);
+    tracing::debug!(
+        "{} seed {seed} {}–{}: {why}; fit {:.0} cm {:.1}° off, decisive {}, alone {}: inliers {} span {:.1} s spread {:.1} m rms {:.3} m walks {} rival {} ({:.2}) σ {:.1} cm {:.2}°; there walls overlap {:.2} violation {:.2}, people seen {} through {}",
+        plan.name,
+        a.id,
+        b.id,
+        dt * 100.0,
+        dyaw.to_degrees(),
+        fit.decisive(w),
+        fit.places_alone(w),
+        fit.inliers,
+        fit.span_s,
+        fit.spread_m,
+        fit.rms_m,
+        fit.walks,
+        fit.runner_up_walks,
+        fit.rival_share(),
+        sigma_m * 100.0,
+        sigma_rad.to_degrees(),
+        walls.overlap(),
+        walls.violation(),
+        people.seen,
+        people.seen_through,
+    );
 }
 
 /// The little-shared-view table (see the module header).
