@@ -177,10 +177,21 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
     let _east = zone(dirs[2].path(), "east", &east_units, &endpoint);
     wait_all_placed(&mut site, &ids, "east back and placed");
 
-    // The site daemon restarted rebuilds the site from the zones.
+    // The site daemon gone, a zone's line no longer says where the site put it: it says
+    // when the site daemon was last heard.
+    let mut west = Client::connect(&dirs[1].path().join("s.sock"), PATIENCE);
+    let placed_line = west.status().zenoh.unwrap_or_default();
+    assert!(placed_line.contains("anchor zone"), "{placed_line}");
     drop(site);
     site_daemon.signal("TERM");
     site_daemon.wait_exit(PATIENCE);
+    let silent = wait_for(PATIENCE, "west to say the site daemon is silent", || {
+        west.status()
+            .zenoh
+            .filter(|z| z.contains("the site daemon has not been heard"))
+    });
+    println!("west, the site daemon gone: {silent}");
+    // The site daemon restarted rebuilds the site from the zones.
     let restarted = Instant::now();
     let _site_daemon = start_daemon(&site_config(dirs[0].path(), &endpoint), dirs[0].path());
     let mut site = Client::connect(&dirs[0].path().join("s.sock"), PATIENCE);
@@ -194,6 +205,11 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
         restarted.elapsed()
     );
     check_site(&again, &whole, &dirs);
+    wait_for(PATIENCE, "west to hear the site daemon again", || {
+        west.status()
+            .zenoh
+            .filter(|z| !z.contains("has not been heard"))
+    });
 }
 
 /// The site's poses against one daemon's (printed; within 5 cm and 0.3°) and against each

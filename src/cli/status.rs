@@ -241,6 +241,9 @@ pub fn render_table(status: &Status, poses: &Poses) -> String {
         if let Some(why) = &z.reason {
             notes.push(format!("zone {}: {why}", z.zone));
         }
+        if let Some(why) = &z.unreadable {
+            notes.push(format!("zone {} sends what cannot be read: {why}", z.zone));
+        }
     }
     // Where the site frame lies in the building drawing, in the same columns: the row a
     // person reads to turn the poses above into drawing coordinates.

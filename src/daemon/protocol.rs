@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 /// Major protocol version: bumped when a client written for the old one would misread.
 pub const PROTO_MAJOR: u32 = 1;
 /// Minor protocol version: bumped when fields or classes are added.
-pub const PROTO_MINOR: u32 = 7;
+pub const PROTO_MINOR: u32 = 8;
 
 /// Request lines longer than this are rejected (and discarded up to their newline).
 pub const MAX_LINE_BYTES: usize = 64 * 1024;
@@ -214,6 +214,10 @@ pub struct ZoneStatus {
     /// Why it is not placed (or what its placement rests on).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reason: Option<String>,
+    /// What it sends that this daemon cannot read, and why (since protocol 1.8); absent when
+    /// everything reads.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unreadable: Option<String>,
 }
 
 /// `site_from_zone`: a zone frame's pose in the site frame, with σ, in the pose vocabulary's

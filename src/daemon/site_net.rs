@@ -314,25 +314,50 @@ pub async fn run(
 }
 
 /// A zone's `poses` or `status`, checked: its schema, and that the zone it names is the one
-/// whose key it came under.
+/// whose key it came under. What cannot be read is stated once per zone and key (it comes
+/// every second) and shown in the zone's status until it reads again.
 fn heard(view: &SiteView, sample: &zenoh::sample::Sample) {
     let key = sample.key_expr().as_str();
+    let Some(zone) = zone_of(key) else {
+        return tracing::warn!("{key}: not a zone's key");
+    };
+    let leaf = key.rsplit('/').next().unwrap_or(key);
     let bytes = sample.payload().to_bytes();
     let p = match serde_json::from_slice::<ZonePayload>(&bytes) {
         Ok(p) => p,
-        Err(e) => return tracing::warn!("{key}: not a zone's poses or status: {e}"),
+        Err(e) => {
+            return view.heard_unreadable(zone, leaf, format!("not a zone's {leaf}: {e}"));
+        }
     };
-    if zone_of(key) != Some(p.zone.as_str()) {
-        return tracing::warn!("{key}: names zone {:?}", p.zone);
+    if zone != p.zone {
+        return view.heard_unreadable(zone, leaf, format!("it names zone {:?}", p.zone));
     }
-    view.heard_bytes(&p.zone, bytes.len());
+    let read = match (p.schema.as_str(), p.poses, p.status) {
+        (POSES_SCHEMA, Some(poses), _) => Some(ZoneSaid::Poses(poses)),
+        (STATUS_SCHEMA, _, Some(status)) => Some(ZoneSaid::Status(status)),
+        _ => None,
+    };
+    let Some(read) = read else {
+        let why = format!(
+            "schema {:?} is not one this scanfuse reads ({POSES_SCHEMA}, {STATUS_SCHEMA})",
+            p.schema
+        );
+        return view.heard_unreadable(zone, leaf, why);
+    };
+    view.heard_readable(zone, leaf);
+    view.heard_bytes(zone, bytes.len());
     // Its clock against ours: the link's delay (ms on a LAN) is within what is flagged.
-    view.heard_clock(&p.zone, (p.t_ns as f64 - now_ns() as f64) * 1e-9);
-    match (p.schema.as_str(), p.poses, p.status) {
-        (POSES_SCHEMA, Some(poses), _) => view.heard_poses(&p.zone, poses),
-        (STATUS_SCHEMA, _, Some(status)) => view.heard_status(&p.zone, status),
-        (schema, _, _) => tracing::warn!("{key}: schema {schema:?} is not one this scanfuse reads"),
+    view.heard_clock(zone, (p.t_ns as f64 - now_ns() as f64) * 1e-9);
+    match read {
+        ZoneSaid::Poses(poses) => view.heard_poses(zone, poses),
+        ZoneSaid::Status(status) => view.heard_status(zone, status),
     }
+}
+
+/// What a zone's payload held.
+enum ZoneSaid {
+    Poses(Poses),
+    Status(Status),
 }
 
 /// Asks every alive zone for its views and joins the zones; `None` when no zone, or not the

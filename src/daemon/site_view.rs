@@ -36,6 +36,8 @@ struct Zone {
     clock: VecDeque<f64>,
     /// Its clock was said to be off (so it is said once, and again when it is right).
     clock_off: bool,
+    /// Why what it sends under a key (`poses`, `status`) cannot be read, until it can.
+    unreadable: BTreeMap<String, String>,
 }
 
 /// A zone clock this far (s) from the site daemon's is named: walkers are compared by time,
@@ -58,6 +60,7 @@ impl Zone {
             heard: VecDeque::new(),
             clock: VecDeque::new(),
             clock_off: false,
+            unreadable: BTreeMap::new(),
         }
     }
 }
@@ -228,6 +231,40 @@ impl SiteView {
         }
     }
 
+    /// What zone `zone` sent under `leaf` cannot be read (`why`): an error event when that
+    /// is new or the reason changed (it comes every second), and the zone's status says so.
+    pub(super) fn heard_unreadable(&self, zone: &str, leaf: &str, why: String) {
+        let new = {
+            let mut s = self.lock();
+            let z = s.heard(zone);
+            z.unreadable.insert(leaf.to_string(), why.clone()).as_ref() != Some(&why)
+        };
+        if new {
+            self.announce(
+                EventKind::Error,
+                format!(
+                    "zone {zone}'s {leaf} cannot be read: {why}; it is ignored until it can (run one scanfuse version across the site)"
+                ),
+            );
+        }
+    }
+
+    /// What zone `zone` sent under `leaf` was read: said once if it could not be before.
+    pub(super) fn heard_readable(&self, zone: &str, leaf: &str) {
+        let was = {
+            let mut s = self.lock();
+            s.zones
+                .get_mut(zone)
+                .and_then(|z| z.unreadable.remove(leaf))
+        };
+        if was.is_some() {
+            self.announce(
+                EventKind::Connected,
+                format!("zone {zone}'s {leaf} is read again"),
+            );
+        }
+    }
+
     /// `bytes` of a zone's poses or status arrived.
     pub(super) fn heard_bytes(&self, zone: &str, bytes: usize) {
         let mut s = self.lock();
@@ -358,6 +395,14 @@ impl SiteView {
                     clock_offset_s: clock_offset(z),
                     site_from_zone,
                     reason,
+                    unreadable: (!z.unreadable.is_empty()).then(|| {
+                        let whys: Vec<String> = z
+                            .unreadable
+                            .iter()
+                            .map(|(leaf, why)| format!("its {leaf}: {why}"))
+                            .collect();
+                        whys.join("; ")
+                    }),
                 }
             })
             .collect()
@@ -692,6 +737,31 @@ mod tests {
         }
         let said = events.try_recv().expect("the clock right again");
         assert!(said.contains("agrees"), "{said}");
+    }
+
+    #[test]
+    fn what_a_zone_sends_that_cannot_be_read_is_named_once_shown_and_cleared_when_it_reads() {
+        let publisher = Publisher::new(16);
+        let mut events = publisher.subscribe_events();
+        let view = SiteView::new("hall", "west", publisher);
+        view.liveliness("east", true);
+        let _ = events.try_recv();
+        // Every second the same unreadable status: one event, not one a second.
+        for _ in 0..3 {
+            view.heard_unreadable("east", "status", "schema \"x/2\"".into());
+        }
+        let said = events.try_recv().expect("the unreadable status named");
+        assert!(said.contains("zone east's status cannot be read"), "{said}");
+        assert!(events.try_recv().is_err(), "named twice");
+        let shown = view.status().zones[0].unreadable.clone();
+        assert_eq!(shown.as_deref(), Some("its status: schema \"x/2\""));
+        // Poses that read say nothing; the status read again is said once and cleared.
+        view.heard_readable("east", "poses");
+        assert!(events.try_recv().is_err(), "a readable payload was named");
+        view.heard_readable("east", "status");
+        let said = events.try_recv().expect("read again");
+        assert!(said.contains("read again"), "{said}");
+        assert_eq!(view.status().zones[0].unreadable, None);
     }
 
     #[test]

@@ -133,6 +133,9 @@ const LOOK: Duration = Duration::from_millis(250);
 /// How often everything is published even when nothing changed (a daemon that starts later
 /// has it within this).
 const EVERY: Duration = Duration::from_secs(1);
+/// The site daemon publishes its frame every second; this long without one, it is gone
+/// or cut off.
+const SITE_SILENT: Duration = Duration::from_secs(3);
 
 /// The key of `leaf` (`alive`, `poses`, `status`) of `zone` of `site`.
 pub fn key(site: &str, zone: &str, leaf: &str) -> String {
@@ -281,7 +284,9 @@ pub async fn run(
     let described = cfg.describe(&site);
     tracing::info!("{described}");
     pipeline.set_zenoh(described.clone());
-    let mut in_site: Option<String> = None;
+    // What the site daemon last said of this zone, and when it was heard.
+    let mut in_site: Option<(String, std::time::Instant)> = None;
+    let mut silent = false;
     let mut look = tokio::time::interval(LOOK);
     let mut last: Option<(std::time::Instant, Placed)> = None;
     tokio::pin!(stop);
@@ -295,10 +300,11 @@ pub async fn run(
                     Ok(frame) => in_site_frame(&frame, &cfg.zone),
                     Err(e) => format!("the site daemon's frame is unreadable: {e}"),
                 };
-                if in_site.as_ref() != Some(&said) {
+                if silent || in_site.as_ref().is_none_or(|(before, _)| *before != said) {
                     pipeline.set_zenoh(format!("{described}; {said}"));
-                    in_site = Some(said);
                 }
+                in_site = Some((said, std::time::Instant::now()));
+                silent = false;
                 continue;
             }
             query = views.recv_async() => {
@@ -320,6 +326,17 @@ pub async fn run(
                 }
                 continue;
             }
+        }
+        // The site daemon speaks every second: once it has not for a while, what it last
+        // said is no longer so, and the line says so.
+        if let Some((said, at)) = &in_site
+            && at.elapsed() >= SITE_SILENT
+        {
+            silent = true;
+            pipeline.set_zenoh(format!(
+                "{described}; the site daemon has not been heard for {:.0} s (it had said: {said})",
+                at.elapsed().as_secs_f64()
+            ));
         }
         let poses = pipeline.poses();
         let placed = placed_key(&poses);
