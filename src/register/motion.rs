@@ -109,7 +109,17 @@ pub struct MotionTrack {
     beams: usize,
     cos_pitch: f64,
     plane: Option<ScanPlane>,
+    /// Its plane cuts people at one height, and that height is a torso's
+    /// ([`TORSO_HEIGHT_M`], level within [`LEVEL_RAD`]): only then can a walker's blob be the
+    /// near side of something other than a round body.
+    sees_torsos: bool,
 }
+
+/// Heights (m) at which a level scanner cuts people across the hips, waist or chest.
+const TORSO_HEIGHT_M: [f64; 2] = [0.7, 1.5];
+/// A plane pitched more than this cuts people at heights that vary with range (at 2°, 35 cm
+/// over 10 m): legs far off, a torso near.
+const LEVEL_RAD: f64 = 2.0 * std::f64::consts::PI / 180.0;
 
 #[derive(Debug, Clone)]
 struct Frame {
@@ -199,6 +209,10 @@ impl MotionTrack {
             beams,
             cos_pitch: mount.pitch_rad.cos().max(1e-3),
             plane: ScanPlane::of(mount),
+            sees_torsos: mount.pitch_rad.abs() <= LEVEL_RAD
+                && mount
+                    .height_m
+                    .is_some_and(|h| (TORSO_HEIGHT_M[0]..=TORSO_HEIGHT_M[1]).contains(&h)),
         })
     }
 
@@ -223,6 +237,11 @@ impl MotionTrack {
         out
     }
 
+    /// Whether its plane cuts people across the torso, level (see `sees_torsos`).
+    pub fn sees_torsos(&self) -> bool {
+        self.sees_torsos
+    }
+
     /// Walkers seen over the whole track.
     pub fn walkers(&self) -> usize {
         self.frames.iter().map(|f| f.walkers.len()).sum()
@@ -238,21 +257,19 @@ impl MotionTrack {
     }
 
     /// For each tick at which both tracks saw walkers: the time (s since this track's first
-    /// frame) and the walkers' centres in each sensor's frame. A sensor sees a body's near side:
-    /// for a round body of width w seen along evenly spaced beams the returns' centroid lies
-    /// πw/8 short of its centre, so each centroid is pushed `push_of_width` × w along its beam.
-    /// Without a previous frame to carry the other's walkers to this one's time, frames further
+    /// frame) and the walkers' centres in each sensor's frame, each blob taken as the near
+    /// side of `body` (`detect::centre`). Without a previous frame to carry the other's walkers to this one's time, frames further
     /// apart than `max_skew_s` are not paired.
     pub fn centres_with(
         &self,
         other: &MotionTrack,
         max_skew_s: f64,
-        push_of_width: f64,
+        body: detect::Body,
     ) -> Vec<SharedTick> {
         let centres = |f: &Frame| -> Vec<Point2<f64>> {
             f.walkers
                 .iter()
-                .filter_map(|w| detect::centre(w, push_of_width))
+                .filter_map(|w| detect::centre(w, body))
                 .collect()
         };
         // The other's walkers moved between its scan and this one's: carried forward along the

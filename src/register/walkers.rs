@@ -14,13 +14,16 @@ use rayon::prelude::*;
 use super::motion::{MotionParams, MotionTrack, co_motion};
 use super::pair::pose_sigmas;
 use crate::geometry::{Pose2, pose_error};
+use crate::track::detect::Body;
 
 /// Thresholds of the walker fit.
 #[derive(Debug, Clone, PartialEq)]
 pub struct WalkerParams {
-    /// A scanner sees the near side of a body: its returns' centroid lies about this share of
-    /// the body's visible width short of its centre, along the beam (π/8 for a round body).
-    pub centre_push_of_width: f64,
+    /// Bodies a walker fit is tried with besides a round one, where both scanners cut people
+    /// level across the torso (`MotionTrack::sees_torsos`): centrally symmetric ones of these
+    /// areas (m², `detect::Body::Area`), from a slim person's hips to a broad torso. The one
+    /// whose centres the people agree on best is kept.
+    pub body_areas_m2: Vec<f64>,
     /// Sightings of one tick that cannot be carried to a common time are paired only this close
     /// in time (s): a walker moves 2 cm in 15 ms, and the same way every time along a corridor.
     pub max_skew_s: f64,
@@ -76,7 +79,7 @@ pub struct WalkerParams {
 impl Default for WalkerParams {
     fn default() -> Self {
         WalkerParams {
-            centre_push_of_width: std::f64::consts::PI / 8.0,
+            body_areas_m2: vec![0.06, 0.08, 0.10, 0.12],
             max_skew_s: 0.015,
             min_apart_m: 1.0,
             pair_tol_m: 0.2,
@@ -325,11 +328,13 @@ pub fn fit_walkers(
     p: &WalkerParams,
     motion: &MotionParams,
 ) -> Option<WalkerFit> {
-    let ticks: Vec<Tick> = a
-        .centres_with(b, p.max_skew_s, p.centre_push_of_width)
-        .into_iter()
-        .map(|(t_s, a, b)| Tick { t_s, a, b })
-        .collect();
+    let ticks_of = |body: Body| -> Vec<Tick> {
+        a.centres_with(b, p.max_skew_s, body)
+            .into_iter()
+            .map(|(t_s, a, b)| Tick { t_s, a, b })
+            .collect()
+    };
+    let ticks = ticks_of(Body::Round);
     // Candidate correspondences: every (A walker, B walker) of a tick.
     let candidates: Vec<(usize, Point2<f64>, Point2<f64>)> = ticks
         .iter()
@@ -390,12 +395,7 @@ pub fn fit_walkers(
     let mut refined: Vec<(usize, Pose2, Matched)> = best
         .iter()
         .filter_map(|(_, pose)| {
-            let mut pose = *pose;
-            let mut agreement = agree(&all, &pose, p.inlier_m, true);
-            for _ in 0..3 {
-                pose = least_squares(&agreement.pairs)?;
-                agreement = agree(&all, &pose, p.inlier_m, true);
-            }
+            let (pose, agreement) = refine_on(&all, *pose, p.inlier_m)?;
             Some((agreement.count, pose, agreement.pairs))
         })
         .collect();
@@ -405,6 +405,30 @@ pub fn fit_walkers(
     refined.retain(|(_, pose, _)| !co_motion(a, b, pose, motion).refutes(motion));
     refined.sort_by_key(|x| std::cmp::Reverse(x.0));
     let (inliers, pose, pairs) = refined.first()?.clone();
+    // The people's shape: the body whose centres agree best at the winner, refined again.
+    // Only where both planes cut people level across the torso (elsewhere legs, heads, or a
+    // mix down a pitched plane: round is the safer guess).
+    let areas: &[f64] = if a.sees_torsos() && b.sees_torsos() {
+        &p.body_areas_m2
+    } else {
+        &[]
+    };
+    let (inliers, pose, pairs) = areas
+        .iter()
+        .filter_map(|&area| {
+            let ticks = ticks_of(Body::Area(area));
+            let all: Vec<&Tick> = ticks.iter().collect();
+            let (pose, agreement) = refine_on(&all, pose, p.inlier_m)?;
+            Some((agreement.count, pose, agreement.pairs))
+        })
+        .chain(std::iter::once((inliers, pose, pairs)))
+        .max_by(|x, y| {
+            let (sx, sy) = (
+                support(&x.2, &x.1, p.inlier_m),
+                support(&y.2, &y.1, p.inlier_m),
+            );
+            sx.total_cmp(&sy)
+        })?;
     // Leaders that refine to the winner were the same pose seen through noise. The rival:
     // the most sightings, and the most walks of one person in both views, of any other.
     let others: Vec<&(usize, Pose2, Matched)> = refined
@@ -445,6 +469,26 @@ pub fn fit_walkers(
         covariance: covariance(&pose, &pairs, rms_m, p),
         alone: false,
     })
+}
+
+/// `pose` refined on the ticks: three rounds of agreeing sightings and least squares.
+fn refine_on(ticks: &[&Tick], mut pose: Pose2, reach_m: f64) -> Option<(Pose2, Agreement)> {
+    let mut agreement = agree(ticks, &pose, reach_m, true);
+    for _ in 0..3 {
+        pose = least_squares(&agreement.pairs)?;
+        agreement = agree(ticks, &pose, reach_m, true);
+    }
+    Some((pose, agreement))
+}
+
+/// How well sightings agree with a pose, counting both how many and how close: each
+/// agreeing sighting adds what is left of the reach once its residual is taken
+/// (`reach² − d²`), so a body that brings more sightings in, or the same ones closer, wins.
+fn support(pairs: &Matched, pose: &Pose2, reach_m: f64) -> f64 {
+    pairs
+        .iter()
+        .map(|(a, b, _)| (reach_m * reach_m - (a - pose * b).norm_squared()).max(0.0))
+        .sum()
 }
 
 /// A rival's walks (`matched`: the sightings it agrees on) among the sightings the best pose
@@ -811,6 +855,81 @@ mod tests {
                 [x0 + s * (x1 - x0), y0 + s * (y1 - y0)]
             })
             .collect()
+    }
+
+    /// A torso 0.45 m across its walking direction (`heading`) and 0.28 m along it, as a
+    /// 24-sided outline.
+    fn torso(centre: Point2<f64>, heading: f64) -> Vec<Wall> {
+        let (a, b) = (0.14, 0.225);
+        let corners: Vec<(f64, f64)> = (0..24)
+            .map(|k| {
+                let t = k as f64 * std::f64::consts::TAU / 24.0;
+                let (x, y) = (a * t.cos(), b * t.sin());
+                let (s, c) = heading.sin_cos();
+                (centre.x + c * x - s * y, centre.y + s * x + c * y)
+            })
+            .collect();
+        polygon(&corners)
+    }
+
+    /// People walking lanes along x between two units that face each other down them, as
+    /// torsos: each unit sees every one of them from in front or behind. Level at 1 m.
+    fn torso_track(pose: &Pose2, seconds: f64) -> MotionTrack {
+        let room = polygon(&[(-1.0, -1.0), (15.0, -1.0), (15.0, 11.0), (-1.0, 11.0)]);
+        let people = |t_s: f64| -> Vec<(Point2<f64>, f64)> {
+            (0..4)
+                .map(|i| {
+                    let period_s = 9.0 + 1.3 * i as f64;
+                    let s = ((t_s + 2.1 * i as f64) / period_s).fract();
+                    let (s, heading) = if s < 0.5 {
+                        (2.0 * s, 0.0)
+                    } else {
+                        (2.0 - 2.0 * s, std::f64::consts::PI)
+                    };
+                    (Point2::new(3.0 + 8.0 * s, 1.5 + 2.3 * i as f64), heading)
+                })
+                .collect()
+        };
+        // One scan a tick of the track (0.1 s): it keeps no more.
+        let scans: Vec<Scan> = (0..(seconds * 10.0) as u64)
+            .map(|k| {
+                let mut seen = room.clone();
+                for (c, heading) in people(k as f64 / 10.0) {
+                    seen.extend(torso(c, heading));
+                }
+                scan_270(&seen, pose, 0.25, k * 100_000_000)
+            })
+            .collect();
+        let mount = Mount {
+            height_m: Some(1.0),
+            pitch_rad: 0.0,
+        };
+        let still = scan_270(&room, pose, 0.25, 0);
+        let p = MotionParams::default();
+        MotionTrack::new(&scans, &still, None, &mount, &ProjectParams::default(), &p)
+            .expect("a track")
+    }
+
+    #[test]
+    fn torsos_walking_towards_and_away_from_both_units_are_centred_as_torsos() {
+        let (pa, pb) = (pose2(0.5, 5.0, 0.0), pose2(13.5, 5.2, std::f64::consts::PI));
+        let (ta, tb) = (torso_track(&pa, 20.0), torso_track(&pb, 20.0));
+        let truth = pa.inverse() * pb;
+        let motion = MotionParams::default();
+        let error = |p: &WalkerParams| {
+            let fit = fit_walkers(&ta, &tb, p, &motion).expect("a fit");
+            pose_error(&fit.a_from_b, &truth).0
+        };
+        // Seen from in front, a round body's rule pushes each centre up to 7 cm too far from
+        // its unit: the two units come out several cm too close together.
+        let round = WalkerParams {
+            body_areas_m2: Vec::new(),
+            ..WalkerParams::default()
+        };
+        let (as_torsos, as_round) = (error(&WalkerParams::default()), error(&round));
+        println!("as torsos {as_torsos:.3} m off, as round bodies {as_round:.3} m");
+        assert!(as_torsos < 0.03, "as torsos {as_torsos:.3} m off");
+        assert!(as_round > 0.06, "as round bodies {as_round:.3} m off");
     }
 
     #[test]

@@ -35,8 +35,6 @@ pub struct TrackParams {
     /// The background: what stands still for 90 s (`absorb_s`) becomes background.
     pub background: BackgroundParams,
     pub project: ProjectParams,
-    /// A blob's centre lies π/8 of its width behind its returns' centroid (a round body).
-    pub push_of_width: f64,
     /// A blob wider than 0.75 m is several people side by side, about 0.5 m each.
     pub max_person_m: f64,
     pub person_m: f64,
@@ -116,7 +114,6 @@ impl Default for TrackParams {
             },
             background: BackgroundParams::default(),
             project: ProjectParams::default(),
-            push_of_width: std::f64::consts::PI / 8.0,
             max_person_m: 0.75,
             person_m: 0.5,
             same_person_m: 0.3,

@@ -276,7 +276,7 @@ impl Tracker {
             let mut centres: Vec<Point2<f64>> = if legs {
                 let legs: Vec<Point2<f64>> = blobs
                     .iter()
-                    .filter_map(|b| detect::centre(b, p.push_of_width))
+                    .filter_map(|b| detect::centre(b, detect::Body::Round))
                     .collect();
                 detect::pair_legs(&legs, p.leg_pair_m)
             } else {
@@ -284,7 +284,7 @@ impl Tracker {
                     detect::split_wide(b, p.max_person_m, p.person_m, p.blob.min_points)
                 });
                 let centres: Vec<Point2<f64>> = parts
-                    .filter_map(|b| detect::centre(&b, p.push_of_width))
+                    .filter_map(|b| detect::centre(&b, detect::Body::Round))
                     .collect();
                 // One body seen as two runs (an arm apart from the torso) is one person.
                 detect::pair_legs(&centres, p.same_person_m)
