@@ -195,7 +195,7 @@ impl LineClient {
     pub async fn connect_past_banner(path: &Path) -> LineClient {
         let mut client = LineClient::connect(path).await;
         match client.message().await {
-            Some(Message::Version(v)) => assert_eq!((v.proto_major, v.proto_minor), (1, 7)),
+            Some(Message::Version(v)) => assert_eq!((v.proto_major, v.proto_minor), (1, 8)),
             other => panic!("expected a VERSION banner, got {other:?}"),
         }
         client
