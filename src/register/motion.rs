@@ -258,8 +258,8 @@ impl MotionTrack {
 
     /// For each tick at which both tracks saw walkers: the time (s since this track's first
     /// frame) and the walkers' centres in each sensor's frame, each blob taken as the near
-    /// side of `body` (`detect::centre`). Without a previous frame to carry the other's walkers to this one's time, frames further
-    /// apart than `max_skew_s` are not paired.
+    /// side of `body` (`detect::centre`). Without a previous frame to carry the other's
+    /// walkers to this one's time, frames further apart than `max_skew_s` are not paired.
     pub fn centres_with(
         &self,
         other: &MotionTrack,
