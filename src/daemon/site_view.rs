@@ -712,13 +712,22 @@ mod tests {
         assert!(events.try_recv().is_err(), "named more than once");
     }
 
-    #[test]
-    fn a_zone_whose_clock_is_off_is_named_once_and_again_when_it_is_right() {
+    /// A site anchored on west, zone east just come alive, and its events from then on.
+    fn east_alive() -> (
+        SiteView,
+        tokio::sync::broadcast::Receiver<std::sync::Arc<str>>,
+    ) {
         let publisher = Publisher::new(16);
         let mut events = publisher.subscribe_events();
         let view = SiteView::new("hall", "west", publisher);
         view.liveliness("east", true);
         let _ = events.try_recv();
+        (view, events)
+    }
+
+    #[test]
+    fn a_zone_whose_clock_is_off_is_named_once_and_again_when_it_is_right() {
+        let (view, mut events) = east_alive();
         // A few ms of link delay is no offset; a jitter of one payload is outvoted.
         for o in [-0.004, -0.003, 2.0, -0.005, -0.004] {
             view.heard_clock("east", o);
@@ -741,11 +750,7 @@ mod tests {
 
     #[test]
     fn what_a_zone_sends_that_cannot_be_read_is_named_once_shown_and_cleared_when_it_reads() {
-        let publisher = Publisher::new(16);
-        let mut events = publisher.subscribe_events();
-        let view = SiteView::new("hall", "west", publisher);
-        view.liveliness("east", true);
-        let _ = events.try_recv();
+        let (view, mut events) = east_alive();
         // Every second the same unreadable status: one event, not one a second.
         for _ in 0..3 {
             view.heard_unreadable("east", "status", "schema \"x/2\"".into());

@@ -286,7 +286,6 @@ pub async fn run(
     pipeline.set_zenoh(described.clone());
     // What the site daemon last said of this zone, and when it was heard.
     let mut in_site: Option<(String, std::time::Instant)> = None;
-    let mut silent = false;
     let mut look = tokio::time::interval(LOOK);
     let mut last: Option<(std::time::Instant, Placed)> = None;
     tokio::pin!(stop);
@@ -300,11 +299,14 @@ pub async fn run(
                     Ok(frame) => in_site_frame(&frame, &cfg.zone),
                     Err(e) => format!("the site daemon's frame is unreadable: {e}"),
                 };
-                if silent || in_site.as_ref().is_none_or(|(before, _)| *before != said) {
+                // Said again when it changed, or after a silence the line has told of.
+                let stale = in_site.as_ref().is_none_or(|(before, at)| {
+                    *before != said || at.elapsed() >= SITE_SILENT
+                });
+                if stale {
                     pipeline.set_zenoh(format!("{described}; {said}"));
                 }
                 in_site = Some((said, std::time::Instant::now()));
-                silent = false;
                 continue;
             }
             query = views.recv_async() => {
@@ -332,7 +334,6 @@ pub async fn run(
         if let Some((said, at)) = &in_site
             && at.elapsed() >= SITE_SILENT
         {
-            silent = true;
             pipeline.set_zenoh(format!(
                 "{described}; the site daemon has not been heard for {:.0} s (it had said: {said})",
                 at.elapsed().as_secs_f64()

@@ -109,10 +109,6 @@ pub struct MotionTrack {
     beams: usize,
     cos_pitch: f64,
     plane: Option<ScanPlane>,
-    /// Its plane cuts people at one height, and that height is a torso's
-    /// ([`TORSO_HEIGHT_M`], level within [`LEVEL_RAD`]): only then can a walker's blob be the
-    /// near side of something other than a round body.
-    sees_torsos: bool,
 }
 
 /// Heights (m) at which a level scanner cuts people across the hips, waist or chest.
@@ -209,10 +205,6 @@ impl MotionTrack {
             beams,
             cos_pitch: mount.pitch_rad.cos().max(1e-3),
             plane: ScanPlane::of(mount),
-            sees_torsos: mount.pitch_rad.abs() <= LEVEL_RAD
-                && mount
-                    .height_m
-                    .is_some_and(|h| (TORSO_HEIGHT_M[0]..=TORSO_HEIGHT_M[1]).contains(&h)),
         })
     }
 
@@ -237,9 +229,14 @@ impl MotionTrack {
         out
     }
 
-    /// Whether its plane cuts people across the torso, level (see `sees_torsos`).
+    /// Whether its plane cuts people at one height, and that height is a torso's
+    /// ([`TORSO_HEIGHT_M`], level within [`LEVEL_RAD`]): only then can a walker's blob be the
+    /// near side of something other than a round body. Not with the mount unknown.
     pub fn sees_torsos(&self) -> bool {
-        self.sees_torsos
+        self.plane.is_some_and(|p| {
+            p.slope.abs() <= LEVEL_RAD.tan()
+                && (TORSO_HEIGHT_M[0]..=TORSO_HEIGHT_M[1]).contains(&p.height_m)
+        })
     }
 
     /// Walkers seen over the whole track.
