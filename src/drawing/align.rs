@@ -590,6 +590,7 @@ pub fn drawing_model(drawing: &Drawing, p: &RegisterParams) -> ScanModel {
     let icp_sample = spread(p.icp_points);
     let classes = vec![PointClass::Wall; points.len()];
     let groups = std::iter::once(0..points.len()).collect();
+    let surface = vec![true; points.len()];
     ScanModel {
         features: Features {
             points,
@@ -599,6 +600,7 @@ pub fn drawing_model(drawing: &Drawing, p: &RegisterParams) -> ScanModel {
             classes,
         },
         normals,
+        surface,
         score_sample,
         icp_sample,
         grid,

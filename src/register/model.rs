@@ -195,6 +195,9 @@ pub struct ScanModel {
     pub features: Features,
     /// Unit normal per point, pointing towards the sensor.
     pub normals: Vec<Vector2<f64>>,
+    /// Per point: its normal is a surface's (a segment's, or fitted over its neighbours), not
+    /// just the direction to the sensor (an isolated return).
+    pub surface: Vec<bool>,
     /// Points used for scoring, evenly spread along the outline.
     pub score_sample: Vec<usize>,
     /// Points used by ICP.
@@ -235,7 +238,7 @@ impl ScanModel {
     /// Prepares a scan; `step_rad` is its beam spacing.
     pub fn new(points: &[ScanPoint], step_rad: f64, params: &RegisterParams) -> Self {
         let features = features::extract(points, step_rad, &params.features);
-        let normals = normals_of(&features, params.normal_radius_m);
+        let (normals, surface) = normals_of(&features, params.normal_radius_m);
         let grouped: Vec<usize> = features.groups.iter().flat_map(|g| g.clone()).collect();
         let score_sample = spread(&features.points, &grouped, params.score_points);
         let icp_sample = spread(&features.points, &grouped, params.icp_points);
@@ -244,6 +247,7 @@ impl ScanModel {
         ScanModel {
             features,
             normals,
+            surface,
             score_sample,
             icp_sample,
             grid,
@@ -334,8 +338,9 @@ fn spread(points: &[Point2<f64>], idx: &[usize], count: usize) -> Vec<usize> {
     out
 }
 
-/// Normals: the segment's for wall points, else a local fit over scan neighbours.
-fn normals_of(f: &Features, neighbour_m: f64) -> Vec<Vector2<f64>> {
+/// Normals: the segment's for wall points, else a local fit over scan neighbours, else (an
+/// isolated return) the direction to the sensor; and which points have a surface's.
+fn normals_of(f: &Features, neighbour_m: f64) -> (Vec<Vector2<f64>>, Vec<bool>) {
     let pts = &f.points;
     let mut normals: Vec<Vector2<f64>> = pts
         .iter()
@@ -348,6 +353,7 @@ fn normals_of(f: &Features, neighbour_m: f64) -> Vec<Vector2<f64>> {
             }
         })
         .collect();
+    let mut surface = vec![false; pts.len()];
     for g in &f.groups {
         for i in g.clone() {
             let near = |j: &usize| (pts[*j] - pts[i]).norm() <= neighbour_m;
@@ -371,14 +377,18 @@ fn normals_of(f: &Features, neighbour_m: f64) -> Vec<Vector2<f64>> {
                 normal = -normal;
             }
             normals[i] = normal;
+            surface[i] = true;
         }
     }
     for s in &f.segments {
         for &i in &s.points {
             normals[i] = s.normal;
+            if let Some(on) = surface.get_mut(i) {
+                *on = true;
+            }
         }
     }
-    normals
+    (normals, surface)
 }
 
 /// How much two scans see of the same surfaces under a known pose (the truth, in evaluation):

@@ -58,6 +58,7 @@ fn score_dir(
             }
         }
         if crosses(from, into, &pts[i], &q, p)
+            && !grazes(from, into, i, into_from_from, &q, p)
             && into.polar.violates(&q, p.free_margin_m, p.free_margin_frac)
         {
             violation += 1;
@@ -90,6 +91,46 @@ fn crosses(
     }
 }
 
+/// Whether `into`'s beam towards `q` (its frame; `from`'s point `i`) runs along the surface
+/// `from` saw the point on, past `Tolerance::grazing_cos`, and `into` itself saw that surface
+/// nearer, where its beams met it less obliquely: its beam can then have passed beside the
+/// surface (a stronger target behind outshining the grazed wall) without contradicting it.
+/// Without the nearer sighting a wrong pose could lay any radial wall along `into`'s beams.
+/// Points on no fitted surface never graze.
+#[inline]
+fn grazes(
+    from: &ScanModel,
+    into: &ScanModel,
+    i: usize,
+    into_from_from: &Pose2,
+    q: &Point2<f64>,
+    p: &Tolerance,
+) -> bool {
+    let (Some(true), Some(n)) = (from.surface.get(i), from.normals.get(i)) else {
+        return false;
+    };
+    let r = q.coords.norm();
+    let n = into_from_from.rotation * n;
+    let off = n.dot(&q.coords);
+    if r < 1e-9 || off.abs() >= p.grazing_cos * r {
+        return false;
+    }
+    // Walk the surface's line from q towards its foot nearest `into`.
+    let along = q.coords - n * off;
+    let steps = (along.norm() / GRAZE_STEP_M) as usize;
+    let into_pts = into.points();
+    (1..steps).any(|k| {
+        let s = q - along * (k as f64 * GRAZE_STEP_M / along.norm());
+        into.grid.nearest(&s).is_some_and(|j| {
+            let seen = into_pts[j];
+            (seen - s).norm() < p.hit_m && n.dot(&(seen - q)).abs() < p.hit_m
+        })
+    })
+}
+
+/// Step of the walk along a grazed surface looking for `into`'s own sighting of it, m.
+const GRAZE_STEP_M: f64 = 0.25;
+
 /// Hit distance and free-space margins of one scoring pass.
 #[derive(Debug, Clone, Copy)]
 struct Tolerance {
@@ -97,6 +138,7 @@ struct Tolerance {
     free_margin_m: f64,
     free_margin_frac: f64,
     free_space_dz_m: f64,
+    grazing_cos: f64,
     violation_weight: f64,
 }
 
@@ -107,6 +149,7 @@ pub fn score(a: &ScanModel, b: &ScanModel, a_from_b: &Pose2, p: &RegisterParams)
         free_margin_m: p.free_margin_m,
         free_margin_frac: p.free_margin_frac,
         free_space_dz_m: p.free_space_dz_m,
+        grazing_cos: p.free_space_grazing_deg.to_radians().cos(),
         violation_weight: p.violation_weight,
     };
     score_with(a, b, a_from_b, &t)
@@ -125,6 +168,7 @@ pub fn score_coarse(
         free_margin_m: p.free_margin_m + p.coarse_slack_m,
         free_margin_frac: p.free_margin_frac,
         free_space_dz_m: p.free_space_dz_m,
+        grazing_cos: p.free_space_grazing_deg.to_radians().cos(),
         violation_weight: p.violation_weight,
     };
     score_with(a, b, a_from_b, &t)
@@ -171,6 +215,52 @@ pub(crate) mod tests {
             }),
             ..model
         }
+    }
+
+    /// Two units of the corridor crossing (`fixtures/plans-crowd/corridor-cross.toml`, no
+    /// crowd): x stands 0.2 m from the wall of the south arm and looks along it, s sees that
+    /// wall from 2–6 m. At the true pose x's beams, grazing the wall, must not contradict
+    /// what s saw on it.
+    #[test]
+    fn a_beam_running_along_a_wall_does_not_contradict_what_another_unit_saw_on_it() {
+        use crate::sim::{Plan, Simulation};
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("fixtures/plans-crowd/corridor-cross.toml");
+        let mut plan = Plan::load(&path).expect("the plan");
+        plan.crowds.clear();
+        let mut sim = Simulation::new(&plan, 1).expect("a simulation");
+        let infos = sim.sensors().to_vec();
+        let mut first: Vec<Option<crate::scan::Scan>> = vec![None; infos.len()];
+        sim.run(0.2, |i, scan| {
+            if let Some(slot) = first.get_mut(i) {
+                slot.get_or_insert(scan);
+            }
+            Ok::<(), std::convert::Infallible>(())
+        })
+        .ok();
+        let p = RegisterParams::default();
+        let unit = |id: &str| {
+            let k = infos.iter().position(|s| s.id == id).expect(id);
+            let info = &infos[k];
+            let scan = first[k].as_ref().expect("a scan");
+            let model = ScanModel::from_scan(scan, info.geometry.as_ref(), &info.mount(), &p);
+            let t = info.truth.expect("truth");
+            (
+                model,
+                crate::geometry::pose2(t.x_m, t.y_m, t.yaw_deg.to_radians()),
+            )
+        };
+        let ((s, site_s), (x, site_x)) = (unit("s"), unit("x"));
+        let truth = site_x.inverse() * site_s;
+        let along = score(&x, &s, &truth, &p).violation();
+        assert!(along < p.max_violation, "violation {along:.2} at the truth");
+        let strict = RegisterParams {
+            free_space_grazing_deg: 90.0,
+            ..p.clone()
+        };
+        let counted = score(&x, &s, &truth, &strict).violation();
+        println!("violation at the truth {along:.2}, with grazing beams counted {counted:.2}");
+        assert!(counted > along + 0.1, "{counted:.2} against {along:.2}");
     }
 
     #[test]
