@@ -400,12 +400,14 @@ fn nobody_walked(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> Option<f64
 }
 
 /// The pair placed by people alone (`"evidence":"walkers"`): where the fit passes the
-/// stricter `alone_*` thresholds, the walls see no free space violated at its pose, and no
-/// more than `max_through_share` of the walkers both saw are seen through there. Where the
+/// stricter `alone_*` thresholds (a rival with too many walks of its own counts only where
+/// the walls' free space or the walkers seen through do not refute it), the walls see no
+/// free space violated at its pose, and no more than `max_through_share` of the walkers
+/// both saw are seen through there. Where the
 /// walls share a view at the walkers' pose (`min_overlap`), they polish it (a walker pose is
 /// biased 10–20 cm by bodies' shapes) and must keep it in the walkers' basin; if they pull it
 /// away, walls and walkers disagree and nothing is placed.
-fn placed_by_walkers(
+pub(crate) fn placed_by_walkers(
     a: &ScanModel,
     b: &ScanModel,
     fit: &WalkerFit,
@@ -413,7 +415,14 @@ fn placed_by_walkers(
     p: &RegisterParams,
 ) -> Option<PairResult> {
     let (ma, mb) = (a.motion.as_ref()?, b.motion.as_ref()?);
-    if !fit.places_alone(&p.walkers) {
+    if !fit.places_alone_but_for_its_rival(&p.walkers) {
+        return None;
+    }
+    let refuted = |pose: &Pose2| {
+        score(a, b, pose, p).violation() > p.max_violation
+            || co_motion(ma, mb, pose, &p.motion).refutes(&p.motion)
+    };
+    if fit.has_rival(&p.walkers) && !fit.rival.is_some_and(|r| refuted(&r)) {
         return None;
     }
     let mut pose = fit.a_from_b;

@@ -56,8 +56,9 @@ pub struct WalkerParams {
     /// Walkers place a pair alone (no wall candidate in their basin, the walls undecided) only
     /// past all of these, stricter than a fit that merely chooses: this many agreeing
     /// sightings over this long and this much floor, a residual this small, a rival of at
-    /// most `alone_max_ambiguity` as many walks ([`WalkerFit::rival_share`]), and their own σ
-    /// within these (m, rad). The σ limit is tight (2 cm) because the bias of a body's shape
+    /// most `alone_max_ambiguity` as many walks ([`WalkerFit::rival_share`]; more only where
+    /// the walls' free space or the walkers seen through refute the rival's pose), and their
+    /// own σ within these (m, rad). The σ limit is tight (2 cm) because the bias of a body's shape
     /// averages out only over many walks: a fit of σ 2.6 cm from ten walks in an open hall,
     /// its rival far behind, was 13 cm off.
     pub alone_min_inliers: usize,
@@ -126,6 +127,8 @@ pub struct WalkerFit {
     /// agreements chance may give (people crossing, a queue); a walk is one person's word.
     pub walks: usize,
     pub runner_up_walks: usize,
+    /// The pose those most walks of any clearly different pose agree with.
+    pub rival: Option<Pose2>,
     /// Of (x, y, yaw).
     pub covariance: Matrix3<f64>,
     /// The pair's pose is this fit's own, placed by the walkers alone (the walls had no
@@ -154,13 +157,24 @@ impl WalkerFit {
     /// Whether the fit is strong enough to place a pair by itself (`alone_*` thresholds):
     /// many simultaneous correspondences, spread over time and floor, with no rival.
     pub fn places_alone(&self, p: &WalkerParams) -> bool {
+        self.places_alone_but_for_its_rival(p) && !self.has_rival(p)
+    }
+
+    /// Whether a clearly different pose has too many walks of its own for the fit to place
+    /// a pair alone (`alone_max_ambiguity`).
+    pub fn has_rival(&self, p: &WalkerParams) -> bool {
+        self.rival_share() >= p.alone_max_ambiguity
+    }
+
+    /// [`places_alone`](Self::places_alone) but for the rival: where something else (the
+    /// walls' free space) rules the rival out, the fit stands alone.
+    pub fn places_alone_but_for_its_rival(&self, p: &WalkerParams) -> bool {
         let (sigma_m, sigma_rad) = pose_sigmas(&self.covariance);
         self.decisive(p)
             && self.inliers >= p.alone_min_inliers
             && self.span_s >= p.alone_min_span_s
             && self.spread_m >= p.alone_min_spread_m
             && self.rms_m <= p.alone_max_rms_m
-            && self.rival_share() < p.alone_max_ambiguity
             && sigma_m <= p.alone_max_sigma_m
             && sigma_rad <= p.alone_max_sigma_rad
     }
@@ -440,11 +454,11 @@ pub fn fit_walkers(
     // A rival's walks count only where the winner does not explain them too: a pose a few
     // degrees off, refined from a subset of the same walkers (a corridor's walkers all far
     // along one line leave such subsets), is the winner's evidence again, not another place.
-    let runner_up_walks = others
+    let (runner_up_walks, rival) = others
         .iter()
-        .map(|(_, _, matched)| rival_walks(&pose, matched, p.inlier_m))
-        .max()
-        .unwrap_or(0);
+        .map(|(_, q, matched)| (rival_walks(&pose, matched, p.inlier_m), *q))
+        .max_by_key(|(walks, _)| *walks)
+        .map_or((0, None), |(walks, q)| (walks, Some(q)));
     let rms_m = (pairs
         .iter()
         .map(|(a, b, _)| (a - pose * b).norm_squared())
@@ -466,6 +480,7 @@ pub fn fit_walkers(
         runner_up,
         walks: walked_together(&pairs).walks,
         runner_up_walks,
+        rival,
         covariance: covariance(&pose, &pairs, rms_m, p),
         alone: false,
     })
@@ -1056,6 +1071,31 @@ mod tests {
     }
 
     #[test]
+    fn a_rival_with_as_many_walks_stops_people_placing_a_pair_alone_unless_it_is_refuted() {
+        use crate::register::pair::placed_by_walkers;
+        let (truth, a, b) = no_wall_pair();
+        let p = crate::register::RegisterParams::default();
+        let fit = crate::register::register_pair(a, b, &p)
+            .walkers
+            .expect("the walkers' fit");
+        let rivalled = |rival: Pose2| WalkerFit {
+            runner_up_walks: fit.walks,
+            rival: Some(rival),
+            alone: false,
+            ..fit.clone()
+        };
+        // A rival where the people walk as well (here the truth itself): nothing is placed.
+        assert!(rivalled(*truth).has_rival(&p.walkers));
+        assert!(placed_by_walkers(a, b, &rivalled(*truth), 0, &p).is_none());
+        // One where the other sensor sees through the people it would lay over its view:
+        // placed, at the fit.
+        let far = truth * pose2(3.0, 1.0, 0.7);
+        let placed = placed_by_walkers(a, b, &rivalled(far), 0, &p).expect("placed");
+        let (dt, _) = pose_error(&placed.a_from_b, truth);
+        assert!(dt < 0.10, "{dt:.3} m");
+    }
+
+    #[test]
     fn a_pair_that_shares_no_wall_is_placed_by_people_alone_and_says_so() {
         let (truth, a, b) = no_wall_pair();
         let p = crate::register::RegisterParams::default();
@@ -1096,6 +1136,7 @@ mod tests {
             runner_up: 0,
             walks: 40,
             runner_up_walks: 0,
+            rival: None,
             covariance,
             alone: false,
         }
@@ -1139,6 +1180,7 @@ mod tests {
         let crowd = WalkerFit {
             runner_up: 160,
             runner_up_walks: 1,
+            rival: None,
             walks: 12,
             ..strong_fit(plain)
         };
@@ -1147,6 +1189,7 @@ mod tests {
         // Four people walking as the rival says are a rival.
         let rival = WalkerFit {
             runner_up_walks: 4,
+            rival: None,
             ..crowd.clone()
         };
         assert!(!rival.places_alone(&p), "{rival:?}");

@@ -628,6 +628,7 @@ fn walked_alone(a_from_b: Pose2) -> crate::register::walkers::WalkerFit {
         runner_up: 20,
         walks: 25,
         runner_up_walks: 1,
+        rival: None,
         covariance: Matrix3::from_diagonal(&nalgebra::Vector3::new(4e-4, 4e-4, 1e-5)),
         alone: true,
     }
