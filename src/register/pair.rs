@@ -400,10 +400,9 @@ fn nobody_walked(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> Option<f64
 }
 
 /// The pair placed by people alone (`"evidence":"walkers"`): where the fit passes the
-/// stricter `alone_*` thresholds (a rival with too many walks of its own counts only where
-/// the walls' free space or the walkers seen through do not refute it), the walls see no
-/// free space violated at its pose, and no more than `max_through_share` of the walkers
-/// both saw are seen through there. Where the
+/// stricter `alone_*` thresholds, the walls see no free space violated at its pose, and no
+/// more than `max_through_share` of the walkers both saw are seen through there; a rival
+/// with too many walks of its own stops it only where the rival passes those two too. Where the
 /// walls share a view at the walkers' pose (`min_overlap`), they polish it (a walker pose is
 /// biased 10–20 cm by bodies' shapes) and must keep it in the walkers' basin; if they pull it
 /// away, walls and walkers disagree and nothing is placed.
@@ -418,11 +417,18 @@ pub(crate) fn placed_by_walkers(
     if !fit.places_alone_but_for_its_rival(&p.walkers) {
         return None;
     }
-    let refuted = |pose: &Pose2| {
-        score(a, b, pose, p).violation() > p.max_violation
-            || co_motion(ma, mb, pose, &p.motion).refutes(&p.motion)
+    // What the placement must pass, and a rival fail: free space no more violated than a
+    // wall match may, and few of the walkers both saw seen through.
+    let fails = |at: &PoseScore, e: &MotionEvidence| {
+        at.violation() > p.max_violation
+            || e.refutes(&p.motion)
+            || e.seen_through as f64 > p.walkers.max_through_share * e.seen as f64
     };
-    if fit.has_rival(&p.walkers) && !fit.rival.is_some_and(|r| refuted(&r)) {
+    if fit.has_rival(&p.walkers)
+        && !fit
+            .rival
+            .is_some_and(|r| fails(&score(a, b, &r, p), &co_motion(ma, mb, &r, &p.motion)))
+    {
         return None;
     }
     let mut pose = fit.a_from_b;
@@ -434,10 +440,7 @@ pub(crate) fn placed_by_walkers(
     }
     let at = score(a, b, &pose, p);
     let e = co_motion(ma, mb, &pose, &p.motion);
-    if at.violation() > p.max_violation
-        || e.refutes(&p.motion)
-        || e.seen_through as f64 > p.walkers.max_through_share * e.seen as f64
-    {
+    if fails(&at, &e) {
         return None;
     }
     let covariance = fit.alone_covariance(&p.walkers);

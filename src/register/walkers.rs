@@ -57,7 +57,7 @@ pub struct WalkerParams {
     /// past all of these, stricter than a fit that merely chooses: this many agreeing
     /// sightings over this long and this much floor, a residual this small, a rival of at
     /// most `alone_max_ambiguity` as many walks ([`WalkerFit::rival_share`]; more only where
-    /// the walls' free space or the walkers seen through refute the rival's pose), and their
+    /// the rival fails the walls' free space or the walkers seen through), and their
     /// own σ within these (m, rad). The σ limit is tight (2 cm) because the bias of a body's shape
     /// averages out only over many walks: a fit of σ 2.6 cm from ten walks in an open hall,
     /// its rival far behind, was 13 cm off.
@@ -167,7 +167,7 @@ impl WalkerFit {
     }
 
     /// [`places_alone`](Self::places_alone) but for the rival: where something else (the
-    /// walls' free space) rules the rival out, the fit stands alone.
+    /// walls' free space, walkers seen through) rules the rival out, the fit stands alone.
     pub fn places_alone_but_for_its_rival(&self, p: &WalkerParams) -> bool {
         let (sigma_m, sigma_rad) = pose_sigmas(&self.covariance);
         self.decisive(p)
