@@ -117,10 +117,12 @@ fn grazes(
     }
     // Walk the surface's line from q towards its foot nearest `into`.
     let along = q.coords - n * off;
-    let steps = (along.norm() / GRAZE_STEP_M) as usize;
+    let length_m = along.norm();
+    let step = along * (GRAZE_STEP_M / length_m);
+    let steps = (length_m / GRAZE_STEP_M) as usize;
     let into_pts = into.points();
     (1..steps).any(|k| {
-        let s = q - along * (k as f64 * GRAZE_STEP_M / along.norm());
+        let s = q - step * k as f64;
         into.grid.nearest(&s).is_some_and(|j| {
             let seen = into_pts[j];
             (seen - s).norm() < p.hit_m && n.dot(&(seen - q)).abs() < p.hit_m
@@ -142,17 +144,23 @@ struct Tolerance {
     violation_weight: f64,
 }
 
+impl Tolerance {
+    /// A refined pose's tolerances, as `p` sets them.
+    fn of(p: &RegisterParams) -> Self {
+        Tolerance {
+            hit_m: p.hit_m,
+            free_margin_m: p.free_margin_m,
+            free_margin_frac: p.free_margin_frac,
+            free_space_dz_m: p.free_space_dz_m,
+            grazing_cos: p.free_space_grazing_deg.to_radians().cos(),
+            violation_weight: p.violation_weight,
+        }
+    }
+}
+
 /// Scores the pose `a_from_b` of B in A's frame.
 pub fn score(a: &ScanModel, b: &ScanModel, a_from_b: &Pose2, p: &RegisterParams) -> PoseScore {
-    let t = Tolerance {
-        hit_m: p.hit_m,
-        free_margin_m: p.free_margin_m,
-        free_margin_frac: p.free_margin_frac,
-        free_space_dz_m: p.free_space_dz_m,
-        grazing_cos: p.free_space_grazing_deg.to_radians().cos(),
-        violation_weight: p.violation_weight,
-    };
-    score_with(a, b, a_from_b, &t)
+    score_with(a, b, a_from_b, &Tolerance::of(p))
 }
 
 /// Scores an unrefined hypothesis: its heading may be a degree off, so hits and free-space
@@ -166,10 +174,7 @@ pub fn score_coarse(
     let t = Tolerance {
         hit_m: p.hit_m + p.coarse_slack_m,
         free_margin_m: p.free_margin_m + p.coarse_slack_m,
-        free_margin_frac: p.free_margin_frac,
-        free_space_dz_m: p.free_space_dz_m,
-        grazing_cos: p.free_space_grazing_deg.to_radians().cos(),
-        violation_weight: p.violation_weight,
+        ..Tolerance::of(p)
     };
     score_with(a, b, a_from_b, &t)
 }
