@@ -402,7 +402,7 @@ pub fn shared_view(a: &ScanModel, b: &ScanModel, a_from_b: &Pose2) -> f64 {
 /// Share of `b`'s points within 10 cm of `a`'s under `a_from_b`, where both sensors face the
 /// surface from the same side (their normals, which point towards each sensor, agree).
 fn share_near(a: &ScanModel, b: &ScanModel, a_from_b: &Pose2) -> f64 {
-    let grid = NearestGrid::new(a.points(), 0.05, 0.1);
+    let grid = &a.grid;
     let pts = b.points();
     if pts.is_empty() {
         return 0.0;

@@ -57,9 +57,10 @@ fn score_dir(
                 overlap += 1;
             }
         }
+        // The grazing walk is the dearest test: asked last, of points that violate.
         if crosses(from, into, &pts[i], &q, p)
-            && !grazes(from, into, i, into_from_from, &q, p)
             && into.polar.violates(&q, p.free_margin_m, p.free_margin_frac)
+            && !grazes(from, into, i, into_from_from, &q, p)
         {
             violation += 1;
         }
