@@ -1,16 +1,14 @@
 //! Pair selection: which pairs of sensors are registered. Most pairs of a large site share no
 //! view, and registering one is the dearest step, so a site starts from each sensor's most
 //! likely partners (`descriptor`'s ranking) and widens in rounds. Two pairs registered
-//! through one sensor propose the pair that closes their triangle; then the groups alone
-//! (while that binds more sensors), and then the stages (joins), say where every sensor
-//! stands: a sensor still unplaced (or, before the joins, in no group) tries the sensors
-//! posed beside those it already shares view with, where a candidate of that pair would put
-//! them in its view, and when there are none, the next partners in its ranking (twice as many
-//! each round, down to every other sensor); two sensors placed (or in one group) are
-//! registered when their scans overlap where the site puts them, which adds the cycles and
-//! pairs that check them. It stops when a round proposes nothing new. Every other pair is
-//! skipped, and why.
-
+//! through one sensor propose the pair that closes their triangle; then the groups alone, and
+//! once nothing more comes of them the stages (joins), say where every sensor stands: a
+//! sensor still unplaced tries the sensors posed beside those it already shares view with,
+//! where a candidate of that pair would put them in its view, and when there are none, the
+//! next partners in its ranking (twice as many each round, down to every other sensor); two
+//! sensors placed (or in one group) are registered when their scans overlap where the site
+//! puts them, which adds the cycles and pairs that check them. It stops when a round
+//! proposes nothing new. Every other pair is skipped, and why.
 use super::SensorInput;
 use super::descriptor::{ViewDescriptor, rank_partners};
 use crate::geometry::Pose2;
