@@ -400,7 +400,8 @@ pub fn shared_view(a: &ScanModel, b: &ScanModel, a_from_b: &Pose2) -> f64 {
 }
 
 /// Share of `b`'s points within 10 cm of `a`'s under `a_from_b`, where both sensors face the
-/// surface from the same side (their normals, which point towards each sensor, agree).
+/// surface from the same side (their normals, which point towards each sensor, agree). `a`'s
+/// own lookup grid finds the nearest point: a large site asks this of thousands of pairs.
 fn share_near(a: &ScanModel, b: &ScanModel, a_from_b: &Pose2) -> f64 {
     let grid = &a.grid;
     let pts = b.points();

@@ -9,6 +9,7 @@
 //! sensors placed (or in one group) are registered when their scans overlap where the site
 //! puts them, which adds the cycles and pairs that check them. It stops when a round
 //! proposes nothing new. Every other pair is skipped, and why.
+
 use super::SensorInput;
 use super::descriptor::{ViewDescriptor, rank_partners};
 use crate::geometry::Pose2;
