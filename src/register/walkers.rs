@@ -57,8 +57,8 @@ pub struct WalkerParams {
     /// past all of these, stricter than a fit that merely chooses: this many agreeing
     /// sightings over this long and this much floor, a residual this small, a rival of at
     /// most `alone_max_ambiguity` as many walks ([`WalkerFit::rival_share`]; more only where
-    /// the rival fails the walls' free space or the walkers seen through), and their
-    /// own σ within these (m, rad). The σ limit is tight (2 cm) because the bias of a body's shape
+    /// the rival fails the walls' free space or the walkers seen through), and their own σ
+    /// within these (m, rad). The σ limit is tight (2 cm) because the bias of a body's shape
     /// averages out only over many walks: a fit of σ 2.6 cm from ten walks in an open hall,
     /// its rival far behind, was 13 cm off.
     pub alone_min_inliers: usize,

@@ -219,6 +219,11 @@ impl<'a> PairSelection<'a> {
             if Some(g) == own {
                 continue;
             }
+            let beside: Vec<(usize, Pose2)> = posed
+                .iter()
+                .filter(|&&(w, gw, _)| gw == g && w != u)
+                .map(|&(w, _, pw)| (w, pw))
+                .collect();
             for c in &r.candidates {
                 let u_from_v = if u < v {
                     c.a_from_b
@@ -226,7 +231,7 @@ impl<'a> PairSelection<'a> {
                     c.a_from_b.inverse()
                 };
                 let u_from_frame = u_from_v * pv.inverse();
-                for &(w, _, pw) in posed.iter().filter(|&&(w, gw, _)| gw == g && w != u) {
+                for &(w, pw) in &beside {
                     let key = (u.min(w), u.max(w));
                     if !self.results.contains_key(&key)
                         && !near.contains(&key)
