@@ -15,10 +15,10 @@
 use nalgebra::{Matrix2, Matrix3};
 
 use crate::geometry::{Pose2, pose_error, pose2, yaw_rad};
-use crate::register::icp::refine_guarded;
+use crate::register::icp::refine_scored;
 use rayon::prelude::*;
 
-use crate::register::score::{PoseScore, score, score_coarse};
+use crate::register::score::{PoseScore, score_coarse};
 use crate::register::site::SiteParams;
 use crate::register::{RegisterParams, ScanModel};
 
@@ -183,12 +183,10 @@ fn best_fit(
             best_seeds.push(pose);
         }
     }
-    let guard = |pose: &Pose2| score(a, moved, pose, p).value;
     best_seeds
         .par_iter()
         .map(|init| {
-            let icp = refine_guarded(a, moved, init, p, p.class_aware, Some(&guard));
-            let s = score(a, moved, &icp.a_from_b, p);
+            let (icp, s) = refine_scored(a, moved, init, p, p.class_aware);
             (s, icp)
         })
         .max_by(|x, y| x.0.value.total_cmp(&y.0.value))

@@ -3,7 +3,7 @@
 //! ICP, then a verdict: registered with a covariance, or not registered with the reason.
 
 use super::hypotheses::hypotheses;
-use super::icp::{IcpResult, refine_guarded};
+use super::icp::{IcpResult, refine_scored};
 use super::matching::match_score;
 use super::motion::{MotionEvidence, co_motion};
 use super::score::{PoseScore, score, score_coarse};
@@ -183,12 +183,11 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
     let mut refined: Vec<(Candidate, IcpResult)> = seeds
         .par_iter()
         .map(|seed| {
-            let guard = |pose: &Pose2| score(a, b, pose, p).value;
-            let icp = refine_guarded(a, b, seed, p, p.class_aware, Some(&guard));
+            let (icp, score) = refine_scored(a, b, seed, p, p.class_aware);
             (
                 Candidate {
                     a_from_b: icp.a_from_b,
-                    score: score(a, b, &icp.a_from_b, p),
+                    score,
                     // Linearised at the end, for the distinct candidates only.
                     covariance: Matrix3::zeros(),
                 },
@@ -517,14 +516,13 @@ pub(super) fn propose_from_walkers(
     if distinct.len() != evidence.len() {
         return;
     }
-    let guard = |pose: &Pose2| score(a, b, pose, p).value;
-    let icp = refine_guarded(a, b, &fit.a_from_b, p, p.class_aware, Some(&guard));
+    let (icp, score) = refine_scored(a, b, &fit.a_from_b, p, p.class_aware);
     if !fit.near(&icp.a_from_b, &p.walkers) {
         return;
     }
     let candidate = Candidate {
         a_from_b: icp.a_from_b,
-        score: score(a, b, &icp.a_from_b, p),
+        score,
         covariance: Matrix3::zeros(),
     };
     // Best first: the first in the basin is the best the walls found there.
