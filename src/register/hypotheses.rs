@@ -188,12 +188,14 @@ impl Accumulator {
             }
         }
         let mut summed = vec![0.0f32; (y1 - y0 + 3) * sw];
-        let mut top = 0.0f32;
-        for (r, out) in summed
+        // Each row's largest sum: rows wholly below the floor hold no peak and are not scanned.
+        let mut row_top = vec![0.0f32; y1 - y0 + 1];
+        for ((r, out), row_top) in summed
             .chunks_exact_mut(sw)
             .skip(1)
             .take(y1 - y0 + 1)
             .enumerate()
+            .zip(row_top.iter_mut())
         {
             let (above, here, below) = (
                 &rows[r * ww..(r + 1) * ww],
@@ -204,13 +206,17 @@ impl Accumulator {
             for (((o, a), m), b) in out.iter_mut().zip(above).zip(here).zip(below) {
                 *o = a + m + b;
             }
-            top = out.iter().copied().fold(top, f32::max);
+            *row_top = out.iter().copied().fold(0.0, f32::max);
         }
+        let top = row_top.iter().copied().fold(0.0, f32::max);
         // Only local maxima well above nothing can be peaks: sorting just those keeps this
         // cheap on big sites.
         let floor = (PEAK_FLOOR * top).max(f32::MIN_POSITIVE);
         let mut order: Vec<usize> = Vec::new();
         for sy in 1..=y1 - y0 + 1 {
+            if row_top[sy - 1] < floor {
+                continue;
+            }
             for sx in 1..=ww {
                 let k = sy * sw + sx;
                 let v = summed[k];

@@ -557,9 +557,10 @@ impl JoinContext<'_> {
         // One placement per cluster of proposals that agree (the best-scoring one stands for it).
         let mut placements: Vec<(Pose2, Vec<(usize, usize)>)> = Vec::new();
         for (_, pose, source) in proposals {
+            // Position first: the heading costs two arctangents, and most proposals lie apart.
             let same = placements.iter_mut().find(|(q, _)| {
-                let (dt, dyaw) = pose_error(q, &pose);
-                dt <= self.sp.confirm_m && dyaw <= self.sp.confirm_rad
+                (q.translation.vector - pose.translation.vector).norm() <= self.sp.confirm_m
+                    && pose_error(q, &pose).1 <= self.sp.confirm_rad
             });
             match same {
                 Some((_, sources)) => sources.push(source),

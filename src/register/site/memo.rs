@@ -6,7 +6,7 @@
 
 use crate::geometry::Pose2;
 use crate::register::score::PoseScore;
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 use std::sync::Mutex;
 
 /// (sensor in whose frame, other sensor, the other's pose there, bit for bit).
@@ -15,7 +15,7 @@ type Key = (usize, usize, [u64; 4]);
 /// Scores by pair and relative pose, for one set of sensors and one `RegisterParams`.
 #[derive(Default)]
 pub(super) struct ScoreMemo {
-    scores: Mutex<HashMap<Key, PoseScore>>,
+    scores: Mutex<FxHashMap<Key, PoseScore>>,
 }
 
 fn key(i: usize, j: usize, i_from_j: &Pose2) -> Key {
