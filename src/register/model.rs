@@ -86,18 +86,39 @@ pub struct PolarRanges {
     /// Per `sector`, the farthest free range any point there can be tested against (−∞:
     /// none): a point beyond it violates nothing, found without an arctangent.
     sector_max_m: Vec<f64>,
+    /// Per `CELLS` step of the diamond angle, the bin of every bearing in it, or `SPLIT` where
+    /// the step straddles a bin's edge: most points find their bin without an arctangent.
+    cell_bin: Vec<u16>,
 }
+
+/// Steps of the diamond angle in `PolarRanges::cell_bin`: at the finest bins (0.25°) about
+/// one point in ten lands in a step that straddles two bins.
+const CELLS: usize = 4 * 4096;
+
+/// A diamond-angle step whose bearings fall in more than one bin.
+const SPLIT: u16 = u16::MAX;
 
 /// Sectors of `PolarRanges::sector_max_m`.
 const SECTORS: usize = 64;
 
-/// A point's sector: its "diamond angle" (monotonic in the bearing, 0–4 from +x round
-/// counter-clockwise) in `SECTORS` equal steps. Cheap, and exact enough: `PolarRanges`
-/// credits every bin to the sectors either side too.
+/// A point's sector: its diamond angle in `SECTORS` equal steps. Cheap, and exact enough:
+/// `PolarRanges` credits every bin to the sectors either side too.
 #[inline]
 fn sector(q: &Point2<f64>) -> usize {
+    sector_of(diamond(q))
+}
+
+#[inline]
+fn sector_of(d: f64) -> usize {
+    ((d * (SECTORS / 4) as f64) as usize).min(SECTORS - 1)
+}
+
+/// The "diamond angle" of a direction: monotonic in the bearing, 0–4 from +x round
+/// counter-clockwise, with one division and no arctangent.
+#[inline]
+fn diamond(q: &Point2<f64>) -> f64 {
     let (x, y) = (q.x, q.y);
-    let d = if y >= 0.0 {
+    if y >= 0.0 {
         if x >= 0.0 {
             y / (x + y)
         } else {
@@ -107,8 +128,18 @@ fn sector(q: &Point2<f64>) -> usize {
         2.0 - y / (-x - y)
     } else {
         3.0 + x / (x - y)
-    };
-    ((d * (SECTORS / 4) as f64) as usize).min(SECTORS - 1)
+    }
+}
+
+/// A direction of diamond angle `d` (taken modulo 4): `diamond`'s inverse.
+fn direction_of(d: f64) -> Point2<f64> {
+    let d = d.rem_euclid(4.0);
+    match d {
+        d if d < 1.0 => Point2::new(1.0 - d, d),
+        d if d < 2.0 => Point2::new(1.0 - d, 2.0 - d),
+        d if d < 3.0 => Point2::new(d - 3.0, 2.0 - d),
+        d => Point2::new(d - 3.0, d - 4.0),
+    }
 }
 
 impl PolarRanges {
@@ -154,6 +185,42 @@ impl PolarRanges {
             bin_rad,
             ranges_m,
             sector_max_m,
+            cell_bin: Self::cell_bins(bin_rad, bins),
+        }
+    }
+
+    /// `cell_bin`: a step's bin where the bearings just outside both its ends (by far more
+    /// than rounding) share one, so that every point in it does; the ±π seam always splits.
+    fn cell_bins(bin_rad: f64, bins: usize) -> Vec<u16> {
+        const OUTSIDE: f64 = 1e-9;
+        let per = (CELLS / 4) as f64;
+        let bin_at = |d: f64| {
+            let q = direction_of(d);
+            Self::bin_of(bin_rad, bins, q.y.atan2(q.x))
+        };
+        (0..CELLS)
+            .map(|c| {
+                let (lo, hi) = (
+                    bin_at(c as f64 / per - OUTSIDE),
+                    bin_at((c + 1) as f64 / per + OUTSIDE),
+                );
+                if lo == hi && lo < SPLIT as usize {
+                    lo as u16
+                } else {
+                    SPLIT
+                }
+            })
+            .collect()
+    }
+
+    /// The bearing bin of `q` (of diamond angle `d`): from its step when the step lies in one
+    /// bin, else by the arctangent.
+    #[inline]
+    fn bin_at(&self, q: &Point2<f64>, d: f64) -> usize {
+        let cell = ((d * (CELLS / 4) as f64) as usize).min(CELLS - 1);
+        match self.cell_bin[cell] {
+            SPLIT => Self::bin_of(self.bin_rad, self.ranges_m.len(), q.y.atan2(q.x)),
+            b => b as usize,
         }
     }
 
@@ -174,13 +241,14 @@ impl PolarRanges {
         if r < 0.2 {
             return false;
         }
-        // Beyond anything its sector saw: nothing nearer to compare with (no arctangent).
-        let far = self.sector_max_m[sector(q)];
+        // Beyond anything its sector saw: nothing nearer to compare with.
+        let d = diamond(q);
+        let far = self.sector_max_m[sector_of(d)];
         if r >= far - margin_m - margin_frac * r {
             return false;
         }
         let bins = self.ranges_m.len();
-        let b = Self::bin_of(self.bin_rad, bins, q.y.atan2(q.x));
+        let b = self.bin_at(q, d);
         let seen = [(b + bins - 1) % bins, b, (b + 1) % bins]
             .iter()
             .map(|&k| self.ranges_m.get(k).copied().unwrap_or(f32::INFINITY))
@@ -468,5 +536,51 @@ mod tests {
             }
         }
         assert!(violations > 1000, "{violations}");
+    }
+
+    #[test]
+    fn a_point_finds_the_bin_its_bearing_falls_in_without_an_arctangent() {
+        // Random bearings, bearings within rounding of every bin edge and of the ±π seam, and
+        // the axes: the step's bin is the arctangent's wherever the step gives one.
+        use rand::{Rng, SeedableRng};
+        for bin_rad in [
+            0.25f64.to_radians(),
+            0.3515625f64.to_radians(),
+            1f64.to_radians(),
+        ] {
+            let polar = PolarRanges::new(&[], bin_rad);
+            let bins = polar.ranges_m.len();
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+            let mut bearings: Vec<f64> = (0..200_000).map(|_| rng.random_range(-PI..=PI)).collect();
+            for k in 0..=bins {
+                let edge = k as f64 * bin_rad - PI;
+                bearings.extend([-2e-15, -1e-16, 0.0, 1e-16, 2e-15].map(|e| edge + e));
+            }
+            let mut split = 0;
+            for bearing in bearings {
+                for r in [0.5, 7.0, 31.0] {
+                    let q = Point2::new(r * bearing.cos(), r * bearing.sin());
+                    let d = diamond(&q);
+                    let want = PolarRanges::bin_of(bin_rad, bins, q.y.atan2(q.x));
+                    assert_eq!(polar.bin_at(&q, d), want, "{q} at {bin_rad}");
+                    split += (polar.cell_bin[((d * (CELLS / 4) as f64) as usize).min(CELLS - 1)]
+                        == SPLIT) as usize;
+                }
+            }
+            for q in [
+                (1.0f64, 0.0f64),
+                (0.0, 1.0),
+                (-1.0, 0.0),
+                (-1.0, -0.0),
+                (0.0, -1.0),
+                (1.0, -0.0),
+            ] {
+                let q = Point2::new(q.0, q.1);
+                let want = PolarRanges::bin_of(bin_rad, bins, q.y.atan2(q.x));
+                assert_eq!(polar.bin_at(&q, diamond(&q)), want, "{q}");
+            }
+            // Most points need no arctangent.
+            assert!(split < 600_000 / 4, "{split}");
+        }
     }
 }
