@@ -92,7 +92,7 @@ pub struct Args {
     #[arg(long)]
     pub site_compare: bool,
     /// Pair selection for the sites: register each sensor's K most alike views first
-    /// (`SiteParams::partners`; default: every pair).
+    /// (`SiteParams::partners`, default 8; a K of the site's size or more registers every pair).
     #[arg(long)]
     pub partners: Option<usize>,
     /// Write each simulated site's plan (TOML, as `simulate --plan` reads it) to this folder as

@@ -21,7 +21,7 @@ use crate::register::{PairResult, RegisterParams, register_pair};
 use rayon::prelude::*;
 use std::collections::BTreeMap;
 
-/// Partners tried first when `SiteParams::partners` does not say (every pair).
+/// Partners tried first: `SiteParams::partners`, at most this many.
 const FIRST_PARTNERS: usize = 8;
 
 /// Where a sensor added to a placed site stands, and the pairs it took.

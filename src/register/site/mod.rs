@@ -125,17 +125,16 @@ pub struct SiteParams {
     pub confirming_pairs: usize,
     /// Pair selection (`pairs`): register first only each sensor's this many most alike
     /// views, the rest only where sensors stay unplaced or the site puts two sensors' views
-    /// over each other. Off (every pair) by default: it saves time only on the largest sites.
-    /// Sites of up to this many + 1 sensors register every pair either way. On generated
-    /// concourses (eval seeds 1–3, `--partners 8 --site-compare`) it placed exactly what
-    /// every pair placed, to 0.00 mm (installed at 25, 50 and 100, dropped at random at 25),
-    /// but took 1.3–1.7 s against 1.4–1.7 s at 25 scanners and 5.4–9.7 s against 6.3–7.9 s
-    /// at 50; at 100 (seed 1) 24.3 s against 32.6 s, registering 3229 of 4950 pairs (now
-    /// 15.2 s against 24.2 s, 3014 pairs, on the same 2-core machine). Its
-    /// ranking is the weak part: of the pairs sharing ≥ 30 % of their view, the first 8
-    /// partners hold 25 % at 100 scanners (a concourse's bays look alike). The joins, not
-    /// the pairs, were its cost (69 s at 100): rounds now close the triangles of registered
-    /// pairs and widen from the groups alone, and join only when neither proposes a pair.
+    /// over each other. Sites of up to this many + 1 sensors register every pair either way.
+    /// On generated concourses (`eval --only site --floor concourse --site-compare`, this
+    /// 2-core machine) it placed exactly what every pair placed, to 0.00 mm: installed at 25
+    /// (seeds 1–3, 75/75), 50 (seeds 1–2, 96/100) and 100 (seed 1, 100/100), dropped at random
+    /// at 25 (26/75, none wrong); at 100 it registers 3011 of 4950 pairs, 8.6–9.3 s against
+    /// 13.4 s. Its ranking is the weak part: of the pairs sharing ≥ 30 % of their view, the
+    /// first 8 partners hold 25 % at 100 scanners (a concourse's bays look alike). Of the
+    /// 3011 pairs there, 544 are first partners, about 350 close triangles, 1070 try sensors
+    /// posed beside a neighbour and 970 go further down a ranking. `usize::MAX` registers
+    /// every pair.
     pub partners: usize,
 }
 
@@ -153,7 +152,7 @@ impl Default for SiteParams {
             join_min_strength: 0.3,
             conflict_dz_m: 0.0,
             confirming_pairs: 3,
-            partners: usize::MAX,
+            partners: 8,
         }
     }
 }
