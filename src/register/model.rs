@@ -131,6 +131,12 @@ fn diamond(q: &Point2<f64>) -> f64 {
     }
 }
 
+/// The `CELLS` step of diamond angle `d`.
+#[inline]
+fn cell_of(d: f64) -> usize {
+    ((d * (CELLS / 4) as f64) as usize).min(CELLS - 1)
+}
+
 /// A direction of diamond angle `d` (taken modulo 4): `diamond`'s inverse.
 fn direction_of(d: f64) -> Point2<f64> {
     let d = d.rem_euclid(4.0);
@@ -217,8 +223,7 @@ impl PolarRanges {
     /// bin, else by the arctangent.
     #[inline]
     fn bin_at(&self, q: &Point2<f64>, d: f64) -> usize {
-        let cell = ((d * (CELLS / 4) as f64) as usize).min(CELLS - 1);
-        match self.cell_bin[cell] {
+        match self.cell_bin[cell_of(d)] {
             SPLIT => Self::bin_of(self.bin_rad, self.ranges_m.len(), q.y.atan2(q.x)),
             b => b as usize,
         }
@@ -563,8 +568,7 @@ mod tests {
                     let d = diamond(&q);
                     let want = PolarRanges::bin_of(bin_rad, bins, q.y.atan2(q.x));
                     assert_eq!(polar.bin_at(&q, d), want, "{q} at {bin_rad}");
-                    split += (polar.cell_bin[((d * (CELLS / 4) as f64) as usize).min(CELLS - 1)]
-                        == SPLIT) as usize;
+                    split += (polar.cell_bin[cell_of(d)] == SPLIT) as usize;
                 }
             }
             for q in [
