@@ -18,7 +18,7 @@ const MAX_STEP_RAD: f64 = 0.026;
 const STILL_M: f64 = 1e-3;
 const STILL_RAD: f64 = 2e-4;
 /// Scored ICP stops after this many iterations at the narrowest gate without a better score.
-/// On a 100-scanner concourse the best iterate came by the sixth in 3 of 4 refinements. With
+/// On a 25-scanner concourse the best iterate came by the sixth in 3 of 4 refinements. With
 /// it, `eval`'s sites placed the same and its held-out pairs one more, a fifth faster.
 const PATIENCE: usize = 5;
 
