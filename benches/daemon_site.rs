@@ -12,7 +12,8 @@
 //! SCIP reply), newest scan in → `TRACKS` out at the `tracks` watcher likewise, and each
 //! sensor's scan rate. Targets: < 1 core, < 1 GB, frames p99 ≤ 2 ms, `TRACKS` p99 ≤ 5 ms.
 //!
-//! The emulators' own CPU and memory are this process's, not the daemon's.
+//! The emulators' own CPU and memory are this process's, not the daemon's; they run at a lower
+//! priority (`daemon::priority`), as hardware on the wire takes none of the daemon's CPU.
 //!
 //! Run: `cargo bench --bench daemon_site` (`SCANFUSE_BIN` picks the daemon binary; default
 //! the one cargo built for the bench).
@@ -25,7 +26,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use scanfuse::daemon::protocol::Message;
-use scanfuse::emulator::{Emulator, EmulatorConfig};
+use scanfuse::emulator::{Emulator, EmulatorConfig, Gated, ReplayGate};
 
 type Error = Box<dyn std::error::Error>;
 
@@ -115,11 +116,28 @@ fn main() -> Result<(), Error> {
     let file = common::concourse(&bin, n, rec_s, crowd)?;
     let rec = scanfuse::record::read(&file)?;
 
-    // The emulators: one loopback port each, on this process's runtime.
+    // The emulators: one loopback port each, on this process's runtime. They stand in for
+    // hardware that takes no CPU from the daemon's host, so they give way to it: their 100
+    // scans encoded every 25 ms would otherwise queue the daemon's threads behind them.
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
+        .on_thread_start(scanfuse::daemon::priority::lower_this_thread)
         .enable_all()
         .build()?;
+    // One clock for all of them, as `scanfuse run --replay` has: each sensor scans at its
+    // recorded instants, so the units keep the phases the simulator gave them (real units
+    // free-run) instead of all starting their loop the moment the daemon asks.
+    let (mut origin_ns, mut last_ns) = (u64::MAX, 0);
+    for info in &rec.sensors {
+        let scans = rec.scans_of(&info.id);
+        if let (Some(first), Some(last)) = (scans.first(), scans.last()) {
+            origin_ns = origin_ns.min(first.stamp_ns);
+            last_ns = last_ns.max(last.stamp_ns);
+        }
+    }
+    let gate = ReplayGate::new(rec.sensors.len(), Some(1.0), None);
+    // The slowest unit's period past the last scan: every recording loops in step.
+    let pass_ns = last_ns.saturating_sub(origin_ns) + 50_000_000;
     let mut ports = Vec::new();
     for info in &rec.sensors {
         let emulator = Emulator::new(
@@ -127,6 +145,12 @@ fn main() -> Result<(), Error> {
             rec.scans_of(&info.id),
             EmulatorConfig {
                 looping: true,
+                gate: Some(Gated {
+                    gate: gate.clone(),
+                    id: info.id.clone(),
+                    origin_ns,
+                    pass_ns,
+                }),
                 ..EmulatorConfig::default()
             },
         )?;

@@ -23,6 +23,7 @@ pub mod pipeline;
 pub mod pipeline_fuse;
 pub mod pipeline_register;
 pub mod pipeline_track;
+pub mod priority;
 pub mod protocol;
 pub mod queue;
 pub mod rate;

@@ -59,12 +59,23 @@ pub fn scan_frame(s: &PosedScan, project: &ProjectParams) -> FrameScan {
     }
 }
 
+/// The [`GRID_UPDATE_S`] window a scan's stamp falls in for sensor `index`: a sensor's rays
+/// enter the grid once per window. Each sensor's windows are shifted by its own phase so that
+/// a hundred sensors' rays (most of the fuser's work) are spread over the period instead of
+/// all landing on one pass.
+fn grid_window(stamp_ns: u64, index: u16) -> u64 {
+    const GOLDEN: f64 = 0.618_033_988_749_895;
+    let period_ns = (GRID_UPDATE_S * 1e9) as u64;
+    let phase_ns = ((index as f64 * GOLDEN).fract() * period_ns as f64) as u64;
+    (stamp_ns + phase_ns) / period_ns
+}
+
 /// What one sensor contributed to the map, under the pose it had.
 struct SensorMap {
     site_from_sensor: Pose3,
     grid: OccupancyGrid,
-    /// Stamp of the last scan whose rays entered `grid`.
-    grid_stamp_ns: Option<u64>,
+    /// The update window ([`grid_window`]) of the last scan whose rays entered `grid`.
+    grid_window: Option<u64>,
     /// Its latest scan's points (the sensor's part of the fused cloud).
     points: Vec<TaggedPoint>,
 }
@@ -122,22 +133,21 @@ impl Fuser {
                         tracing::debug!(sensor = %s.id, moved_m, "new pose: its grid starts again");
                         map.site_from_sensor = s.site_from_sensor;
                         map.grid = OccupancyGrid::new(self.params);
-                        map.grid_stamp_ns = None;
+                        map.grid_window = None;
                     }
                     map
                 }
                 None => self.sensors.entry(s.id.clone()).or_insert(SensorMap {
                     site_from_sensor: s.site_from_sensor,
                     grid: OccupancyGrid::new(self.params),
-                    grid_stamp_ns: None,
+                    grid_window: None,
                     points: Vec::new(),
                 }),
             };
-            let due = map
-                .grid_stamp_ns
-                .is_none_or(|t| s.scan.stamp_ns.saturating_sub(t) as f64 >= GRID_UPDATE_S * 1e9);
+            let window = grid_window(s.scan.stamp_ns, s.index);
+            let due = map.grid_window != Some(window);
             if due {
-                map.grid_stamp_ns = Some(s.scan.stamp_ns);
+                map.grid_window = Some(window);
             }
             let site_from_sensor = map.site_from_sensor.planar();
             let origin = site_from_sensor.translation.vector.into();
@@ -363,6 +373,31 @@ mod tests {
         fuser.integrate(&[posed("a", 0, 2.0, 7.0, 0.0, 0.0)]);
         assert_eq!(fuser.grid().cell_at(Point2::new(3.0, 8.0)), Cell::Unknown);
         assert!(fuser.points().iter().all(|p| p.sensor == 0));
+    }
+
+    #[test]
+    fn a_hundred_sensors_rays_enter_the_grid_spread_over_the_period() {
+        let mut fuser = Fuser::new(&PublishConfig::default());
+        let scans = |t: f64| -> Vec<PosedScan> {
+            (0..100)
+                .map(|i| posed(&format!("s{i}"), i, 2.0, t, 0.0, i as f64))
+                .collect()
+        };
+        let windows =
+            |f: &Fuser| -> Vec<Option<u64>> { f.sensors.values().map(|m| m.grid_window).collect() };
+        fuser.integrate(&scans(10.0));
+        let mut before = windows(&fuser);
+        // Passes at 10 Hz: each takes about a fifth of the sensors' rays, not all or none.
+        for k in 1..=10 {
+            fuser.integrate(&scans(10.0 + 0.1 * k as f64));
+            let now = windows(&fuser);
+            let updated = before.iter().zip(&now).filter(|(a, b)| a != b).count();
+            assert!(
+                (12..=28).contains(&updated),
+                "{updated} grids took rays on pass {k}"
+            );
+            before = now;
+        }
     }
 
     #[test]

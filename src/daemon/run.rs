@@ -537,7 +537,10 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
     });
     std::thread::Builder::new()
         .name("registration".into())
-        .spawn(move || run_worker(worker_pipeline, queue_rx, command_rx, registrar, consumed))?;
+        .spawn(move || {
+            super::priority::lower_this_thread();
+            run_worker(worker_pipeline, queue_rx, command_rx, registrar, consumed)
+        })?;
 
     let fuser_stop = Arc::new(AtomicBool::new(false));
     let fuser_thread = {
@@ -548,6 +551,7 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
             .name("fuser".into())
             .spawn(move || {
                 // Frames go to watchers as scans arrive; this pass only feeds the map.
+                super::priority::lower_this_thread();
                 while !stop.load(Ordering::Relaxed) {
                     let scans = pipeline.posed_scans();
                     pipeline

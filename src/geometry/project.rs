@@ -1,6 +1,9 @@
 //! Scan → points (METHOD §1): exact SCIP step angles when the sensor's PP layout is known,
 //! otherwise the scan's own start/end angles; tilted-mount projection and floor-hit removal.
 
+use std::cell::RefCell;
+use std::sync::Arc;
+
 use crate::scan::{Scan, ScanGeometry};
 use nalgebra::Point2;
 
@@ -65,6 +68,42 @@ pub fn beam_angles_rad(scan: &Scan, geometry: Option<&ScanGeometry>) -> Vec<f64>
     (0..n).map(|i| scan.angle_of_index_rad(i)).collect()
 }
 
+/// `sin_cos` of every beam's direction ([`beam_angles_rad`]). A site's scans share a few
+/// layouts, and the sines were a quarter of the daemon's CPU at 100 sensors, so each thread
+/// keeps the tables of the last [`LAYOUTS`] layouts it met: the same numbers, computed once.
+pub fn beam_directions(scan: &Scan, geometry: Option<&ScanGeometry>) -> Directions {
+    type Key = (usize, u64, u64, Option<(u32, u32)>);
+    thread_local! {
+        static TABLES: RefCell<Vec<(Key, Directions)>> = const { RefCell::new(Vec::new()) };
+    }
+    let key: Key = (
+        scan.ranges_m.len(),
+        scan.start_angle_rad.to_bits(),
+        scan.end_angle_rad.to_bits(),
+        geometry.map(|g| (g.ares, g.afrt)),
+    );
+    TABLES.with_borrow_mut(|tables| {
+        if let Some(at) = tables.iter().position(|(k, _)| *k == key) {
+            return tables[at].1.clone();
+        }
+        let table: Directions = beam_angles_rad(scan, geometry)
+            .into_iter()
+            .map(f64::sin_cos)
+            .collect();
+        if tables.len() == LAYOUTS {
+            tables.remove(0);
+        }
+        tables.push((key, table.clone()));
+        table
+    })
+}
+
+/// `(sin, cos)` of each beam's direction, in scan order.
+pub type Directions = Arc<[(f64, f64)]>;
+
+/// Beam layouts whose direction tables a thread keeps.
+const LAYOUTS: usize = 8;
+
 /// Projects a scan's returns into the sensor's horizontal plane (eq. 16): x = d cosθ cosφ,
 /// y = d sinθ, z = h + d cosθ sinφ. Ranges outside the layout's DMIN..DMAX (or past
 /// `max_range_m`) are "no return"; on a known-height tilted mount, hits with z below
@@ -75,7 +114,7 @@ pub fn project_scan(
     mount: &Mount,
     params: &ProjectParams,
 ) -> Vec<ScanPoint> {
-    let angles = beam_angles_rad(scan, geometry);
+    let directions = beam_directions(scan, geometry);
     let (dmin_m, mut dmax_m) = match geometry {
         Some(g) => (g.dmin_mm as f64 / 1000.0, g.dmax_mm as f64 / 1000.0),
         None => (0.0, f64::INFINITY),
@@ -84,14 +123,13 @@ pub fn project_scan(
     let (sin_pitch, cos_pitch) = mount.pitch_rad.sin_cos();
     scan.ranges_m
         .iter()
-        .zip(angles)
+        .zip(directions.iter())
         .enumerate()
-        .filter_map(|(beam, (&range, angle))| {
+        .filter_map(|(beam, (&range, &(s, c)))| {
             let d = range as f64;
             if !d.is_finite() || d <= 0.0 || d < dmin_m || d >= dmax_m {
                 return None;
             }
-            let (s, c) = angle.sin_cos();
             let z_m = mount.height_m.map(|h| h + d * c * sin_pitch);
             if mount.pitch_rad != 0.0 && z_m.is_some_and(|z| z < params.floor_margin_m) {
                 return None;
@@ -133,6 +171,28 @@ mod tests {
         assert_eq!(angles.len(), n);
         for (i, a) in angles.iter().enumerate() {
             assert_eq!(*a, g.angle_of_step_rad(g.amin + i as u32));
+        }
+    }
+
+    #[test]
+    fn each_layout_gets_its_own_direction_table_however_many_pass_through() {
+        let g = ScanGeometry::UTM_30LX_EW;
+        let utm = scan_with(
+            vec![1.0; g.step_count()],
+            g.angle_of_step_rad(g.amin),
+            g.angle_of_step_rad(g.amax),
+        );
+        // More layouts than a thread keeps, interleaved with the UTM's: every answer is still
+        // its own layout's.
+        for k in 0..3 * LAYOUTS {
+            let other = scan_with(vec![1.0; 91 + k], -1.0 - 0.01 * k as f64, 1.0);
+            for (scan, geometry) in [(&utm, Some(&g)), (&other, None), (&other, Some(&g))] {
+                let want: Vec<(f64, f64)> = beam_angles_rad(scan, geometry)
+                    .into_iter()
+                    .map(f64::sin_cos)
+                    .collect();
+                assert_eq!(*beam_directions(scan, geometry), *want);
+            }
         }
     }
 
