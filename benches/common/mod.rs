@@ -59,6 +59,7 @@ pub fn ticks_per_s() -> f64 {
 }
 
 /// Connects to the daemon's socket, retrying while it starts (up to 10 s).
+#[allow(dead_code)] // not every bench talks to a daemon
 pub fn connect_when_up(socket: &Path) -> Result<UnixStream, Box<dyn std::error::Error>> {
     let started = Instant::now();
     loop {

@@ -3,9 +3,9 @@
 //! needs a pose has a static view (people removed by the per-beam median), runs the site
 //! registration and hands the poses to the pipeline, which saves them. A sensor found moved
 //! is first refined locally from its old pose ([`super::local_refine`]); the global search
-//! runs only when that fit is not clearly good. One sensor appearing on a placed site is
-//! placed against its neighbours alone (`add_one`), the site registration running only when
-//! that refuses.
+//! runs only when that fit is not clearly good. One sensor appearing on a placed site, or one
+//! moved beyond local refinement, is placed against its neighbours alone (`add_one`), the
+//! site registration running only when that refuses.
 //!
 //! Every timer here (the static view, a move that lasts, the wait for a silent sensor, retries)
 //! runs on the scans' own clock, taken in stamp order: in a replay that is the recordings'
@@ -133,8 +133,9 @@ pub enum Method {
     Local,
     /// The site registration (global search).
     Global,
-    /// Placed against its neighbours on a placed site, whose poses stand
-    /// ([`crate::register::site::add_sensor`]).
+    /// Placed by the global search against its neighbours on a placed site, whose poses
+    /// stand ([`crate::register::site::add_sensor`]): a sensor added, or one moved beyond
+    /// local refinement.
     Added,
 }
 
@@ -1250,9 +1251,12 @@ fn publish(pipeline: &Pipeline, outcomes: Vec<Outcome>, retrying: bool) {
                         format!("; global search, as local refinement was refused: {why}")
                     }
                     (Method::Global, None) => String::new(),
-                    (Method::Added, _) => {
+                    (Method::Added, None) => {
                         "; added to the placed site from its neighbours' views".to_string()
                     }
+                    (Method::Added, Some(why)) => format!(
+                        "; placed again from its neighbours' views, as local refinement was refused: {why}"
+                    ),
                 };
                 let caveat = entry
                     .caveat
