@@ -18,7 +18,7 @@ use super::state::{POSES_FILE, PosesFile, SavedPose, StateError, write_atomic};
 use crate::fuse::{GridParams, OccupancyGrid, TaggedPoint, map_yaml, pgm, ply};
 use crate::geometry::{Pose3, ProjectParams, pose_error, project_scan};
 
-/// Rays enter the grid at most this often per sensor: a static map needs no 40 Hz updates,
+/// Rays enter the grid once per this period per sensor: a static map needs no 40 Hz updates,
 /// and a ray costs one cell per 5 cm of range.
 pub const GRID_UPDATE_S: f64 = 0.5;
 /// A pose that changes by more than this (half a default cell, a fifth of a degree) makes
