@@ -14,12 +14,13 @@
 //! Run: `cargo bench --bench daemon_walkers` (`SCANFUSE_BENCH_REC_S`, default 60: seconds
 //! recorded).
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant, SystemTime};
 
-use scanfuse::daemon::config::RegistrationConfig;
-use scanfuse::daemon::pipeline_register::{Command as RegCommand, Registrar, Verdict, WorkItem};
+use scanfuse::daemon::pipeline_register::Verdict;
 use scanfuse::geometry::{Pose2, pose_error, pose2};
 use scanfuse::record::{self, Recording};
 
@@ -96,31 +97,7 @@ fn site(plan: &str, seconds: f64) -> Result<(usize, usize, usize), Error> {
     }
     let world_from_anchor = truth(&rec, &anchor).ok_or("no anchor truth")?;
 
-    let mut r = Registrar::new(&anchor, &RegistrationConfig::default());
-    for info in &rec.sensors {
-        r.command(
-            RegCommand::Add {
-                id: info.id.clone(),
-                mount: info.mount(),
-                survey: None,
-                pose: None,
-                sigma: None,
-            },
-            0,
-        );
-    }
-    let mut items: Vec<WorkItem> = rec
-        .sensors
-        .iter()
-        .flat_map(|info| {
-            rec.scans_of(&info.id).iter().map(|scan| WorkItem {
-                sensor: info.id.clone(),
-                scan: scan.clone(),
-                geometry: info.geometry,
-            })
-        })
-        .collect();
-    items.sort_by_key(|i| i.scan.stamp_ns);
+    let (mut r, items) = common::registrar_fed(&rec, &anchor);
     let mut tries: Vec<(f64, Duration)> = Vec::new();
     for item in items {
         let now = item.scan.stamp_ns;

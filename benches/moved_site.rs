@@ -14,11 +14,8 @@
 
 mod common;
 
-use std::process::{Command, Stdio};
 use std::time::{Duration, Instant, SystemTime};
 
-use scanfuse::daemon::config::RegistrationConfig;
-use scanfuse::daemon::pipeline_register::{Command as RegistrarCommand, Registrar, WorkItem};
 use scanfuse::geometry::{Pose2, pose_error, pose2};
 use scanfuse::record::Recording;
 use scanfuse::sim::Move;
@@ -56,31 +53,7 @@ fn main() -> Result<(), Error> {
     );
 
     let anchor = rec.sensors.first().ok_or("no sensors")?.id.clone();
-    let mut registrar = Registrar::new(&anchor, &RegistrationConfig::default());
-    for info in &rec.sensors {
-        registrar.command(
-            RegistrarCommand::Add {
-                id: info.id.clone(),
-                mount: info.mount(),
-                survey: None,
-                pose: None,
-                sigma: None,
-            },
-            0,
-        );
-    }
-    let mut items: Vec<WorkItem> = rec
-        .sensors
-        .iter()
-        .flat_map(|info| {
-            rec.scans_of(&info.id).iter().map(|scan| WorkItem {
-                sensor: info.id.clone(),
-                scan: scan.clone(),
-                geometry: info.geometry,
-            })
-        })
-        .collect();
-    items.sort_by_key(|i| i.scan.stamp_ns);
+    let (mut registrar, items) = common::registrar_fed(&rec, &anchor);
     let start_ns = items.first().map_or(0, |i| i.scan.stamp_ns);
     let stream_s = |ns: u64| ns.saturating_sub(start_ns) as f64 / 1e9;
 
@@ -171,8 +144,7 @@ fn recording(
     move_s: f64,
     (dx, dy, dyaw_deg): (f64, f64, f64),
 ) -> Result<Recording, Error> {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/bench-data");
-    std::fs::create_dir_all(&dir)?;
+    let dir = common::bench_data()?;
     let name = format!("concourse-{n}-moved-{dx}-{dy}-{dyaw_deg}-at-{move_s}s");
     let path = dir.join(format!("{name}-crowd30-seed1.mcap"));
     if !path.exists() {
@@ -193,26 +165,8 @@ fn recording(
         });
         let plan_path = dir.join(format!("{name}.toml"));
         std::fs::write(&plan_path, plan.to_toml()?)?;
-        let partial = path.with_extension("partial");
-        let started = Instant::now();
-        let status = Command::new(bin)
-            .arg("simulate")
-            .arg("--plan")
-            .arg(&plan_path)
-            .args(["--seed", "1", "--seconds", &(move_s + AFTER_S).to_string()])
-            .args(["--zstd-level", "1", "--out"])
-            .arg(&partial)
-            .stdout(Stdio::null())
-            .status()?;
-        if !status.success() {
-            return Err(format!("simulating the knocked concourse failed: {status}").into());
-        }
-        std::fs::rename(&partial, &path)?;
-        println!(
-            "  recorded {} in {:.0} s",
-            path.display(),
-            started.elapsed().as_secs_f64()
-        );
+        let plan_arg = plan_path.to_string_lossy();
+        common::simulate_once(bin, &["--plan", &plan_arg], move_s + AFTER_S, &path)?;
     }
     Ok(scanfuse::record::read(&path)?)
 }

@@ -165,31 +165,95 @@ pub fn concourse(
     seconds: f64,
     crowd: u32,
 ) -> Result<std::path::PathBuf, Box<dyn std::error::Error>> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/bench-data");
-    std::fs::create_dir_all(&dir)?;
-    let path = dir.join(format!(
+    let path = bench_data()?.join(format!(
         "concourse-{sensors}-{seconds}s-crowd{crowd}-seed1.mcap"
     ));
-    if !path.exists() {
-        let partial = path.with_extension("partial");
-        let started = Instant::now();
-        let status = Command::new(bin)
-            .args(["simulate", "--generate", &format!("concourse:{sensors}")])
-            .args(["--seed", "1", "--crowd", &crowd.to_string()])
-            .args(["--seconds", &seconds.to_string(), "--zstd-level", "1"])
-            .arg("--out")
-            .arg(&partial)
-            .stdout(std::process::Stdio::null())
-            .status()?;
-        if !status.success() {
-            return Err(format!("simulating the concourse failed: {status}").into());
-        }
-        std::fs::rename(&partial, &path)?;
-        println!(
-            "  recorded {} in {:.0} s",
-            path.display(),
-            started.elapsed().as_secs_f64()
-        );
-    }
+    let generate = format!("concourse:{sensors}");
+    simulate_once(
+        bin,
+        &["--generate", &generate, "--crowd", &crowd.to_string()],
+        seconds,
+        &path,
+    )?;
     Ok(path)
+}
+
+/// `target/bench-data/`, where benches keep what they simulate.
+#[allow(dead_code)]
+pub fn bench_data() -> Result<std::path::PathBuf, Box<dyn std::error::Error>> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/bench-data");
+    std::fs::create_dir_all(&dir)?;
+    Ok(dir)
+}
+
+/// `bin simulate ARGS --seed 1 --seconds S` into `path`, unless it is there already (written
+/// under another name and renamed, so an interrupted run leaves no half a recording).
+#[allow(dead_code)]
+pub fn simulate_once(
+    bin: &str,
+    args: &[&str],
+    seconds: f64,
+    path: &Path,
+) -> Result<(), Box<dyn std::error::Error>> {
+    if path.exists() {
+        return Ok(());
+    }
+    let partial = path.with_extension("partial");
+    let started = Instant::now();
+    let status = Command::new(bin)
+        .arg("simulate")
+        .args(args)
+        .args(["--seed", "1", "--seconds", &seconds.to_string()])
+        .args(["--zstd-level", "1", "--out"])
+        .arg(&partial)
+        .stdout(std::process::Stdio::null())
+        .status()?;
+    if !status.success() {
+        return Err(format!("simulating {} failed: {status}", path.display()).into());
+    }
+    std::fs::rename(&partial, path)?;
+    println!(
+        "  recorded {} in {:.0} s",
+        path.display(),
+        started.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+/// The registration worker's core with every sensor of `rec` added (no survey, no pose yet),
+/// and every scan of `rec` as its work item, in stamp order as the worker takes them.
+#[allow(dead_code)]
+pub fn registrar_fed(
+    rec: &scanfuse::record::Recording,
+    anchor: &str,
+) -> (
+    scanfuse::daemon::pipeline_register::Registrar,
+    Vec<scanfuse::daemon::pipeline_register::WorkItem>,
+) {
+    use scanfuse::daemon::pipeline_register::{Command as RegCommand, Registrar, WorkItem};
+    let config = scanfuse::daemon::config::RegistrationConfig::default();
+    let mut r = Registrar::new(anchor, &config);
+    for info in &rec.sensors {
+        let add = RegCommand::Add {
+            id: info.id.clone(),
+            mount: info.mount(),
+            survey: None,
+            pose: None,
+            sigma: None,
+        };
+        r.command(add, 0);
+    }
+    let mut items: Vec<WorkItem> = rec
+        .sensors
+        .iter()
+        .flat_map(|info| {
+            rec.scans_of(&info.id).iter().map(|scan| WorkItem {
+                sensor: info.id.clone(),
+                scan: scan.clone(),
+                geometry: info.geometry,
+            })
+        })
+        .collect();
+    items.sort_by_key(|i| i.scan.stamp_ns);
+    (r, items)
 }
