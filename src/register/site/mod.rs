@@ -128,12 +128,13 @@ pub struct SiteParams {
     /// over each other. Sites of up to this many + 1 sensors register every pair either way.
     /// On generated concourses (`eval --only site --floor concourse --site-compare`, this
     /// 2-core machine) it placed exactly what every pair placed, to 0.00 mm: installed at 25
-    /// (seeds 1–3, 75/75), 50 (seeds 1–2, 96/100) and 100 (seed 1, 100/100), dropped at random
-    /// at 25 (26/75, none wrong); at 100 it registers 3011 of 4950 pairs, 8.6–9.4 s against
-    /// 13.4 s. Its ranking is the weak part: of the pairs sharing ≥ 30 % of their view, the
-    /// first 8 partners hold 25 % at 100 scanners (a concourse's bays look alike). Of the
-    /// 3011 pairs there, 544 are first partners, about 350 close triangles, 1070 try sensors
-    /// posed beside a neighbour and 970 go further down a ranking. `usize::MAX` registers
+    /// (seeds 1–3, 75/75), 50 (seeds 1–2, 100/100) and 100 (seed 1, 100/100), dropped at
+    /// random at 25 (39/75, none wrong); at 100 it registers 3444 of 4950 pairs, 8.8–8.9 s
+    /// against 12.1 s. Its ranking is the weak part: of the pairs sharing ≥ 30 % of their
+    /// view, the first 8 partners hold 25 % at 100 scanners (a concourse's bays look alike).
+    /// Of the 3011 pairs before the generator kept dividers clear of scanners, 544 were first
+    /// partners, about 350 closed triangles, 1070 tried sensors posed beside a neighbour and
+    /// 970 went further down a ranking. `usize::MAX` registers
     /// every pair.
     pub partners: usize,
 }
