@@ -1,8 +1,8 @@
 //! Thread priority. The live path (drivers, the socket, the tracker) answers within
 //! milliseconds; registration and the map's grid are background work that can hold a core for
-//! 100 ms at a time. On a two-core machine the scheduler then keeps a woken driver waiting
-//! behind them (measured at 100 sensors: a 132 ms registration burst on one core, frames
-//! waiting up to 10 ms on the other), so background threads run at a lower priority.
+//! 100 ms at a time (at 100 sensors `perf sched` showed a registration pass holding one core
+//! for 132 ms while the drivers, the socket and the tracker queued on the other), so on a
+//! small machine they run at a lower priority and give way when the live path wakes.
 
 /// How far background threads lower their priority (nice steps above the daemon's own).
 pub const BACKGROUND_NICE_STEPS: i32 = 10;
