@@ -2,10 +2,10 @@
 //! in a site of five). A simulated concourse of `SCANFUSE_BENCH_SENSORS` scanners (default 100,
 //! `sim::generate`, seed 1, 30 people walking) in which one sensor near the middle is knocked
 //! by `SCANFUSE_BENCH_KNOCK` (`dx,dy,dyaw_deg`, default `0.3,0.1,4`: local refinement's case;
-//! `1.5,0.5,25` is the global search's) `SCANFUSE_BENCH_MOVE_S` s in (default 8), recorded for
-//! 4 s more (cached under `target/bench-data/`). Its scans are fed in stamp order to the registration worker's
-//! core ([`Registrar`]), which registers whenever it is due, as the daemon's worker does. It
-//! prints each registration's stream time and compute time, when the move was noticed, how
+//! `1.5,0.5,25` is the global search's) `SCANFUSE_BENCH_MOVE_S` s in (default 8), recorded
+//! for 4 s more (cached under `target/bench-data/`). Its scans are fed in stamp order to the
+//! registration worker's core (`Registrar`), which registers whenever it is due, as the
+//! daemon's worker does. It prints each registration's stream time and compute time, when the move was noticed, how
 //! long after the move the new pose came (stream time: what the target is stated in; the
 //! daemon adds that registration's compute), its error against the simulator's truth, and any
 //! sensor called moved that was not.
@@ -36,6 +36,7 @@ fn knock() -> Result<(f64, f64, f64), Error> {
         _ => Err(format!("SCANFUSE_BENCH_KNOCK={text}: want three numbers, dx,dy,dyaw_deg").into()),
     }
 }
+
 /// Seconds recorded after the knock.
 const AFTER_S: f64 = 4.0;
 
