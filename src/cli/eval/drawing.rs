@@ -330,7 +330,7 @@ fn solve(
         return Ok(None);
     };
     plan.sensors = sensors;
-    let Some(models) = simulate_models(&plan, rng.random(), args.motion_seconds, params)? else {
+    let Ok(models) = simulate_models(&plan, rng.random(), args.motion_seconds, params)? else {
         return Ok(None);
     };
     let truths: Vec<Pose2> = models.iter().filter_map(|(i, _)| truth_pose(i)).collect();

@@ -178,18 +178,22 @@ pub(super) fn site_inputs(models: Vec<(SensorInfo, ScanModel)>) -> Vec<SensorInp
         .collect()
 }
 
+/// A drawn placement's sensors with their models, or why the draw was refused.
+pub(super) type Drawn = std::result::Result<Vec<(SensorInfo, ScanModel)>, String>;
+
 /// Simulates `plan` and prepares every sensor's static view (over the first `SIM_SECONDS`)
-/// and the people it saw walk (over `motion_seconds`, when longer); `None` when a sensor
-/// stands somewhere useless (inside furniture, outside the building).
+/// and the people it saw walk (over `motion_seconds`, when longer); refused, saying which
+/// sensor, when one stands somewhere useless (inside furniture, outside the building).
 pub(super) fn simulate_models(
     plan: &Plan,
     seed: u64,
     motion_seconds: f64,
     params: &RegisterParams,
-) -> Result<Option<Vec<(SensorInfo, ScanModel)>>> {
+) -> Result<Drawn> {
     // A placement the simulator refuses (inside furniture, in a wall) is simply not drawn.
-    let Ok(mut sim) = Simulation::new(plan, seed) else {
-        return Ok(None);
+    let mut sim = match Simulation::new(plan, seed) {
+        Ok(sim) => sim,
+        Err(e) => return Ok(Err(format!("the simulator refused it: {e}"))),
     };
     let infos: Vec<SensorInfo> = sim.sensors().to_vec();
     let mut scans: Vec<Vec<Scan>> = vec![Vec::new(); infos.len()];
@@ -202,8 +206,12 @@ pub(super) fn simulate_models(
     .ok();
     let mut out = Vec::new();
     for (info, scans) in infos.into_iter().zip(scans) {
+        let at = || match truth_pose(&info) {
+            Some(pose) => describe(&info, &pose),
+            None => info.id.clone(),
+        };
         let Some(view) = static_view(&scans, SIM_SECONDS) else {
-            return Ok(None);
+            return Ok(Err(format!("{} ({}) gave no static view", info.id, at())));
         };
         let returns: Vec<f32> = view.ranges_m.iter().copied().filter(|r| *r > 0.0).collect();
         // Outside the building most beams of a long-range unit return nothing (a short-range
@@ -212,10 +220,19 @@ pub(super) fn simulate_models(
         let long_range = info
             .geometry
             .is_some_and(|g| g.dmax_mm >= LONG_RANGE_DMAX_MM);
-        if (long_range && returns.len() * 2 < view.ranges_m.len())
-            || returns.iter().filter(|r| **r > 1.0).count() * 2 < returns.len().max(1)
-        {
-            return Ok(None);
+        if long_range && returns.len() * 2 < view.ranges_m.len() {
+            return Ok(Err(format!(
+                "{} ({}) has no return on most beams: outside the building?",
+                info.id,
+                at()
+            )));
+        }
+        if returns.iter().filter(|r| **r > 1.0).count() * 2 < returns.len().max(1) {
+            return Ok(Err(format!(
+                "{} ({}) sees most of its returns within 1 m: boxed in?",
+                info.id,
+                at()
+            )));
         }
         let mount = info.mount();
         let mut model = ScanModel::from_scan(&view, info.geometry.as_ref(), &mount, params);
@@ -224,7 +241,7 @@ pub(super) fn simulate_models(
         }
         out.push((info, model));
     }
-    Ok(Some(out))
+    Ok(Ok(out))
 }
 
 /// A unit that reaches this far (DMAX, mm) sees a wall along most beams from anywhere indoors.
@@ -282,8 +299,7 @@ pub(super) fn sim_cases(plans: &[Plan], args: &Args, params: &RegisterParams) ->
         if filled[bin] >= quota {
             continue;
         }
-        let Some(models) = simulate_models(&plan, rng.random(), args.motion_seconds, params)?
-        else {
+        let Ok(models) = simulate_models(&plan, rng.random(), args.motion_seconds, params)? else {
             continue;
         };
         let [(ia, ma), (ib, mb)] = <[(SensorInfo, ScanModel); 2]>::try_from(models)
@@ -387,12 +403,21 @@ pub(super) fn sites(
             SiteDraw::Installed if args.floor.is_some() => plan.sensors.clone(),
             SiteDraw::Installed => match installed_sensors(&plan, n, &args.models, &mut rng) {
                 Some(sensors) => sensors,
-                None => continue,
+                None => {
+                    totals.refused(format!(
+                        "no way found to install {n} sensors in {} each sharing view with one already placed",
+                        plan.name
+                    ));
+                    continue;
+                }
             },
         };
-        let Some(models) = simulate_models(&plan, rng.random(), args.motion_seconds, params)?
-        else {
-            continue;
+        let models = match simulate_models(&plan, rng.random(), args.motion_seconds, params)? {
+            Ok(models) => models,
+            Err(why) => {
+                totals.refused(why);
+                continue;
+            }
         };
         if let Some(dir) = &args.site_plans_out {
             let kind = match draw {

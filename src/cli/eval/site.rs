@@ -89,9 +89,16 @@ pub(super) struct SiteTotals {
     all_pairs: usize,
     overlapping: usize,
     recalled: [usize; RECALL_K.len()],
+    /// Why the last refused draw was refused.
+    last_refusal: Option<String>,
 }
 
 impl SiteTotals {
+    /// A draw that could not be used, and why.
+    pub(super) fn refused(&mut self, why: String) {
+        self.last_refusal = Some(why);
+    }
+
     pub(super) fn header(tol: &str) {
         println!(
             "{:<6} {:<6} {:>7} {:>9} {:>11} {:>10} {:>9} {:>9}",
@@ -122,7 +129,10 @@ impl SiteTotals {
     pub(super) fn print(&self, tol: &str) {
         if self.sites == 0 {
             println!(
-                "no site could be drawn: every draw put a sensor outside the building, inside furniture or out of view of the others (fewer sensors per site draw more easily)"
+                "no site could be drawn: every draw put a sensor outside the building, inside furniture or out of view of the others (fewer sensors per site draw more easily){}",
+                self.last_refusal
+                    .as_ref()
+                    .map_or(String::new(), |why| format!("; the last: {why}"))
             );
             return;
         }
