@@ -208,7 +208,7 @@ pub(super) fn simulate_models(
     for (info, scans) in infos.into_iter().zip(scans) {
         let at = || match truth_pose(&info) {
             Some(pose) => describe(&info, &pose),
-            None => info.id.clone(),
+            None => format!("{}, no true pose", info.model),
         };
         let Some(view) = static_view(&scans, SIM_SECONDS) else {
             return Ok(Err(format!("{} ({}) gave no static view", info.id, at())));

@@ -134,8 +134,7 @@ pub struct SiteParams {
     /// view, the first 8 partners hold 25 % at 100 scanners (a concourse's bays look alike).
     /// Of the 3011 pairs before the generator kept dividers clear of scanners, 544 were first
     /// partners, about 350 closed triangles, 1070 tried sensors posed beside a neighbour and
-    /// 970 went further down a ranking. `usize::MAX` registers
-    /// every pair.
+    /// 970 went further down a ranking. `usize::MAX` registers every pair.
     pub partners: usize,
 }
 
