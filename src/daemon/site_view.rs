@@ -519,17 +519,26 @@ impl StatusSource for SiteView {
     }
 
     fn reregister(&self, sensor: &str) -> Result<String, Refused> {
-        let zone = self.lock().zones.iter().find_map(|(id, z)| {
-            z.poses
-                .as_ref()
-                .is_some_and(|p| p.sensors.iter().any(|s| s.id == sensor))
-                .then(|| id.clone())
-        });
-        Err(Refused(match zone {
-            Some(z) => {
+        let zones: Vec<String> = self
+            .lock()
+            .zones
+            .iter()
+            .filter(|(_, z)| {
+                z.poses
+                    .as_ref()
+                    .is_some_and(|p| p.sensors.iter().any(|s| s.id == sensor))
+            })
+            .map(|(id, _)| id.clone())
+            .collect();
+        Err(Refused(match zones.as_slice() {
+            [] => format!("this is the site daemon, and no zone has a sensor {sensor}"),
+            [z] => {
                 format!("this is the site daemon; {sensor} is zone {z}'s: ask zone {z}'s daemon")
             }
-            None => format!("this is the site daemon, and no zone has a sensor {sensor}"),
+            many => format!(
+                "this is the site daemon, and zones {} each have a sensor {sensor}: ask the daemon of the zone you mean, and give each sensor an id of its own across the site",
+                many.join(" and ")
+            ),
         }))
     }
 
@@ -710,6 +719,19 @@ mod tests {
             "{said}"
         );
         assert!(events.try_recv().is_err(), "named more than once");
+        // Asked to register it again, the site daemon names both zones, not the first found.
+        let Err(Refused(why)) = view.reregister("gate") else {
+            panic!("the site daemon registers nothing itself")
+        };
+        assert!(
+            why.contains("zones east and west each have a sensor gate"),
+            "{why}"
+        );
+        let Err(Refused(why)) = view.reregister("dock") else {
+            panic!("the site daemon registers nothing itself")
+        };
+        // East's last poses no longer list dock.
+        assert!(why.contains("no zone has a sensor dock"), "{why}");
     }
 
     /// A site anchored on west, zone east just come alive, and its events from then on.
