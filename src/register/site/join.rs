@@ -52,6 +52,7 @@ pub(super) fn join_groups(
             placed[m] = Some(anchor_from_root * root_from_member);
         }
     }
+    let started = std::time::Instant::now();
     let mut join_sources: Vec<(usize, usize)> = Vec::new();
     let reach_m = super::reach_m(sensors);
     // Each sensor's partners in some pair: a join gives a group new proposals only through them.
@@ -175,10 +176,39 @@ pub(super) fn join_groups(
         }
     }
     tracing::debug!("joins: {joins} joins, {weighs} groups weighed at {weighed_places} placements");
+    let placed_now = placed.iter().filter(|p| p.is_some()).count();
+    if let Some(slow) = slow_joins(
+        started.elapsed().as_secs_f64(),
+        (joins, weighs, weighed_places),
+        placed_now,
+        sensors.len(),
+    ) {
+        tracing::warn!("{slow}");
+    }
     Joined {
         refusals,
         sources: join_sources,
     }
+}
+
+/// Joins that took longer than this (s) are said at a terminal, not only in the debug log:
+/// a 200-unit concourse spends 11 minutes a pass in them, and a person waiting at a silent
+/// `register` cannot tell it from a hang.
+const SLOW_JOINS_S: f64 = 60.0;
+
+/// What to say of joins that took `took_s`: (joins, groups weighed, placements scored), and
+/// how many of `sensors` are placed after them. None when they were quick.
+pub(super) fn slow_joins(
+    took_s: f64,
+    (joins, weighs, places): (usize, usize, usize),
+    placed: usize,
+    sensors: usize,
+) -> Option<String> {
+    (took_s > SLOW_JOINS_S).then(|| {
+        format!(
+            "site registration: placing groups of units against each other took {took_s:.0} s ({weighs} groups weighed at {places} placements, {joins} joined; {placed} of {sensors} units placed so far) and may take as long again: on a long floor whose parts look alike, surveyed poses for a few units far apart (`survey` in the config, or dragged on the page) settle it sooner"
+        )
+    })
 }
 
 /// A group's verdict against the sensors placed so far.

@@ -889,3 +889,18 @@ fn a_sensor_added_to_a_placed_site_lands_at_its_truth_from_its_neighbours_alone(
     let keys: Vec<(usize, usize)> = far.pairs.iter().map(|(k, _)| *k).collect();
     assert_eq!(keys, vec![(0, 5), (1, 5), (2, 5)]);
 }
+
+#[test]
+fn joins_that_take_minutes_are_said_with_how_far_they_got() {
+    use super::join::slow_joins;
+    assert_eq!(slow_joins(2.0, (8, 36, 20_906), 100, 100), None);
+    let said = slow_joins(690.0, (3, 106, 174_448), 41, 200).expect("said");
+    for part in [
+        "took 690 s",
+        "106 groups weighed at 174448 placements, 3 joined",
+        "41 of 200 units placed",
+        "surveyed poses",
+    ] {
+        assert!(said.contains(part), "{part}: {said}");
+    }
+}
