@@ -77,6 +77,18 @@ struct Zones {
 }
 
 impl Zones {
+    /// The zones whose last poses list a sensor `id`, in id order.
+    fn zones_with(&self, id: &str) -> impl Iterator<Item = &str> {
+        self.zones
+            .iter()
+            .filter(move |(_, z)| {
+                z.poses
+                    .as_ref()
+                    .is_some_and(|p| p.sensors.iter().any(|s| s.id == id))
+            })
+            .map(|(zone, _)| zone.as_str())
+    }
+
     /// The zone something was just heard from (alive, if it is new).
     fn heard(&mut self, zone: &str) -> &mut Zone {
         self.zones
@@ -163,15 +175,10 @@ impl SiteView {
                 .sensors
                 .iter()
                 .filter_map(|p| {
-                    let other = s.zones.iter().find(|(id, z)| {
-                        id.as_str() != zone
-                            && z.poses
-                                .as_ref()
-                                .is_some_and(|o| o.sensors.iter().any(|q| q.id == p.id))
-                    })?;
+                    let other = s.zones_with(&p.id).find(|other| *other != zone)?;
                     Some(format!(
-                        "sensor id {} is used by zone {zone} and by zone {}: give each sensor an id of its own across the site",
-                        p.id, other.0
+                        "sensor id {} is used by zone {zone} and by zone {other}: give each sensor an id of its own across the site",
+                        p.id
                     ))
                 })
                 .collect();
@@ -519,17 +526,7 @@ impl StatusSource for SiteView {
     }
 
     fn reregister(&self, sensor: &str) -> Result<String, Refused> {
-        let zones: Vec<String> = self
-            .lock()
-            .zones
-            .iter()
-            .filter(|(_, z)| {
-                z.poses
-                    .as_ref()
-                    .is_some_and(|p| p.sensors.iter().any(|s| s.id == sensor))
-            })
-            .map(|(id, _)| id.clone())
-            .collect();
+        let zones: Vec<String> = self.lock().zones_with(sensor).map(str::to_string).collect();
         Err(Refused(match zones.as_slice() {
             [] => format!("this is the site daemon, and no zone has a sensor {sensor}"),
             [z] => {
