@@ -17,6 +17,8 @@ use rayon::prelude::*;
 pub(super) struct Joined {
     pub refusals: Vec<Option<Refusal>>,
     pub sources: Vec<(usize, usize)>,
+    /// (joins, groups weighed, placements scored): what the stage's time went on.
+    pub tally: (usize, usize, usize),
 }
 
 /// Places surveyed groups at their surveys, then joins the other groups one at a time, the
@@ -52,7 +54,6 @@ pub(super) fn join_groups(
             placed[m] = Some(anchor_from_root * root_from_member);
         }
     }
-    let started = std::time::Instant::now();
     let mut join_sources: Vec<(usize, usize)> = Vec::new();
     let reach_m = super::reach_m(sensors);
     // Each sensor's partners in some pair: a join gives a group new proposals only through them.
@@ -176,18 +177,10 @@ pub(super) fn join_groups(
         }
     }
     tracing::debug!("joins: {joins} joins, {weighs} groups weighed at {weighed_places} placements");
-    let placed_now = placed.iter().filter(|p| p.is_some()).count();
-    if let Some(slow) = slow_joins(
-        started.elapsed().as_secs_f64(),
-        (joins, weighs, weighed_places),
-        placed_now,
-        sensors.len(),
-    ) {
-        tracing::warn!("{slow}");
-    }
     Joined {
         refusals,
         sources: join_sources,
+        tally: (joins, weighs, weighed_places),
     }
 }
 

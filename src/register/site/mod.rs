@@ -359,6 +359,10 @@ fn place(
         memo,
     );
     let joins = started.elapsed().as_secs_f64() - grouped;
+    let placed_now = placed.iter().filter(|p| p.is_some()).count();
+    if let Some(slow) = join::slow_joins(joins, joined.tally, placed_now, n) {
+        tracing::warn!("{slow}");
+    }
     let mut joined = joined;
     let withdrawn =
         second_opinion::second_opinion(&mut placed, anchor, sensors, &pairs, &results, p, sp, memo);
