@@ -2,8 +2,8 @@
 //! listener, MQTT by `mosquitto_sub` through a `mosquitto` broker the test starts (and stops
 //! and starts again, to see the output go quiet and come back).
 //!
-//! The tracker is not wired on this branch yet, so the test publishes `TRACKS` into the
-//! daemon's people stream itself, as the tracker task does, and runs the output task
+//! The test publishes `TRACKS` into the daemon's people stream itself, as the tracker task
+//! does (so that what each client must receive is known exactly), and runs the output task
 //! (`daemon::people_out`) as the daemon runs it.
 //!
 //! Needs `SCANFUSE_TEST_PYTHON` with python-osc (the venv `.ci/run` builds) and Debian's

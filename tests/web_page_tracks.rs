@@ -1,6 +1,6 @@
 //! The page draws tracks: the page's real server (`web::WebServer`) fed by a publisher on
-//! which the test streams `TRACKS` (as the tracker task does; the tracker is not wired on
-//! this branch yet) and `ZONES`, opened in headless Chromium by tests/python/web_tracks.py.
+//! which the test streams `TRACKS` (as the tracker task does, with tracks known exactly) and
+//! `ZONES`, opened in headless Chromium by tests/python/web_tracks.py.
 //! Each track is drawn as a `[data-track="<id>"]` element labelled with its id, west to east
 //! as in the site, and the People panel counts them.
 //!

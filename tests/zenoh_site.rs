@@ -7,7 +7,10 @@
 //! daemon's by up to a few cm, and that carries into the link. The table prints each unit's
 //! Δ. A zone killed is lost within 2 s, its poses kept and marked stale, and started again it
 //! rejoins with nothing else restarted; the site daemon restarted rebuilds the site from the
-//! zones.
+//! zones. Back, east sends what its tracker sees as west does from the start
+//! (`[zenoh] detections = true`), and the site daemon tracks the hall's people across both
+//! zones: one person seen by a unit of each is one track that lists both. East's bytes a
+//! second are printed without and with its detections.
 #![cfg(feature = "zenoh")]
 
 mod daemon_run_common;
@@ -18,7 +21,7 @@ use std::time::{Duration, Instant};
 use daemon_run_common::{
     Client, HALL, Proc, fixture, replay_sensors, start_daemon, wait_for, write_config,
 };
-use scanfuse::daemon::protocol::{Poses, SensorPose};
+use scanfuse::daemon::protocol::{Message, Poses, SensorPose};
 
 /// How long any one expected thing may take before the test gives up (not a timing assert).
 const PATIENCE: Duration = Duration::from_secs(90);
@@ -34,14 +37,23 @@ fn site_config(dir: &Path, endpoint: &str) -> std::path::PathBuf {
     path
 }
 
-/// A zone daemon holding `units` of the hall, its first the zone's anchor.
-fn zone(dir: &Path, zone: &str, units: &[(&'static str, &'static str)], endpoint: &str) -> Proc {
+/// A zone daemon holding `units` of the hall, its first the zone's anchor; sending what its
+/// tracker sees when `detections`.
+fn zone(
+    dir: &Path,
+    zone: &str,
+    units: &[(&'static str, &'static str)],
+    endpoint: &str,
+    detections: bool,
+) -> Proc {
     let sensors = replay_sensors(&fixture("hall.mcap"), units);
     let config = write_config(
         dir,
         units[0].0,
         &sensors,
-        &format!("\n[zenoh]\nzone = \"{zone}\"\nconnect = [\"{endpoint}\"]\n"),
+        &format!(
+            "\n[zenoh]\nzone = \"{zone}\"\nconnect = [\"{endpoint}\"]\ndetections = {detections}\n"
+        ),
     );
     start_daemon(&config, dir)
 }
@@ -104,8 +116,8 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
 
     let started = Instant::now();
     let mut site_daemon = start_daemon(&site_config(dirs[0].path(), &endpoint), dirs[0].path());
-    let _west = zone(dirs[1].path(), "west", &west_units, &endpoint);
-    let mut east = zone(dirs[2].path(), "east", &east_units, &endpoint);
+    let _west = zone(dirs[1].path(), "west", &west_units, &endpoint, true);
+    let mut east = zone(dirs[2].path(), "east", &east_units, &endpoint, false);
 
     let mut site = Client::connect(&dirs[0].path().join("s.sock"), PATIENCE);
     let line = wait_for(PATIENCE, "the site daemon on Zenoh", || {
@@ -134,10 +146,15 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
     let status = site.status();
     for z in &status.zones {
         println!(
-            "zone {} sends the site daemon {:.0} bytes/s (poses and status of {} unit(s))",
+            "zone {} sends the site daemon {:.0} bytes/s (poses and status of {} unit(s){})",
             z.zone,
             z.bytes_per_s.unwrap_or(0.0),
-            z.sensors
+            z.sensors,
+            if z.zone == "west" {
+                ", and what its tracker sees"
+            } else {
+                ""
+            }
         );
         assert!(z.bytes_per_s.is_some_and(|b| b > 0.0), "{z:?}");
     }
@@ -174,8 +191,14 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
     assert!(!sensor(&poses, "gate").unwrap().stale);
 
     // Started again, it rejoins; nothing else was restarted.
-    let _east = zone(dirs[2].path(), "east", &east_units, &endpoint);
+    let _east = zone(dirs[2].path(), "east", &east_units, &endpoint, true);
     wait_all_placed(&mut site, &ids, "east back and placed");
+    people_across_zones(&dirs[0].path().join("s.sock"));
+    let east_status = site.status().zones.into_iter().find(|z| z.zone == "east");
+    println!(
+        "zone east sends the site daemon {:.0} bytes/s with what its tracker sees",
+        east_status.and_then(|z| z.bytes_per_s).unwrap_or(0.0)
+    );
 
     // The site daemon gone, a zone's line no longer says where the site put it: it says
     // when the site daemon was last heard.
@@ -210,6 +233,50 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
             .zenoh
             .filter(|z| !z.contains("has not been heard"))
     });
+}
+
+/// Watches the site daemon's tracks until one person is seen by units of both zones at once
+/// and is one track listing them (the dock is east's; the others west's); says what it saw
+/// when that does not come.
+fn people_across_zones(socket: &Path) {
+    let mut watcher = Client::connect(socket, PATIENCE);
+    match watcher.request(r#"{"cmd":"watch","status":false,"tracks":true}"#) {
+        Message::Watch(w) => assert!(w.tracks, "{w:?}"),
+        other => panic!("watch answered {other:?}"),
+    }
+    let start = Instant::now();
+    let (mut lines, mut tracked, mut ids) = (0, 0, std::collections::BTreeSet::new());
+    let mut by = std::collections::BTreeSet::new();
+    loop {
+        assert!(
+            start.elapsed() < PATIENCE,
+            "no track seen by both zones: {lines} TRACKS lines, {tracked} tracks ({} ids), seen by {by:?}",
+            ids.len()
+        );
+        let Message::Tracks(t) = watcher.read() else {
+            continue;
+        };
+        lines += 1;
+        for track in &t.tracks {
+            tracked += 1;
+            ids.insert(track.id);
+            by.insert(track.sensors.join("+"));
+            let east = track.sensors.iter().any(|s| s == "dock");
+            let west = track.sensors.iter().any(|s| s != "dock");
+            if east && west {
+                println!(
+                    "track {} at ({:.2}, {:.2}) m seen by {:?} across both zones, {:?} after east rejoined ({} TRACKS lines)",
+                    track.id,
+                    track.x_m,
+                    track.y_m,
+                    track.sensors,
+                    start.elapsed(),
+                    lines
+                );
+                return;
+            }
+        }
+    }
 }
 
 /// The site's poses against one daemon's (printed; within 5 cm and 0.3°) and against each

@@ -61,6 +61,10 @@ pub struct ZenohConfig {
     pub connect: Vec<String>,
     /// `tcp/HOST:PORT` endpoints others connect to (a small site needs no router).
     pub listen: Vec<String>,
+    /// A zone sends what its tracker's every scan saw (`detections`), so the site daemon
+    /// tracks people across zones; off by default (a stream: ~6 kB/s per 20 Hz unit with a
+    /// few people in view, `tests/zenoh_site.rs`).
+    pub detections: bool,
 }
 
 impl ZenohConfig {
@@ -80,6 +84,9 @@ impl ZenohConfig {
         }
         if !self.connect.is_empty() {
             ends.push(format!("connecting to {}", self.connect.join(", ")));
+        }
+        if self.detections {
+            ends.push("sending what its tracker sees".to_string());
         }
         let who = if site_daemon {
             "the site daemon".to_string()
@@ -625,6 +632,7 @@ struct RawZenoh {
     connect: Vec<Spanned<String>>,
     #[serde(default)]
     listen: Vec<Spanned<String>>,
+    detections: Option<Spanned<bool>>,
 }
 
 #[derive(Deserialize)]
@@ -1183,6 +1191,13 @@ impl Config {
                 None => ZonesFrame::Site,
                 Some(f) => match f.get_ref().as_str() {
                     "site" => ZonesFrame::Site,
+                    "building" if role == Role::Site => {
+                        return Err(loc.at(
+                            f.span(),
+                            "site.zones_frame",
+                            "a site daemon has no drawing: draw its zones and lines in the site frame (the anchor zone's), zones_frame = \"site\"",
+                        ));
+                    }
                     "building" => ZonesFrame::Building,
                     other => {
                         return Err(loc.at(
@@ -1206,7 +1221,7 @@ impl Config {
             None => TrackConfig::default(),
         };
         let zenoh = match raw.zenoh {
-            Some(z) => Some(parse_zenoh(&loc, z, &name, name_span, role)?),
+            Some(z) => Some(parse_zenoh(&loc, z, &name, name_span, role, track.enabled)?),
             None => None,
         };
 
@@ -1247,6 +1262,13 @@ impl Config {
             );
             if let Some(z) = &self.zenoh {
                 out.push_str(&format!("  {}\n", z.describe(&self.site.name)));
+            }
+            if self.track.enabled {
+                out.push_str(&format!(
+                    "  tracks people across the zones that send their detections ([zenoh] detections = true in a zone's config); {} zone(s) and {} line(s) counted\n",
+                    self.people.zones.len(),
+                    self.people.lines.len()
+                ));
             }
             return out;
         }
@@ -1357,6 +1379,7 @@ fn parse_zenoh(
     site: &str,
     site_span: Range<usize>,
     role: Role,
+    tracking: bool,
 ) -> Result<ZenohConfig, ConfigError> {
     let span = raw.span();
     let z = raw.into_inner();
@@ -1429,10 +1452,29 @@ fn parse_zenoh(
             "give connect = [\"tcp/HOST:PORT\"] (another daemon's or a router's) and/or listen = [\"tcp/IP:PORT\"]: multicast discovery is off",
         ));
     }
+    let detections = match z.detections {
+        Some(d) if *d.get_ref() && role == Role::Site => {
+            return Err(loc.at(
+                d.span(),
+                "zenoh.detections",
+                "a site daemon takes the zones' detections: set detections = true in each zone's [zenoh]",
+            ));
+        }
+        Some(d) if *d.get_ref() && !tracking => {
+            return Err(loc.at(
+                d.span(),
+                "zenoh.detections",
+                "detections are what this zone's tracker sees, and [track] enabled = false turns it off: enable tracking or leave detections out",
+            ));
+        }
+        Some(d) => *d.get_ref(),
+        None => false,
+    };
     Ok(ZenohConfig {
         zone,
         connect,
         listen,
+        detections,
     })
 }
 
@@ -2469,6 +2511,12 @@ map_cell_m = 0.1
                 2,
             ),
             ("zone = \"east\"", "zenoh", "multicast discovery is off", 0),
+            (
+                "zone = \"east\"\nlisten = [\"tcp/1.2.3.4:1\"]\ndetections = true\n\n[track]\nenabled = false",
+                "zenoh.detections",
+                "enable tracking",
+                3,
+            ),
         ] {
             let (at, k, msg) = invalid(&with(table));
             assert_eq!((k.as_str(), at), (key, zenoh_line + line), "{table}: {msg}");
@@ -2482,6 +2530,12 @@ map_cell_m = 0.1
         let a = parse(GOOD).unwrap();
         let b = parse(&with("zone = \"east\"\nlisten = [\"tcp/1.2.3.4:1\"]")).unwrap();
         assert_eq!(a.changes_to(&b).need_restart, ["zenoh"]);
+        assert!(!b.zenoh.unwrap().detections, "off unless asked for");
+        let d = parse(&with(
+            "zone = \"east\"\nlisten = [\"tcp/1.2.3.4:1\"]\ndetections = true",
+        ))
+        .unwrap();
+        assert!(d.zenoh.unwrap().detections);
     }
 
     #[test]
@@ -2508,6 +2562,16 @@ map_cell_m = 0.1
                 format!("{site}{zenoh}zone = \"west\"\n"),
                 "zenoh.zone",
                 "holds no zone",
+            ),
+            (
+                format!("{site}{zenoh}detections = true\n"),
+                "zenoh.detections",
+                "in each zone's [zenoh]",
+            ),
+            (
+                format!("{site}zones_frame = \"building\"\n{zenoh}"),
+                "site.zones_frame",
+                "has no drawing",
             ),
             (
                 format!("{}{zenoh}", site.replace("\"west\"", "\"a/b\"")),

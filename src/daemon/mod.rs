@@ -34,6 +34,8 @@ pub mod signals;
 #[cfg(feature = "zenoh")]
 pub mod site_net;
 #[cfg(feature = "zenoh")]
+pub mod site_tracks;
+#[cfg(feature = "zenoh")]
 pub mod site_view;
 pub mod socket;
 pub mod state;

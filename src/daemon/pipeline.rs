@@ -18,6 +18,7 @@ use tokio::sync::watch;
 use super::config::{Config, Connect, ScanMode as ConfigMode, SensorConfig, Survey};
 use super::pipeline_fuse::{Fuser, save_files, scan_frame};
 use super::pipeline_register::{Command, WorkItem, surveyed};
+use super::pipeline_track::TrackIn;
 use super::protocol::{
     Event, EventKind, Frame, PoseSource, Poses, Saved, SensorPose, SensorState, SensorStatus,
     Status, Survey as SurveyReply,
@@ -217,7 +218,7 @@ pub struct Pipeline {
     /// Where the page is served, or why it is not (`status`' `web`).
     web: Mutex<Option<String>>,
     /// The tracker's queue, once its task runs: every posed scan goes there too.
-    tracker: std::sync::OnceLock<DropOldestSender<PosedScan>>,
+    tracker: std::sync::OnceLock<DropOldestSender<TrackIn>>,
     /// Where the Foxglove server listens, or why it does not (`status`' `foxglove`).
     foxglove: Mutex<Option<String>>,
     /// The zone on Zenoh, or why it is not on the network (`status`' `zenoh`).
@@ -443,7 +444,7 @@ impl Pipeline {
     }
 
     /// Sends every posed scan to the tracker's queue from now on.
-    pub(super) fn feed_tracker(&self, queue: DropOldestSender<PosedScan>) {
+    pub(super) fn feed_tracker(&self, queue: DropOldestSender<TrackIn>) {
         let _ = self.tracker.set(queue);
     }
 
@@ -678,7 +679,7 @@ impl Pipeline {
                     }
                     // The tracker's queue drops its oldest scan when full: never a wait here.
                     if let Some(queue) = self.tracker.get() {
-                        let _ = queue.push(posed);
+                        let _ = queue.push(TrackIn::Scan(posed));
                     }
                 }
                 // A full queue drops the oldest scan; a stopped worker only ends registration.

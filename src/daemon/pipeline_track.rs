@@ -1,6 +1,11 @@
 //! The tracker task: posed scans in (a bounded queue that drops the oldest, off the scan
 //! path: a slow tracker never stalls a sensor), `TRACKS` out on the people stream
 //! ([`Publisher::people`]) at the fused rate. The core is [`crate::track`]; this is its thread.
+//!
+//! Across machines the same thread serves both ends: a zone daemon's also hands what each
+//! scan saw ([`Sightings`]) to its Zenoh side, and the site daemon's takes the zones'
+//! sightings, moved into the site frame, instead of scans: one tracker over every zone, so a
+//! person walking from one zone into another keeps one id.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -8,6 +13,7 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use crossbeam_channel::RecvTimeoutError;
+use serde::{Deserialize, Serialize};
 
 use super::pipeline::PosedScan;
 use super::protocol::Message;
@@ -15,8 +21,31 @@ use super::queue::{DropOldestSender, drop_oldest};
 use super::socket::Publisher;
 use crate::track::{SensorScan, TrackParams, Tracker};
 
-/// Scans queued for the tracker at most: a quarter second of 8 sensors at 40 Hz.
-pub const TRACK_QUEUE_SCANS: usize = 80;
+/// Items queued for the tracker at most: a quarter second of `sensors` at 40 Hz (of 8 at
+/// least).
+pub fn track_queue_len(sensors: usize) -> usize {
+    sensors.max(8) * 10
+}
+
+/// The people one sensor's scan saw, as a zone sends them to the site daemon: one point per
+/// person, in the zone's frame (the site frame once the site daemon has moved them).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Sightings {
+    pub sensor: String,
+    /// The scan's stamp (UNIX ns, the zone's clock).
+    pub t_ns: u64,
+    /// Body centres `[x, y]` (m); empty when the sensor saw no one (it still looked).
+    pub people: Vec<[f64; 2]>,
+}
+
+/// What the tracker takes.
+#[derive(Debug, Clone)]
+pub enum TrackIn {
+    /// A scan of one of this daemon's placed sensors.
+    Scan(PosedScan),
+    /// What a sensor of another daemon (a zone's, at the site daemon) saw, site frame.
+    Sighted(Sightings),
+}
 
 /// The running tracker: stop it with [`TrackerTask::stop`]; dropped, it stops too (within
 /// one queue poll) without being waited for.
@@ -32,13 +61,16 @@ impl Drop for TrackerTask {
 }
 
 impl TrackerTask {
-    /// Starts the tracker thread; scans pushed into the returned queue are tracked and every
-    /// fused step is published on `publisher`'s people stream.
+    /// Starts the tracker thread; what is pushed into the returned queue is tracked and
+    /// every fused step is published on `publisher`'s people stream. With `sightings`, what
+    /// each scan saw goes there too (dropping the oldest when nobody takes it).
     pub fn start(
         publisher: Publisher,
         params: TrackParams,
-    ) -> std::io::Result<(DropOldestSender<PosedScan>, TrackerTask)> {
-        let (tx, rx) = drop_oldest::<PosedScan>(TRACK_QUEUE_SCANS);
+        sightings: Option<DropOldestSender<Sightings>>,
+        queue_len: usize,
+    ) -> std::io::Result<(DropOldestSender<TrackIn>, TrackerTask)> {
+        let (tx, rx) = drop_oldest::<TrackIn>(queue_len);
         let stop = Arc::new(AtomicBool::new(false));
         let stopped = Arc::clone(&stop);
         let thread = std::thread::Builder::new()
@@ -46,18 +78,40 @@ impl TrackerTask {
             .spawn(move || {
                 let mut tracker = Tracker::new(params);
                 while !stopped.load(Ordering::Relaxed) {
-                    let posed = match rx.recv_timeout(Duration::from_millis(100)) {
+                    let item = match rx.recv_timeout(Duration::from_millis(100)) {
                         Ok(p) => p,
                         Err(RecvTimeoutError::Timeout) => continue,
                         Err(RecvTimeoutError::Disconnected) => break,
                     };
-                    let step = tracker.push(SensorScan {
-                        id: &posed.id,
-                        scan: &posed.scan,
-                        geometry: posed.geometry.as_ref(),
-                        mount: posed.mount,
-                        site_from_sensor: Some(posed.site_from_sensor.planar()),
-                    });
+                    let step = match item {
+                        TrackIn::Scan(posed) => {
+                            let step = tracker.push(SensorScan {
+                                id: &posed.id,
+                                scan: &posed.scan,
+                                geometry: posed.geometry.as_ref(),
+                                mount: posed.mount,
+                                site_from_sensor: Some(posed.site_from_sensor.planar()),
+                            });
+                            if let (Some(out), Some(seen)) =
+                                (&sightings, tracker.sightings(&posed.id))
+                            {
+                                let _ = out.push(Sightings {
+                                    sensor: posed.id.clone(),
+                                    t_ns: posed.scan.stamp_ns,
+                                    people: seen.iter().map(|p| [p.x, p.y]).collect(),
+                                });
+                            }
+                            step
+                        }
+                        TrackIn::Sighted(s) => {
+                            let people: Vec<_> = s
+                                .people
+                                .iter()
+                                .map(|&[x, y]| nalgebra::Point2::new(x, y))
+                                .collect();
+                            tracker.push_detections(&s.sensor, s.t_ns, &people)
+                        }
+                    };
                     if let Some(tracks) = step {
                         publisher.people(Message::Tracks(tracks));
                     }
@@ -105,8 +159,14 @@ mod tests {
     fn posed_scans_in_make_tracks_out_on_the_people_stream() {
         let publisher = Publisher::new(256);
         let mut people = publisher.subscribe_people();
-        let (queue, task) =
-            TrackerTask::start(publisher.clone(), TrackParams::default()).expect("starts");
+        let (seen_tx, seen_rx) = drop_oldest::<Sightings>(1000);
+        let (queue, task) = TrackerTask::start(
+            publisher.clone(),
+            TrackParams::default(),
+            Some(seen_tx),
+            track_queue_len(1),
+        )
+        .expect("starts");
         // The sensor stands at (2, 1) facing +y in the site frame.
         let site = Pose3::from_planar(&pose2(2.0, 1.0, std::f64::consts::FRAC_PI_2), 1.0, 0.0);
         for k in 0..60u64 {
@@ -117,14 +177,14 @@ mod tests {
                 scan(2.0 + 0.03 * k as f64, 0.5, k * 25_000_000)
             };
             queue
-                .push(PosedScan {
+                .push(TrackIn::Scan(PosedScan {
                     index: 0,
                     id: "a".into(),
                     scan: s,
                     geometry: None,
                     mount: Mount::default(),
                     site_from_sensor: site,
-                })
+                }))
                 .expect("the tracker takes scans");
         }
         // The last walker position in the sensor frame is (3.77, 0.5): site (1.5, 4.77).
@@ -154,5 +214,16 @@ mod tests {
             "{last:?}"
         );
         assert_eq!(t.sensors, vec!["a".to_string()]);
+        // What each scan saw went out too, for a zone's site daemon: the first scan (the
+        // background) saw nobody, the last the walker where the track is.
+        let seen: Vec<Sightings> = std::iter::from_fn(|| seen_rx.try_recv().ok()).collect();
+        assert_eq!(seen.len(), 60, "one per scan");
+        assert!(seen[0].people.is_empty() && seen[0].t_ns == 0);
+        let last = seen.last().unwrap();
+        assert_eq!((last.sensor.as_str(), last.t_ns), ("a", 59 * 25_000_000));
+        assert!(
+            matches!(last.people[..], [[x, y]] if (x - 1.5).abs() < 0.15 && (y - 4.77).abs() < 0.2),
+            "{last:?}"
+        );
     }
 }

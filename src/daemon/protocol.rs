@@ -201,7 +201,8 @@ pub struct ZoneStatus {
     /// Its sensors, and how many of them its own registration placed, from its last poses.
     pub sensors: usize,
     pub placed: usize,
-    /// Bytes a second it sends the site daemon (poses and status), over the last 10 s.
+    /// Bytes a second it sends the site daemon (poses, status and, when on, detections), over
+    /// the last 10 s.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub bytes_per_s: Option<f64>,
     /// Its clock minus the site daemon's (s), from its payloads' stamps (the link's delay

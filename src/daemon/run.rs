@@ -18,7 +18,7 @@ use super::config::{Config, Connect, SensorConfig};
 use super::notify::{Notifier, status_line};
 use super::pipeline::{Pipeline, PoseEntry, Report, SensorSpec};
 use super::pipeline_register::{Command, Consumed, Registrar, run_worker};
-use super::pipeline_track::TrackerTask;
+use super::pipeline_track::{TrackerTask, track_queue_len};
 use super::protocol::{EventKind, Saved};
 use super::queue::drop_oldest;
 use super::signals::{Request, Signals};
@@ -511,8 +511,32 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
     } else if let Some(d) = config.site.drawing.clone() {
         load_drawing(d, &pipeline).await;
     }
-    let tracker = if options.track && config.track.enabled {
-        let (queue, task) = TrackerTask::start(publisher.clone(), config.track.params())?;
+    // A zone that sends its detections (`[zenoh] detections`) hands them from the tracker
+    // to its Zenoh side, a second of them queued at most.
+    let tracking = options.track && config.track.enabled;
+    let sends_sightings = config.zenoh.as_ref().is_some_and(|z| z.detections);
+    let (sightings_tx, sightings_rx) = if sends_sightings && tracking {
+        let (tx, rx) = drop_oldest(track_queue_len(config.sensors.len()) * 4);
+        (Some(tx), Some(rx))
+    } else {
+        (None, None)
+    };
+    if sends_sightings && !tracking {
+        pipeline.announce(
+            EventKind::Error,
+            None,
+            "[zenoh] detections = true, but this run tracks no one: the site daemon gets no detections from this zone",
+        );
+    }
+    #[cfg(not(feature = "zenoh"))]
+    let _ = sightings_rx;
+    let tracker = if tracking {
+        let (queue, task) = TrackerTask::start(
+            publisher.clone(),
+            config.track.params(),
+            sightings_tx,
+            track_queue_len(config.sensors.len()),
+        )?;
         pipeline.feed_tracker(queue);
         Some(task)
     } else {
@@ -606,6 +630,7 @@ pub async fn run_daemon(mut config: Config, options: RunOptions) -> Result<RunSu
             Arc::clone(&pipeline),
             z,
             config.site.name.clone(),
+            sightings_rx,
             async move {
                 let _ = rx.wait_for(|s| *s).await;
             },

@@ -9,6 +9,11 @@
 //! when it changes. Zones stay authoritative for their own sensors' relative poses: the site
 //! daemon never re-places a sensor within its zone.
 //!
+//! Zones that send their detections (`[zenoh] detections = true`) are tracked as one site:
+//! their sightings, moved into the site frame (`site_tracks`), feed one tracker whose `TRACKS`
+//! (and zones, lines, OSC, MQTT, as the site file has them) the site daemon serves as a zone
+//! daemon serves its own.
+//!
 //! A zone that is lost keeps its last poses, marked `stale`; when it returns, its poses and
 //! views are taken afresh. A site daemon that restarts has nothing to restore: everything it
 //! shows comes back from the zones within a second or two (their poses) and one join.
@@ -20,12 +25,15 @@ use std::time::{Duration, Instant};
 use serde::{Deserialize, Serialize};
 
 use super::config::{Config, SITE_KEY, ZenohConfig};
+use super::pipeline_track::{Sightings, TrackIn, TrackerTask, track_queue_len};
 use super::protocol::{EventKind, Poses, Status, ZoneStatus};
+use super::queue::DropOldestSender;
+use super::site_tracks::CrossZone;
 use super::site_view::{Heard, Placed, SiteView, join_frame};
 use super::socket::Publisher;
 use super::zone_net::{
-    POSES_SCHEMA, Placed as PlacedKey, STATUS_SCHEMA, ViewPayload, key, now_ns, session_config,
-    zone_taken,
+    DETECTIONS_SCHEMA, POSES_SCHEMA, Placed as PlacedKey, STATUS_SCHEMA, ViewPayload, key, now_ns,
+    session_config, zone_taken,
 };
 
 /// The schema of the `site/frame` key's payload.
@@ -67,7 +75,7 @@ impl FramePayload {
     }
 }
 
-/// A zone's `poses` or `status` payload, as `zone_net` wraps them.
+/// A zone's `poses`, `status` or `detections` payload, as `zone_net` wraps them.
 #[derive(Debug, Deserialize)]
 struct ZonePayload {
     schema: String,
@@ -76,7 +84,11 @@ struct ZonePayload {
     t_ns: u64,
     poses: Option<Poses>,
     status: Option<Status>,
+    scans: Option<Vec<Sightings>>,
 }
+
+/// The site's tracker queue holds this many sightings: a quarter second of 400 sensors.
+const SITE_TRACK_SENSORS: usize = 400;
 
 /// Runs the site daemon (`scanfuse run` with `[site] role = "site"`) until SIGTERM, SIGINT
 /// or `duration`: the status socket and the Zenoh side. Events (zones alive, lost, placed)
@@ -117,10 +129,37 @@ pub async fn run_site_daemon(
         let _ = rx.wait_for(|s| *s).await;
     };
     let serving = tokio::spawn(server.run(stopped(stop_rx.clone())));
-    let zenoh = config
-        .zenoh
-        .clone()
-        .map(|z| tokio::spawn(run(Arc::clone(&view), z, stopped(stop_rx.clone()))));
+    // One tracker for the whole site, fed by the zones that send their detections.
+    let (tracker_queue, tracker) = if config.track.enabled {
+        let (queue, task) = TrackerTask::start(
+            publisher.clone(),
+            config.track.params(),
+            None,
+            track_queue_len(SITE_TRACK_SENSORS),
+        )?;
+        (Some(queue), Some(task))
+    } else {
+        (None, None)
+    };
+    if super::people_out::wanted(&config.people) {
+        // No drawing at the site daemon: zones and lines are in the site frame.
+        let (_keep, building) = tokio::sync::watch::channel(None);
+        tokio::spawn(super::people_out::run(
+            config.people.clone(),
+            config.site.name.clone(),
+            publisher.clone(),
+            building,
+            stopped(stop_rx.clone()),
+        ));
+    }
+    let zenoh = config.zenoh.clone().map(|z| {
+        tokio::spawn(run(
+            Arc::clone(&view),
+            z,
+            tracker_queue,
+            stopped(stop_rx.clone()),
+        ))
+    });
     let mut signals = Signals::install()?;
     let deadline = async {
         match duration {
@@ -146,6 +185,9 @@ pub async fn run_site_daemon(
         let _ = z.await;
     }
     let _ = serving.await;
+    if let Some(t) = tracker {
+        t.stop();
+    }
     Ok(())
 }
 
@@ -169,6 +211,7 @@ fn zone_of(key: &str) -> Option<&str> {
 pub async fn run(
     view: Arc<SiteView>,
     cfg: ZenohConfig,
+    tracker: Option<DropOldestSender<TrackIn>>,
     stop: impl std::future::Future<Output = ()>,
 ) {
     use zenoh::bytes::Encoding;
@@ -203,13 +246,16 @@ pub async fn run(
         let statuses = session
             .declare_subscriber(key(&site, "*", "status"))
             .await?;
+        let detections = session
+            .declare_subscriber(key(&site, "*", "detections"))
+            .await?;
         let frame = session
             .declare_publisher(key(&site, SITE_KEY, "frame"))
             .encoding(Encoding::APPLICATION_JSON)
             .await?;
-        Ok::<_, zenoh::Error>((token, alive, poses, statuses, frame))
+        Ok::<_, zenoh::Error>((token, alive, poses, statuses, detections, frame))
     };
-    let (token, alive, poses, statuses, frame_pub) = match declared.await {
+    let (token, alive, poses, statuses, detections, frame_pub) = match declared.await {
         Ok(d) => d,
         Err(e) => return refuse(format!("its keys were not declared: {e}")),
     };
@@ -223,6 +269,7 @@ pub async fn run(
     let mut seen: Option<(Instant, Vec<(String, PlacedKey)>)> = None;
     let mut joined: Option<(Instant, Vec<(String, PlacedKey)>)> = None;
     let mut joining: Option<tokio::task::JoinHandle<Option<BTreeMap<String, Placed>>>> = None;
+    let mut cross = CrossZone::default();
     tokio::pin!(stop);
     loop {
         tokio::select! {
@@ -230,7 +277,11 @@ pub async fn run(
             sample = alive.recv_async() => {
                 let Ok(sample) = sample else { break };
                 if let Some(zone) = zone_of(sample.key_expr().as_str()).filter(|z| *z != SITE_KEY) {
-                    view.liveliness(zone, sample.kind() == SampleKind::Put);
+                    let alive = sample.kind() == SampleKind::Put;
+                    view.liveliness(zone, alive);
+                    if !alive {
+                        cross.lost(zone);
+                    }
                 }
                 continue;
             }
@@ -242,6 +293,17 @@ pub async fn run(
             sample = statuses.recv_async() => {
                 let Ok(sample) = sample else { break };
                 heard(&view, &sample);
+                continue;
+            }
+            sample = detections.recv_async() => {
+                let Ok(sample) = sample else { break };
+                if let (Some((zone, scans)), Some(queue)) = (heard(&view, &sample), &tracker) {
+                    let pose = view.site_from_zone_for_tracks(&zone);
+                    for s in cross.take(&zone, pose.as_ref(), scans) {
+                        // A full queue drops the oldest: the tracker never holds up the zones.
+                        let _ = queue.push(TrackIn::Sighted(s));
+                    }
+                }
                 continue;
             }
             _ = tick.tick() => {}
@@ -313,36 +375,42 @@ pub async fn run(
     }
 }
 
-/// A zone's `poses` or `status`, checked: its schema, and that the zone it names is the one
-/// whose key it came under. What cannot be read is stated once per zone and key (it comes
-/// every second) and shown in the zone's status until it reads again.
-fn heard(view: &SiteView, sample: &zenoh::sample::Sample) {
+/// A zone's `poses`, `status` or `detections`, checked: its schema, and that the zone it
+/// names is the one whose key it came under. What cannot be read is stated once per zone and
+/// key (it comes every second) and shown in the zone's status until it reads again.
+/// Detections are returned with their zone, for the tracker.
+fn heard(view: &SiteView, sample: &zenoh::sample::Sample) -> Option<(String, Vec<Sightings>)> {
     let key = sample.key_expr().as_str();
     let Some(zone) = zone_of(key) else {
-        return tracing::warn!("{key}: not a zone's key");
+        tracing::warn!("{key}: not a zone's key");
+        return None;
     };
     let leaf = key.rsplit('/').next().unwrap_or(key);
     let bytes = sample.payload().to_bytes();
     let p = match serde_json::from_slice::<ZonePayload>(&bytes) {
         Ok(p) => p,
         Err(e) => {
-            return view.heard_unreadable(zone, leaf, format!("not a zone's {leaf}: {e}"));
+            view.heard_unreadable(zone, leaf, format!("not a zone's {leaf}: {e}"));
+            return None;
         }
     };
     if zone != p.zone {
-        return view.heard_unreadable(zone, leaf, format!("it names zone {:?}", p.zone));
+        view.heard_unreadable(zone, leaf, format!("it names zone {:?}", p.zone));
+        return None;
     }
-    let read = match (p.schema.as_str(), p.poses, p.status) {
-        (POSES_SCHEMA, Some(poses), _) => Some(ZoneSaid::Poses(poses)),
-        (STATUS_SCHEMA, _, Some(status)) => Some(ZoneSaid::Status(status)),
+    let read = match (p.schema.as_str(), p.poses, p.status, p.scans) {
+        (POSES_SCHEMA, Some(poses), _, _) => Some(ZoneSaid::Poses(poses)),
+        (STATUS_SCHEMA, _, Some(status), _) => Some(ZoneSaid::Status(status)),
+        (DETECTIONS_SCHEMA, _, _, Some(scans)) => Some(ZoneSaid::Detections(scans)),
         _ => None,
     };
     let Some(read) = read else {
         let why = format!(
-            "schema {:?} is not one this scanfuse reads ({POSES_SCHEMA}, {STATUS_SCHEMA})",
+            "schema {:?} is not one this scanfuse reads ({POSES_SCHEMA}, {STATUS_SCHEMA}, {DETECTIONS_SCHEMA})",
             p.schema
         );
-        return view.heard_unreadable(zone, leaf, why);
+        view.heard_unreadable(zone, leaf, why);
+        return None;
     };
     view.heard_readable(zone, leaf);
     view.heard_bytes(zone, bytes.len());
@@ -351,13 +419,16 @@ fn heard(view: &SiteView, sample: &zenoh::sample::Sample) {
     match read {
         ZoneSaid::Poses(poses) => view.heard_poses(zone, poses),
         ZoneSaid::Status(status) => view.heard_status(zone, status),
+        ZoneSaid::Detections(scans) => return Some((zone.to_string(), scans)),
     }
+    None
 }
 
 /// What a zone's payload held.
 enum ZoneSaid {
     Poses(Poses),
     Status(Status),
+    Detections(Vec<Sightings>),
 }
 
 /// Asks every alive zone for its views and joins the zones; `None` when no zone, or not the

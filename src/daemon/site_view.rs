@@ -30,7 +30,7 @@ struct Zone {
     fresh: bool,
     /// Its last status: its sensors' drivers.
     status: Option<Status>,
-    /// Bytes of poses and status heard from it, by when, over the last `RATE_OVER`.
+    /// Bytes of what it sent (poses, status, detections), by when, over the last `RATE_OVER`.
     heard: VecDeque<(Instant, usize)>,
     /// Its clock minus the site daemon's (s) as its last payloads said, newest last.
     clock: VecDeque<f64>,
@@ -225,7 +225,7 @@ impl SiteView {
             Some((true, o)) => self.announce(
                 EventKind::Error,
                 format!(
-                    "zone {zone}'s clock is {:.2} s {} the site daemon's: set both to one time source (NTP, chrony); times compared across zones are wrong until then",
+                    "zone {zone}'s clock is {:.2} s {} the site daemon's: set both to one time source (NTP, chrony); times compared across zones are wrong until then, and its people are left out of the site's tracks",
                     o.abs(),
                     if o > 0.0 { "ahead of" } else { "behind" }
                 ),
@@ -272,7 +272,7 @@ impl SiteView {
         }
     }
 
-    /// `bytes` of a zone's poses or status arrived.
+    /// `bytes` of a zone's poses, status or detections arrived.
     pub(super) fn heard_bytes(&self, zone: &str, bytes: usize) {
         let mut s = self.lock();
         let z = s.heard(zone);
@@ -312,6 +312,17 @@ impl SiteView {
                 "waiting for the anchor zone {} (the site frame is its frame)",
                 self.anchor
             )
+        }
+    }
+
+    /// Where zone `zone` stands in the site frame, for its people: `None` while it is lost,
+    /// not placed, or its clock is off (its people would be put at the wrong moment).
+    pub(super) fn site_from_zone_for_tracks(&self, zone: &str) -> Option<Pose2> {
+        let s = self.lock();
+        let z = s.zones.get(zone)?;
+        match s.frame.get(zone) {
+            Some(Ok((pose, _, _))) if z.alive && !z.clock_off => Some(*pose),
+            _ => None,
         }
     }
 
@@ -416,7 +427,7 @@ impl SiteView {
     }
 }
 
-/// What a zone sent of poses and status a second, over the last `RATE_OVER` (or since the
+/// What a zone sent (poses, status, detections) a second, over the last `RATE_OVER` (or since the
 /// site daemon started); absent before anything came.
 fn bytes_per_s(z: &Zone, started: Instant) -> Option<f64> {
     let total: usize = z.heard.iter().map(|(_, b)| b).sum();

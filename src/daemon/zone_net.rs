@@ -15,6 +15,12 @@
 //! - `view/<sensor>`: a queryable, not a stream: each sensor's static view as registration
 //!   sees it (through a crowd), `scanfuse.zone.view/1` ([`ViewPayload`]), for the site daemon
 //!   to register sensors of different zones against each other. `view/*` asks for all.
+//! - `detections` (opt-in: `[zenoh] detections = true`): `scanfuse.zone.detections/1`,
+//!   `{…,"scans":[{"sensor","t_ns","people":[[x,y],…]}]}`, what each scan of the zone's placed
+//!   sensors saw ([`Sightings`]: body centres in the zone's frame, m; a scan that saw no one
+//!   is listed with none, so that the site daemon knows it looked), every 0.1 s. `t_ns` of a
+//!   scan is its stamp on the zone's clock. The site daemon tracks people across zones from
+//!   these.
 //!
 //! `t_ns` is the zone's wall clock (UNIX ns) when it published. The schema's number is its
 //! major version: a reader refuses one it does not know.
@@ -27,7 +33,9 @@ use serde::{Deserialize, Serialize};
 use super::config::{SITE_KEY, ZenohConfig};
 use super::pipeline::Pipeline;
 use super::pipeline_register::StaticView;
+use super::pipeline_track::Sightings;
 use super::protocol::{Poses, Status};
+use super::queue::WorkerEnd;
 use super::site_net::FramePayload;
 use crate::geometry::Mount;
 use crate::scan::{Scan, ScanGeometry};
@@ -36,6 +44,9 @@ use crate::scan::{Scan, ScanGeometry};
 pub const POSES_SCHEMA: &str = "scanfuse.zone.poses/1";
 /// The schema of the `status` key's payload.
 pub const STATUS_SCHEMA: &str = "scanfuse.zone.status/1";
+
+/// The schema of the `detections` key's payload.
+pub const DETECTIONS_SCHEMA: &str = "scanfuse.zone.detections/1";
 
 /// The schema of a `view/<sensor>` reply.
 pub const VIEW_SCHEMA: &str = "scanfuse.zone.view/1";
@@ -130,6 +141,9 @@ const VIEWS_PATIENCE: Duration = Duration::from_secs(2);
 const LEASE_MS: u64 = 1000;
 /// How often poses are looked at for a change.
 const LOOK: Duration = Duration::from_millis(250);
+/// How often the detections gathered are sent (what the site daemon's tracks lag by, at
+/// most, beyond the link).
+const DETECTIONS_EVERY: Duration = Duration::from_millis(100);
 /// How often everything is published even when nothing changed (a daemon that starts later
 /// has it within this).
 const EVERY: Duration = Duration::from_secs(1);
@@ -153,12 +167,13 @@ struct Wrapped<'a> {
     body: Body<'a>,
 }
 
-/// The reply a payload carries, under its own key (`poses` or `status`).
+/// What a payload carries, under its own key (`poses`, `status` or `scans`).
 #[derive(Debug, Serialize)]
 #[serde(untagged)]
 enum Body<'a> {
     Poses { poses: &'a Poses },
     Status { status: &'a Status },
+    Detections { scans: &'a [Sightings] },
 }
 
 /// Each sensor: id, registered, pose in mm and thousandths of a degree.
@@ -220,6 +235,7 @@ pub async fn run(
     pipeline: Arc<Pipeline>,
     cfg: ZenohConfig,
     site: String,
+    sightings: Option<WorkerEnd<Sightings>>,
     stop: impl std::future::Future<Output = ()>,
 ) {
     use super::protocol::EventKind;
@@ -267,6 +283,19 @@ pub async fn run(
         Ok(p) => p,
         Err(e) => return refuse(format!("its publishers were not declared: {e}")),
     };
+    let detections_key = key(&site, &cfg.zone, "detections");
+    let detections = match &sightings {
+        Some(rx) => match session
+            .declare_publisher(detections_key.clone())
+            .encoding(Encoding::APPLICATION_JSON)
+            .await
+        {
+            Ok(p) => Some((rx, p)),
+            Err(e) => return refuse(format!("{detections_key} was not declared: {e}")),
+        },
+        None => None,
+    };
+    let mut send = tokio::time::interval(DETECTIONS_EVERY);
     let views_key = key(&site, &cfg.zone, "view/*");
     let views = match session.declare_queryable(views_key.clone()).await {
         Ok(q) => q,
@@ -293,6 +322,28 @@ pub async fn run(
         tokio::select! {
             _ = &mut stop => break,
             _ = look.tick() => {}
+            _ = send.tick(), if detections.is_some() => {
+                if let Some((rx, publisher)) = &detections {
+                    let scans: Vec<Sightings> = std::iter::from_fn(|| rx.try_recv().ok()).collect();
+                    let payload = serde_json::to_vec(&Wrapped {
+                        schema: DETECTIONS_SCHEMA,
+                        site: &site,
+                        zone: &cfg.zone,
+                        t_ns: now_ns(),
+                        body: Body::Detections { scans: &scans },
+                    });
+                    match payload {
+                        Ok(bytes) if !scans.is_empty() => {
+                            if let Err(e) = publisher.put(bytes).await {
+                                tracing::warn!("publishing {detections_key} failed: {e}");
+                            }
+                        }
+                        Ok(_) => {}
+                        Err(e) => tracing::warn!("the zone's detections did not serialise: {e}"),
+                    }
+                }
+                continue;
+            }
             sample = frames.recv_async() => {
                 let Ok(sample) = sample else { break };
                 let said = match FramePayload::parse(&sample.payload().to_bytes()) {

@@ -49,6 +49,8 @@ struct SensorState {
     pose: Option<Pose2>,
     /// Its latest scan's sightings not yet fused.
     pending: Vec<Sighting>,
+    /// Its latest scan's sightings, fused or not ([`Tracker::sightings`]).
+    seen: Vec<Point2<f64>>,
     /// Its latest scan's stamp, and the intervals between its recent scans (oldest first).
     last_ns: Option<u64>,
     gaps_ns: VecDeque<u64>,
@@ -169,6 +171,14 @@ impl Tracker {
         ranges
     }
 
+    /// The people sensor `id`'s latest scan saw, site frame, one per person it saw (not
+    /// merged with other sensors'): what a zone sends its site daemon. `None` while the
+    /// sensor is unknown or not placed.
+    pub fn sightings(&self, id: &str) -> Option<&[Point2<f64>]> {
+        let state = self.sensors.get(id)?;
+        state.pose.map(|_| state.seen.as_slice())
+    }
+
     /// A sensor left (unplugged, removed): its detections no longer count; the tracks go on
     /// with the others.
     pub fn forget_sensor(&mut self, id: &str) {
@@ -243,6 +253,7 @@ impl Tracker {
         let ranges = Tracker::horizontal_ranges(s.scan, s.geometry, &s.mount, p);
         let state = self.sensors.entry(s.id.to_string()).or_default();
         state.delivers(s.scan.stamp_ns);
+        state.seen.clear();
         // A sensor whose pose jumped was moved: what it learnt is from elsewhere.
         if let (Some(old), Some(new)) = (state.pose, s.site_from_sensor) {
             let (m, rad) = pose_error(&new, &old);
@@ -293,10 +304,11 @@ impl Tracker {
                 detect::pair_legs(&centres, p.same_person_m)
             };
             centres.retain(|c| c.coords.norm() <= p.max_range_m);
-            state.pending.extend(centres.into_iter().map(|c| Sighting {
-                at: pose * c,
-                stamp_ns: s.scan.stamp_ns,
-            }));
+            state.seen.extend(centres.into_iter().map(|c| pose * c));
+            let stamp_ns = s.scan.stamp_ns;
+            state
+                .pending
+                .extend(state.seen.iter().map(|&at| Sighting { at, stamp_ns }));
         }
         background.update(&ranges, s.scan.stamp_ns, &p.background);
     }
