@@ -7,10 +7,11 @@
 //! daemon's by up to a few cm, and that carries into the link. The table prints each unit's
 //! Δ. A zone killed is lost within 2 s, its poses kept and marked stale, and started again it
 //! rejoins with nothing else restarted; the site daemon restarted rebuilds the site from the
-//! zones. Back, east sends what its tracker sees as west does from the start
-//! (`[zenoh] detections = true`), and the site daemon tracks the hall's people across both
-//! zones: one person seen by a unit of each is one track that lists both. East's bytes a
-//! second are printed without and with its detections.
+//! zones. Both zones send what their trackers see (`[zenoh] detections = true`), west its
+//! scans too (`scans_hz`): the site daemon tracks the hall's people across both zones (one
+//! person seen by units of each is one track, one id), streams west's scans in the site frame
+//! to `map` watchers and saves the fused map. East's bytes a second are printed with its
+//! detections and, back after the kill without them, without.
 #![cfg(feature = "zenoh")]
 
 mod daemon_run_common;
@@ -19,7 +20,8 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use daemon_run_common::{
-    Client, HALL, Proc, fixture, replay_sensors, start_daemon, wait_for, write_config,
+    Client, HALL, Proc, check_map_files, fixture, replay_sensors, start_daemon, wait_for,
+    write_config,
 };
 use scanfuse::daemon::protocol::{Message, Poses, SensorPose};
 
@@ -37,23 +39,21 @@ fn site_config(dir: &Path, endpoint: &str) -> std::path::PathBuf {
     path
 }
 
-/// A zone daemon holding `units` of the hall, its first the zone's anchor; sending what its
-/// tracker sees when `detections`.
+/// A zone daemon holding `units` of the hall, its first the zone's anchor; `more` lines in
+/// its `[zenoh]` (the opt-in streams).
 fn zone(
     dir: &Path,
     zone: &str,
     units: &[(&'static str, &'static str)],
     endpoint: &str,
-    detections: bool,
+    more: &str,
 ) -> Proc {
     let sensors = replay_sensors(&fixture("hall.mcap"), units);
     let config = write_config(
         dir,
         units[0].0,
         &sensors,
-        &format!(
-            "\n[zenoh]\nzone = \"{zone}\"\nconnect = [\"{endpoint}\"]\ndetections = {detections}\n"
-        ),
+        &format!("\n[zenoh]\nzone = \"{zone}\"\nconnect = [\"{endpoint}\"]\n{more}\n"),
     );
     start_daemon(&config, dir)
 }
@@ -116,8 +116,23 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
 
     let started = Instant::now();
     let mut site_daemon = start_daemon(&site_config(dirs[0].path(), &endpoint), dirs[0].path());
-    let _west = zone(dirs[1].path(), "west", &west_units, &endpoint, true);
-    let mut east = zone(dirs[2].path(), "east", &east_units, &endpoint, false);
+    // West sends what its tracker sees and its scans twice a second; east what its tracker
+    // sees. Started together, their replays of the hall run nearly in step, as live units
+    // would (restarted, east would replay it out of step with west).
+    let _west = zone(
+        dirs[1].path(),
+        "west",
+        &west_units,
+        &endpoint,
+        "detections = true\nscans_hz = 2",
+    );
+    let mut east = zone(
+        dirs[2].path(),
+        "east",
+        &east_units,
+        &endpoint,
+        "detections = true",
+    );
 
     let mut site = Client::connect(&dirs[0].path().join("s.sock"), PATIENCE);
     let line = wait_for(PATIENCE, "the site daemon on Zenoh", || {
@@ -151,9 +166,9 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
             z.bytes_per_s.unwrap_or(0.0),
             z.sensors,
             if z.zone == "west" {
-                ", and what its tracker sees"
+                ", what its tracker sees, and its scans twice a second"
             } else {
-                ""
+                ", and what its tracker sees"
             }
         );
         assert!(z.bytes_per_s.is_some_and(|b| b > 0.0), "{z:?}");
@@ -165,6 +180,11 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
             "{id} has no driver status"
         );
     }
+    site_map(
+        &dirs[0].path().join("s.sock"),
+        &dirs[0].path().join("state"),
+    );
+    people_across_zones(&dirs[0].path().join("s.sock"));
     let east_status = status.zones.iter().find(|z| z.zone == "east").unwrap();
     let frame = east_status.site_from_zone.expect("east is placed");
     assert!(frame.pairs >= 1 && frame.sigma_x_m > 0.0, "{frame:?}");
@@ -191,12 +211,13 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
     assert!(!sensor(&poses, "gate").unwrap().stale);
 
     // Started again, it rejoins; nothing else was restarted.
-    let _east = zone(dirs[2].path(), "east", &east_units, &endpoint, true);
+    // Back, it sends neither stream: its bytes a second without them.
+    let _east = zone(dirs[2].path(), "east", &east_units, &endpoint, "");
     wait_all_placed(&mut site, &ids, "east back and placed");
-    people_across_zones(&dirs[0].path().join("s.sock"));
+    std::thread::sleep(Duration::from_secs(10));
     let east_status = site.status().zones.into_iter().find(|z| z.zone == "east");
     println!(
-        "zone east sends the site daemon {:.0} bytes/s with what its tracker sees",
+        "zone east, back without its detections, sends the site daemon {:.0} bytes/s",
         east_status.and_then(|z| z.bytes_per_s).unwrap_or(0.0)
     );
 
@@ -235,9 +256,42 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
     });
 }
 
-/// Watches the site daemon's tracks until one person is seen by units of both zones at once
-/// and is one track listing them (the dock is east's; the others west's); says what it saw
-/// when that does not come.
+/// West's scans reach the site daemon's `map` watchers in the site frame, and its `save`
+/// writes the fused map's files.
+fn site_map(socket: &Path, state: &Path) {
+    let mut watcher = Client::connect(socket, PATIENCE);
+    match watcher.request(r#"{"cmd":"watch","status":false,"map":true}"#) {
+        Message::Watch(w) => assert!(w.map, "{w:?}"),
+        other => panic!("watch answered {other:?}"),
+    }
+    let frame = loop {
+        if let Message::Frame(f) = watcher.read() {
+            break f;
+        }
+    };
+    let scan = &frame.scans[0];
+    assert!(
+        scan.sensor != "dock" && scan.xy_m.len() > 200,
+        "{} with {} coordinates",
+        scan.sensor,
+        scan.xy_m.len()
+    );
+    let mut site = Client::connect(socket, PATIENCE);
+    // Saved once each of west's units has been fused (a second, at the site daemon's pace).
+    std::thread::sleep(Duration::from_secs(2));
+    match site.request(r#"{"cmd":"save"}"#) {
+        Message::Saved(s) => {
+            println!("the site daemon saved {:?} in {}", s.files, s.dir);
+            assert!(s.files.contains(&"map.pgm".to_string()), "{s:?}");
+        }
+        other => panic!("save answered {other:?}"),
+    }
+    check_map_files(state);
+}
+
+/// Watches the site daemon's tracks until one track (one id) has been seen by units of both
+/// zones, at once or one after the other (the dock is east's; the others west's): a person
+/// the zones share is one person. Says what it saw when that does not come.
 fn people_across_zones(socket: &Path) {
     let mut watcher = Client::connect(socket, PATIENCE);
     match watcher.request(r#"{"cmd":"watch","status":false,"tracks":true}"#) {
@@ -245,13 +299,14 @@ fn people_across_zones(socket: &Path) {
         other => panic!("watch answered {other:?}"),
     }
     let start = Instant::now();
-    let (mut lines, mut tracked, mut ids) = (0, 0, std::collections::BTreeSet::new());
-    let mut by = std::collections::BTreeSet::new();
+    let (mut lines, mut tracked) = (0, 0);
+    // Each id's units over its life.
+    let mut by: std::collections::BTreeMap<u64, std::collections::BTreeSet<String>> =
+        Default::default();
     loop {
         assert!(
             start.elapsed() < PATIENCE,
-            "no track seen by both zones: {lines} TRACKS lines, {tracked} tracks ({} ids), seen by {by:?}",
-            ids.len()
+            "no track seen by both zones: {lines} TRACKS lines, {tracked} tracks, by id {by:?}"
         );
         let Message::Tracks(t) = watcher.read() else {
             continue;
@@ -259,13 +314,13 @@ fn people_across_zones(socket: &Path) {
         lines += 1;
         for track in &t.tracks {
             tracked += 1;
-            ids.insert(track.id);
-            by.insert(track.sensors.join("+"));
-            let east = track.sensors.iter().any(|s| s == "dock");
-            let west = track.sensors.iter().any(|s| s != "dock");
+            let units = by.entry(track.id).or_default();
+            units.extend(track.sensors.iter().cloned());
+            let east = units.iter().any(|s| s == "dock");
+            let west = units.iter().any(|s| s != "dock");
             if east && west {
                 println!(
-                    "track {} at ({:.2}, {:.2}) m seen by {:?} across both zones, {:?} after east rejoined ({} TRACKS lines)",
+                    "track {} (now at ({:.2}, {:.2}) m, seen by {:?}) has been seen by {units:?}, across both zones, {:?} after the watch began ({} TRACKS lines)",
                     track.id,
                     track.x_m,
                     track.y_m,

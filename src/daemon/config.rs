@@ -65,6 +65,9 @@ pub struct ZenohConfig {
     /// tracks people across zones; off by default (a stream: ~6 kB/s per 20 Hz unit with a
     /// few people in view, `tests/zenoh_site.rs`).
     pub detections: bool,
+    /// A zone sends each placed unit's latest scan this often (`scan/<sensor>`), for the site
+    /// daemon's fused map; off when absent (a stream: ~7 kB per scan of a 1,081-beam unit).
+    pub scans_hz: Option<f64>,
 }
 
 impl ZenohConfig {
@@ -87,6 +90,9 @@ impl ZenohConfig {
         }
         if self.detections {
             ends.push("sending what its tracker sees".to_string());
+        }
+        if let Some(hz) = self.scans_hz {
+            ends.push(format!("sending each unit's scan {hz} times a second"));
         }
         let who = if site_daemon {
             "the site daemon".to_string()
@@ -633,6 +639,7 @@ struct RawZenoh {
     #[serde(default)]
     listen: Vec<Spanned<String>>,
     detections: Option<Spanned<bool>>,
+    scans_hz: Option<Spanned<f64>>,
 }
 
 #[derive(Deserialize)]
@@ -1470,11 +1477,33 @@ fn parse_zenoh(
         Some(d) => *d.get_ref(),
         None => false,
     };
+    let scans_hz = match z.scans_hz {
+        Some(h) if role == Role::Site => {
+            return Err(loc.at(
+                h.span(),
+                "zenoh.scans_hz",
+                "a site daemon takes the zones' scans: set scans_hz in each zone's [zenoh]",
+            ));
+        }
+        Some(h) => {
+            let hz = *h.get_ref();
+            if !(hz > 0.0 && hz <= 40.0) {
+                return Err(loc.at(
+                    h.span(),
+                    "zenoh.scans_hz",
+                    format!("{hz} is not a rate: give scans a second, above 0 and at most 40 (e.g. 2), or leave it out to send none"),
+                ));
+            }
+            Some(hz)
+        }
+        None => None,
+    };
     Ok(ZenohConfig {
         zone,
         connect,
         listen,
         detections,
+        scans_hz,
     })
 }
 
@@ -2517,6 +2546,12 @@ map_cell_m = 0.1
                 "enable tracking",
                 3,
             ),
+            (
+                "zone = \"east\"\nlisten = [\"tcp/1.2.3.4:1\"]\nscans_hz = 0",
+                "zenoh.scans_hz",
+                "not a rate",
+                3,
+            ),
         ] {
             let (at, k, msg) = invalid(&with(table));
             assert_eq!((k.as_str(), at), (key, zenoh_line + line), "{table}: {msg}");
@@ -2535,7 +2570,16 @@ map_cell_m = 0.1
             "zone = \"east\"\nlisten = [\"tcp/1.2.3.4:1\"]\ndetections = true",
         ))
         .unwrap();
-        assert!(d.zenoh.unwrap().detections);
+        let d = d.zenoh.unwrap();
+        assert!(d.detections && d.scans_hz.is_none());
+        let z = parse(&with(
+            "zone = \"east\"\nlisten = [\"tcp/1.2.3.4:1\"]\nscans_hz = 2.5",
+        ))
+        .unwrap()
+        .zenoh
+        .unwrap();
+        assert_eq!(z.scans_hz, Some(2.5));
+        assert!(z.describe("hall").contains("scan 2.5 times a second"));
     }
 
     #[test]
@@ -2566,6 +2610,11 @@ map_cell_m = 0.1
             (
                 format!("{site}{zenoh}detections = true\n"),
                 "zenoh.detections",
+                "in each zone's [zenoh]",
+            ),
+            (
+                format!("{site}{zenoh}scans_hz = 2\n"),
+                "zenoh.scans_hz",
                 "in each zone's [zenoh]",
             ),
             (

@@ -32,6 +32,8 @@ pub mod returns;
 pub mod run;
 pub mod signals;
 #[cfg(feature = "zenoh")]
+pub mod site_map;
+#[cfg(feature = "zenoh")]
 pub mod site_net;
 #[cfg(feature = "zenoh")]
 pub mod site_tracks;

@@ -32,8 +32,8 @@ use super::site_tracks::CrossZone;
 use super::site_view::{Heard, Placed, SiteView, join_frame};
 use super::socket::Publisher;
 use super::zone_net::{
-    DETECTIONS_SCHEMA, POSES_SCHEMA, Placed as PlacedKey, STATUS_SCHEMA, ViewPayload, key, now_ns,
-    session_config, zone_taken,
+    DETECTIONS_SCHEMA, POSES_SCHEMA, Placed as PlacedKey, SCAN_SCHEMA, STATUS_SCHEMA, ViewPayload,
+    key, now_ns, session_config, zone_taken,
 };
 
 /// The schema of the `site/frame` key's payload.
@@ -103,11 +103,10 @@ pub async fn run_site_daemon(
     use tokio::sync::watch;
 
     let publisher = Publisher::new(config.publish.watch_backlog);
-    let view = Arc::new(SiteView::new(
-        &config.site.name,
-        &config.site.anchor,
-        publisher.clone(),
-    ));
+    let view = Arc::new(
+        SiteView::new(&config.site.name, &config.site.anchor, publisher.clone())
+            .with_map(&config.publish, &config.site.state_dir),
+    );
     if let Some(tx) = events {
         let mut rx = publisher.subscribe_events();
         tokio::spawn(async move {
@@ -188,6 +187,12 @@ pub async fn run_site_daemon(
     if let Some(t) = tracker {
         t.stop();
     }
+    // The map as it stood, when there is one (the zones save their own poses).
+    view.fuse_map();
+    match view.save_map() {
+        Ok(saved) => tracing::info!("saved {} in {}", saved.files.join(", "), saved.dir),
+        Err(why) => tracing::info!("no map saved: {}", why.0),
+    }
     Ok(())
 }
 
@@ -249,13 +254,16 @@ pub async fn run(
         let detections = session
             .declare_subscriber(key(&site, "*", "detections"))
             .await?;
+        let scans = session
+            .declare_subscriber(key(&site, "*", "scan/*"))
+            .await?;
         let frame = session
             .declare_publisher(key(&site, SITE_KEY, "frame"))
             .encoding(Encoding::APPLICATION_JSON)
             .await?;
-        Ok::<_, zenoh::Error>((token, alive, poses, statuses, detections, frame))
+        Ok::<_, zenoh::Error>((token, alive, poses, statuses, detections, scans, frame))
     };
-    let (token, alive, poses, statuses, detections, frame_pub) = match declared.await {
+    let (token, alive, poses, statuses, detections, scans, frame_pub) = match declared.await {
         Ok(d) => d,
         Err(e) => return refuse(format!("its keys were not declared: {e}")),
     };
@@ -270,6 +278,7 @@ pub async fn run(
     let mut joined: Option<(Instant, Vec<(String, PlacedKey)>)> = None;
     let mut joining: Option<tokio::task::JoinHandle<Option<BTreeMap<String, Placed>>>> = None;
     let mut cross = CrossZone::default();
+    let mut fused = Instant::now();
     tokio::pin!(stop);
     loop {
         tokio::select! {
@@ -306,7 +315,16 @@ pub async fn run(
                 }
                 continue;
             }
+            sample = scans.recv_async() => {
+                let Ok(sample) = sample else { break };
+                heard_scan(&view, &sample);
+                continue;
+            }
             _ = tick.tick() => {}
+        }
+        if fused.elapsed() >= EVERY {
+            fused = Instant::now();
+            view.fuse_map();
         }
         // A join finished: its frame is the site's.
         if joining.as_ref().is_some_and(|j| j.is_finished())
@@ -422,6 +440,30 @@ fn heard(view: &SiteView, sample: &zenoh::sample::Sample) -> Option<(String, Vec
         ZoneSaid::Detections(scans) => return Some((zone.to_string(), scans)),
     }
     None
+}
+
+/// A zone's scan of one unit, checked as `heard` checks the rest, into the map.
+fn heard_scan(view: &SiteView, sample: &zenoh::sample::Sample) {
+    let key = sample.key_expr().as_str();
+    let Some(zone) = zone_of(key) else {
+        return tracing::warn!("{key}: not a zone's key");
+    };
+    let bytes = sample.payload().to_bytes();
+    let scan = match ViewPayload::parse_as(&bytes, SCAN_SCHEMA) {
+        Ok(scan) if scan.zone != zone => Err(format!("it names zone {:?}", scan.zone)),
+        Ok(scan) if !key.ends_with(&format!("/scan/{}", scan.sensor)) => {
+            Err(format!("it names sensor {:?}", scan.sensor))
+        }
+        other => other,
+    };
+    match scan {
+        Ok(scan) => {
+            view.heard_readable(zone, "scan");
+            view.heard_bytes(zone, bytes.len());
+            view.heard_scan(zone, scan);
+        }
+        Err(why) => view.heard_unreadable(zone, "scan", why),
+    }
 }
 
 /// What a zone's payload held.

@@ -8,9 +8,11 @@ use std::collections::{BTreeMap, VecDeque};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
+use super::config::PublishConfig;
 use super::protocol::{
     EventKind, Poses, Saved, SensorPose, SensorStatus, Status, ZoneFrame, ZoneStatus,
 };
+use super::site_map::SiteMap;
 use super::socket::{Publisher, Refused, StatusSource};
 use super::zone_net::{Placed as PlacedKey, ViewPayload, placed_key};
 use crate::geometry::{Pose2, pose2};
@@ -107,6 +109,9 @@ pub struct SiteView {
     zenoh: Mutex<String>,
     state: Mutex<Zones>,
     publisher: Publisher,
+    /// The fused map of the zones' scans, and where `save` writes it.
+    map: Mutex<SiteMap>,
+    state_dir: Option<std::path::PathBuf>,
 }
 
 impl SiteView {
@@ -119,6 +124,65 @@ impl SiteView {
             zenoh: Mutex::new("opening its Zenoh session".into()),
             state: Mutex::new(Zones::default()),
             publisher,
+            map: Mutex::new(SiteMap::new(&PublishConfig::default())),
+            state_dir: None,
+        }
+    }
+
+    /// Its map fused on `publish`'s grid, saved into `state_dir`.
+    pub fn with_map(self, publish: &PublishConfig, state_dir: &std::path::Path) -> SiteView {
+        SiteView {
+            map: Mutex::new(SiteMap::new(publish)),
+            state_dir: Some(state_dir.to_path_buf()),
+            ..self
+        }
+    }
+
+    fn map(&self) -> std::sync::MutexGuard<'_, SiteMap> {
+        self.map.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// A zone's latest scan of one of its units: into the map, and to `map` watchers, when
+    /// the unit is placed in the site frame (else it leaves the map).
+    pub(super) fn heard_scan(&self, zone: &str, scan: ViewPayload) {
+        let pose = {
+            let s = self.lock();
+            site_pose(&s, zone, &scan.sensor)
+        };
+        let mut map = self.map();
+        match pose {
+            Some(pose) => {
+                let frame = map.take(scan, &pose);
+                if self.publisher.frame_watchers() > 0 {
+                    self.publisher.frame(frame);
+                }
+            }
+            None => map.forget(&scan.sensor),
+        }
+    }
+
+    /// Fuses the latest scans into the map.
+    pub(super) fn fuse_map(&self) {
+        self.map().fuse();
+    }
+
+    /// Writes the map files, when any zone sends its scans; what was written.
+    pub(super) fn save_map(&self) -> Result<Saved, Refused> {
+        let Some(dir) = &self.state_dir else {
+            return Err(Refused("this site daemon has no state directory".into()));
+        };
+        let map = self.map();
+        if map.units() == 0 {
+            return Err(Refused(
+                "no map yet: no zone placed in the site frame sends its scans (set scans_hz = 2 in a zone's [zenoh]); the zones save their own poses and maps".into(),
+            ));
+        }
+        match map.save(dir, &self.anchor) {
+            Ok(files) => Ok(Saved {
+                dir: dir.display().to_string(),
+                files,
+            }),
+            Err(e) => Err(Refused(e.to_string())),
         }
     }
 
@@ -452,6 +516,17 @@ fn placed_sensors(z: &Zone) -> usize {
         .map_or(0, |p| p.sensors.iter().filter(|s| s.registered).count())
 }
 
+/// Where sensor `sensor` of zone `zone` stands in the site frame, when its zone placed it and
+/// the zone is placed.
+fn site_pose(s: &Zones, zone: &str, sensor: &str) -> Option<Pose2> {
+    let z = s.zones.get(zone)?;
+    let (pose, _) = zone_pose(z.poses.as_ref()?.sensors.iter().find(|p| p.id == sensor)?)?;
+    match s.frame.get(zone) {
+        Some(Ok((site_from_zone, _, _))) => Some(site_from_zone * pose),
+        _ => None,
+    }
+}
+
 /// A sensor's pose in its zone's frame, with σ (x, y, yaw rad), when its zone placed it.
 fn zone_pose(s: &SensorPose) -> Option<(Pose2, [f64; 3])> {
     if !s.registered {
@@ -550,11 +625,10 @@ impl StatusSource for SiteView {
         }))
     }
 
+    /// The site's map files; the zones save their own poses, and the site frame is
+    /// rebuilt from them.
     fn save(&self) -> Result<Saved, Refused> {
-        Err(Refused(
-            "the site daemon saves nothing: the zones save their own poses, and it rebuilds the site frame from them"
-                .into(),
-        ))
+        self.save_map()
     }
 }
 

@@ -21,6 +21,9 @@
 //!   is listed with none, so that the site daemon knows it looked), every 0.1 s. `t_ns` of a
 //!   scan is its stamp on the zone's clock. The site daemon tracks people across zones from
 //!   these.
+//! - `scan/<sensor>` (opt-in: `[zenoh] scans_hz = 2`): each placed sensor's latest scan, at
+//!   most that often, `scanfuse.zone.scan/1` (a view's fields: [`ViewPayload`]), for the
+//!   site daemon's fused map.
 //!
 //! `t_ns` is the zone's wall clock (UNIX ns) when it published. The schema's number is its
 //! major version: a reader refuses one it does not know.
@@ -50,9 +53,12 @@ pub const DETECTIONS_SCHEMA: &str = "scanfuse.zone.detections/1";
 
 /// The schema of a `view/<sensor>` reply.
 pub const VIEW_SCHEMA: &str = "scanfuse.zone.view/1";
+/// The schema of a `scan/<sensor>` sample: the same fields as a view, of a scan.
+pub const SCAN_SCHEMA: &str = "scanfuse.zone.scan/1";
 
-/// A `view/<sensor>` reply: one sensor's static view and what turns it into points
-/// (`ScanModel::from_scan`), with its zone's names around it.
+/// A `view/<sensor>` reply, or a `scan/<sensor>` sample: one sensor's static view (or latest
+/// scan) and what turns it into points (`ScanModel::from_scan`), with its zone's names
+/// around it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ViewPayload {
     pub schema: String,
@@ -77,34 +83,74 @@ pub struct ViewPayload {
 
 impl ViewPayload {
     pub fn new(site: &str, zone: &str, v: &StaticView) -> ViewPayload {
+        ViewPayload::of(
+            VIEW_SCHEMA,
+            site,
+            zone,
+            &v.id,
+            &v.view,
+            &v.mount,
+            v.geometry,
+        )
+    }
+
+    /// Sensor `sensor`'s `scan` under `schema` (a view's or a scan's).
+    pub fn of(
+        schema: &str,
+        site: &str,
+        zone: &str,
+        sensor: &str,
+        scan: &Scan,
+        mount: &Mount,
+        geometry: Option<ScanGeometry>,
+    ) -> ViewPayload {
         ViewPayload {
-            schema: VIEW_SCHEMA.to_string(),
+            schema: schema.to_string(),
             site: site.to_string(),
             zone: zone.to_string(),
-            sensor: v.id.clone(),
-            t_ns: v.view.stamp_ns,
-            height_m: v.mount.height_m,
-            pitch_deg: v.mount.pitch_rad.to_degrees(),
-            start_angle_rad: v.view.start_angle_rad,
-            end_angle_rad: v.view.end_angle_rad,
-            ranges_m: v
-                .view
+            sensor: sensor.to_string(),
+            t_ns: scan.stamp_ns,
+            height_m: mount.height_m,
+            pitch_deg: mount.pitch_rad.to_degrees(),
+            start_angle_rad: scan.start_angle_rad,
+            end_angle_rad: scan.end_angle_rad,
+            ranges_m: scan
                 .ranges_m
                 .iter()
                 .map(|r| if r.is_finite() { *r } else { 0.0 })
                 .collect(),
-            geometry: v.geometry,
+            geometry,
         }
     }
 
-    /// Reads a reply; refuses a schema this build does not know.
+    /// Reads a view reply; refuses a schema this build does not know.
     pub fn parse(bytes: &[u8]) -> Result<ViewPayload, String> {
+        ViewPayload::parse_as(bytes, VIEW_SCHEMA)
+    }
+
+    /// Reads a payload of `schema` (`VIEW_SCHEMA`, `SCAN_SCHEMA`); refuses another, and
+    /// ranges that are not ranges.
+    pub fn parse_as(bytes: &[u8], schema: &str) -> Result<ViewPayload, String> {
         let v: ViewPayload =
-            serde_json::from_slice(bytes).map_err(|e| format!("not a view reply: {e}"))?;
-        if v.schema != VIEW_SCHEMA {
+            serde_json::from_slice(bytes).map_err(|e| format!("not a sensor's scan: {e}"))?;
+        if v.schema != schema {
             return Err(format!(
-                "schema {:?}: this scanfuse reads {VIEW_SCHEMA}",
+                "schema {:?}: this scanfuse reads {schema} here",
                 v.schema
+            ));
+        }
+        let angles = [v.start_angle_rad, v.end_angle_rad, v.pitch_deg];
+        if !(2..=MAX_BEAMS).contains(&v.ranges_m.len())
+            || angles.iter().any(|a| !a.is_finite())
+            || v.end_angle_rad <= v.start_angle_rad
+            || v.ranges_m.iter().any(|r| !r.is_finite() || *r < 0.0)
+        {
+            return Err(format!(
+                "sensor {}'s scan holds no valid beams (angles {:.3}..{:.3} rad, {} ranges)",
+                v.sensor,
+                v.start_angle_rad,
+                v.end_angle_rad,
+                v.ranges_m.len()
             ));
         }
         Ok(v)
@@ -130,6 +176,9 @@ impl ViewPayload {
         }
     }
 }
+
+/// No scanner has more beams than this (a UTM-30LX-EW has 1,081).
+const MAX_BEAMS: usize = 20_000;
 
 /// How long a starting zone asks whether its zone is already held.
 const TAKEN_PATIENCE: Duration = Duration::from_millis(1200);
@@ -296,6 +345,10 @@ pub async fn run(
         None => None,
     };
     let mut send = tokio::time::interval(DETECTIONS_EVERY);
+    let mut scans =
+        tokio::time::interval(Duration::from_secs_f64(1.0 / cfg.scans_hz.unwrap_or(1.0)));
+    // Each sensor's newest scan sent, so that a scan is sent once.
+    let mut sent: std::collections::BTreeMap<String, u64> = Default::default();
     let views_key = key(&site, &cfg.zone, "view/*");
     let views = match session.declare_queryable(views_key.clone()).await {
         Ok(q) => q,
@@ -322,6 +375,35 @@ pub async fn run(
         tokio::select! {
             _ = &mut stop => break,
             _ = look.tick() => {}
+            _ = scans.tick(), if cfg.scans_hz.is_some() => {
+                for posed in pipeline.posed_scans() {
+                    if sent.get(&posed.id).is_some_and(|t| *t >= posed.scan.stamp_ns) {
+                        continue;
+                    }
+                    sent.insert(posed.id.clone(), posed.scan.stamp_ns);
+                    let payload = ViewPayload::of(
+                        SCAN_SCHEMA,
+                        &site,
+                        &cfg.zone,
+                        &posed.id,
+                        &posed.scan,
+                        &posed.mount,
+                        posed.geometry,
+                    );
+                    let k = key(&site, &cfg.zone, &format!("scan/{}", posed.id));
+                    let put = match serde_json::to_vec(&payload) {
+                        Ok(bytes) => session.put(&k, bytes).encoding(Encoding::APPLICATION_JSON).await,
+                        Err(e) => {
+                            tracing::warn!("{k} did not serialise: {e}");
+                            continue;
+                        }
+                    };
+                    if let Err(e) = put {
+                        tracing::warn!("publishing {k} failed: {e}");
+                    }
+                }
+                continue;
+            }
             _ = send.tick(), if detections.is_some() => {
                 if let Some((rx, publisher)) = &detections {
                     let scans: Vec<Sightings> = std::iter::from_fn(|| rx.try_recv().ok()).collect();
@@ -593,5 +675,41 @@ mod tests {
             .replace(VIEW_SCHEMA, "scanfuse.zone.view/2");
         let why = ViewPayload::parse(other.as_bytes()).unwrap_err();
         assert!(why.contains("view/2"), "{why}");
+        // A scan sample has a view's fields under its own schema; neither stands in for the
+        // other, and beams that cannot be beams are refused.
+        let scan = ViewPayload::of(
+            SCAN_SCHEMA,
+            "hall",
+            "east",
+            "gate",
+            &sent.view,
+            &sent.mount,
+            None,
+        );
+        let bytes = serde_json::to_vec(&scan).unwrap();
+        assert_eq!(ViewPayload::parse_as(&bytes, SCAN_SCHEMA), Ok(scan.clone()));
+        assert!(
+            ViewPayload::parse(&bytes)
+                .unwrap_err()
+                .contains("zone.scan/1")
+        );
+        for bad in [
+            ViewPayload {
+                end_angle_rad: scan.start_angle_rad,
+                ..scan.clone()
+            },
+            ViewPayload {
+                ranges_m: vec![-1.0; 10],
+                ..scan.clone()
+            },
+            ViewPayload {
+                ranges_m: vec![1.0; MAX_BEAMS + 1],
+                ..scan.clone()
+            },
+        ] {
+            let why =
+                ViewPayload::parse_as(&serde_json::to_vec(&bad).unwrap(), SCAN_SCHEMA).unwrap_err();
+            assert!(why.contains("no valid beams"), "{why}");
+        }
     }
 }
