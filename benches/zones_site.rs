@@ -78,7 +78,7 @@ fn main() -> Result<(), Error> {
     std::fs::write(
         site_dir.join("site.toml"),
         format!(
-            "[site]\nname = \"concourse\"\nrole = \"site\"\nanchor = \"z00\"\nstate_dir = \"{}\"\nsocket = \"{}\"\n\n[zenoh]\nlisten = [\"{endpoint}\"]\n",
+            "[site]\nname = \"concourse\"\nrole = \"site\"\nanchor = \"z00\"\nstate_dir = \"{}\"\nsocket = \"{}\"\n\n[web]\nlisten = \"\"\n\n[zenoh]\nlisten = [\"{endpoint}\"]\n",
             site_dir.join("state").display(),
             site_socket.display()
         ),

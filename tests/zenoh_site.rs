@@ -28,9 +28,10 @@ use scanfuse::daemon::protocol::{Message, Poses, SensorPose};
 /// How long any one expected thing may take before the test gives up (not a timing assert).
 const PATIENCE: Duration = Duration::from_secs(90);
 
-fn site_config(dir: &Path, endpoint: &str) -> std::path::PathBuf {
+/// The site daemon's config: the router on `endpoint`, its page on 127.0.0.1:`page`.
+fn site_config(dir: &Path, endpoint: &str, page: u16) -> std::path::PathBuf {
     let text = format!(
-        "[site]\nname = \"test\"\nrole = \"site\"\nanchor = \"west\"\nstate_dir = \"{}\"\nsocket = \"{}\"\n\n[zenoh]\nlisten = [\"{endpoint}\"]\n",
+        "[site]\nname = \"test\"\nrole = \"site\"\nanchor = \"west\"\nstate_dir = \"{}\"\nsocket = \"{}\"\n\n[web]\nlisten = \"127.0.0.1:{page}\"\n\n[zenoh]\nlisten = [\"{endpoint}\"]\n",
         dir.join("state").display(),
         dir.join("s.sock").display()
     );
@@ -97,6 +98,11 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
         .unwrap()
         .port();
     let endpoint = format!("tcp/127.0.0.1:{port}");
+    let page = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
     let dirs: Vec<tempfile::TempDir> = (0..4).map(|_| tempfile::tempdir().unwrap()).collect();
     let ids = ["gate", "dock", "mezz", "tough", "tilt"];
     // West holds four units, east the dock's; two pairs across them register (the dock with
@@ -115,7 +121,10 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
     let _whole = start_daemon(&whole, dirs[3].path());
 
     let started = Instant::now();
-    let mut site_daemon = start_daemon(&site_config(dirs[0].path(), &endpoint), dirs[0].path());
+    let mut site_daemon = start_daemon(
+        &site_config(dirs[0].path(), &endpoint, page),
+        dirs[0].path(),
+    );
     // West sends what its tracker sees and its scans twice a second; east what its tracker
     // sees. Started together, their replays of the hall run nearly in step, as live units
     // would (restarted, east would replay it out of step with west).
@@ -185,6 +194,7 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
         &dirs[0].path().join("state"),
     );
     people_across_zones(&dirs[0].path().join("s.sock"));
+    site_page(page, &ids);
     let east_status = status.zones.iter().find(|z| z.zone == "east").unwrap();
     let frame = east_status.site_from_zone.expect("east is placed");
     assert!(frame.pairs >= 1 && frame.sigma_x_m > 0.0, "{frame:?}");
@@ -237,7 +247,10 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
     println!("west, the site daemon gone: {silent}");
     // The site daemon restarted rebuilds the site from the zones.
     let restarted = Instant::now();
-    let _site_daemon = start_daemon(&site_config(dirs[0].path(), &endpoint), dirs[0].path());
+    let _site_daemon = start_daemon(
+        &site_config(dirs[0].path(), &endpoint, page),
+        dirs[0].path(),
+    );
     let mut site = Client::connect(&dirs[0].path().join("s.sock"), PATIENCE);
     let again = wait_all_placed(
         &mut site,
@@ -287,6 +300,57 @@ fn site_map(socket: &Path, state: &Path) {
         other => panic!("save answered {other:?}"),
     }
     check_map_files(state);
+}
+
+/// The site daemon's page, over its WebSocket (tokio-tungstenite, another codebase's
+/// client): every unit of both zones with its zone, west's scans, and the map they make.
+fn site_page(port: u16, ids: &[&str]) {
+    use futures_util::StreamExt;
+    let runtime = tokio::runtime::Runtime::new().unwrap();
+    runtime.block_on(async {
+        let (mut socket, _) = tokio_tungstenite::connect_async(format!("ws://127.0.0.1:{port}/ws"))
+            .await
+            .expect("the site daemon's page opens");
+        let (mut zoned, mut map, mut frame) = (false, false, false);
+        let mut classes = std::collections::BTreeSet::new();
+        let start = Instant::now();
+        while !(zoned && map && frame) {
+            assert!(
+                start.elapsed() < PATIENCE,
+                "the page showed {classes:?}: zoned units {zoned}, map {map}, scans {frame}"
+            );
+            let next = tokio::time::timeout(Duration::from_secs(30), socket.next()).await;
+            let Ok(Some(Ok(tokio_tungstenite::tungstenite::Message::Text(text)))) = next else {
+                panic!("the page's WebSocket ended or went quiet: {next:?}");
+            };
+            let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+            let class = v["class"].as_str().unwrap_or("").to_string();
+            match class.as_str() {
+                "POSES" => {
+                    let zone_of = |id: &str| {
+                        v["sensors"]
+                            .as_array()
+                            .and_then(|a| a.iter().find(|s| s["id"] == id))
+                            .and_then(|s| s["zone"].as_str().map(str::to_string))
+                    };
+                    zoned = ids.iter().all(|id| zone_of(id).is_some())
+                        && zone_of("dock").as_deref() == Some("east");
+                }
+                "MAP" => map |= v["width"].as_u64().is_some_and(|w| w > 10),
+                "FRAME" => {
+                    frame |= v["scans"][0]["sensor"]
+                        .as_str()
+                        .is_some_and(|s| s != "dock")
+                }
+                _ => {}
+            }
+            classes.insert(class);
+        }
+        println!(
+            "the site daemon's page showed {classes:?} in {:?}",
+            start.elapsed()
+        );
+    });
 }
 
 /// Watches the site daemon's tracks until one track (one id) has been seen by units of both

@@ -1255,18 +1255,33 @@ impl Config {
         })
     }
 
+    /// Where the page is served, a line of `summary`.
+    fn page_line(&self) -> String {
+        match (&self.web.listen, &self.web.token_file) {
+            (None, _) => "  no page ([web] listen = \"\")\n".to_string(),
+            (Some(a), None) => format!("  page at http://{a}/ (this machine only)\n"),
+            (Some(a), Some(t)) => format!(
+                "  page at http://{a}/ (token in {}; open http://HOST:{}/?token=…)\n",
+                t.display(),
+                a.port()
+            ),
+        }
+    }
+
     /// A few lines for `scanfuse check`.
     pub fn summary(&self) -> String {
         if self.site.role == Role::Site {
             let mut out = format!(
-                "{}: site {:?}, the site daemon (role = \"site\"): holds no sensors, joins the zones into the frame of zone {}\n  socket {} (mode {:04o}, at most {} clients); no page or map files of its own yet\n",
+                "{}: site {:?}, the site daemon (role = \"site\"): holds no sensors, joins the zones into the frame of zone {}\n  socket {} (mode {:04o}, at most {} clients); map files (of the scans the zones send) in {}\n",
                 self.path.display(),
                 self.site.name,
                 self.site.anchor,
                 self.site.socket.display(),
                 self.site.socket_mode,
                 self.site.max_clients,
+                self.site.state_dir.display(),
             );
+            out.push_str(&self.page_line());
             if let Some(z) = &self.zenoh {
                 out.push_str(&format!("  {}\n", z.describe(&self.site.name)));
             }
@@ -1303,17 +1318,7 @@ impl Config {
             }
             out.push('\n');
         }
-        match (&self.web.listen, &self.web.token_file) {
-            (None, _) => out.push_str("  no page ([web] listen = \"\")\n"),
-            (Some(a), None) => {
-                out.push_str(&format!("  page at http://{a}/ (this machine only)\n"))
-            }
-            (Some(a), Some(t)) => out.push_str(&format!(
-                "  page at http://{a}/ (token in {}; open http://HOST:{}/?token=…)\n",
-                t.display(),
-                a.port()
-            )),
-        }
+        out.push_str(&self.page_line());
         let p = &self.people;
         if !p.zones.is_empty() || !p.lines.is_empty() {
             out.push_str(&format!(

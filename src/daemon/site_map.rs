@@ -2,7 +2,7 @@
 //! (`zone_net`'s `scan/<sensor>`, opt-in with `[zenoh] scans_hz`), each placed by its zone's
 //! pose of the unit and the zone's `site_from_zone`, fused as a zone daemon fuses its own
 //! (`pipeline_fuse::Fuser`): streamed to `watch` clients with `map` as they come, and written
-//! as map files on `save` and at stop.
+//! as map files on `save` and at stop; the site daemon's page draws it.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -74,6 +74,20 @@ impl SiteMap {
         self.latest.len()
     }
 
+    /// The occupancy grid of every unit's rays.
+    pub fn grid(&self) -> crate::fuse::OccupancyGrid {
+        self.fuser.grid()
+    }
+
+    /// Each unit's field of view from its latest scan: id, first and last beam angle (rad,
+    /// the unit's frame), for the page.
+    pub fn fields_of_view(&self) -> Vec<(String, f64, f64)> {
+        self.latest
+            .values()
+            .map(|p| (p.id.clone(), p.scan.start_angle_rad, p.scan.end_angle_rad))
+            .collect()
+    }
+
     /// Writes the map files (`map.pgm`, `map.yaml`, `map.ply`, site frame) into `dir`, each
     /// atomically; the site daemon writes no `poses.toml` (the zones save their own).
     pub fn save(&self, dir: &Path, anchor_zone: &str) -> Result<Vec<String>, StateError> {
@@ -127,6 +141,17 @@ mod tests {
         assert!(ahead.iter().any(|y| (y - 5.0).abs() < 0.02), "{ahead:?}");
         map.fuse();
         assert_eq!(map.units(), 1);
+        let (w, h) = map.grid().size();
+        assert!(
+            w > 100 && h > 100,
+            "{w}×{h} cells of 5 cm over a 10 × 8 m room"
+        );
+        let fov = &map.fields_of_view()[0];
+        assert_eq!(fov.0, "a");
+        assert!(
+            (fov.2 - fov.1 - 270f64.to_radians()).abs() < 0.01,
+            "{fov:?}"
+        );
         let dir = tempfile::tempdir().unwrap();
         let files = map.save(dir.path(), "west").unwrap();
         assert_eq!(files, ["map.pgm", "map.yaml", "map.ply"]);

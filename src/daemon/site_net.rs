@@ -151,6 +151,7 @@ pub async fn run_site_daemon(
             stopped(stop_rx.clone()),
         ));
     }
+    let page = start_page(&config, &view, &publisher, &stop_rx).await;
     let zenoh = config.zenoh.clone().map(|z| {
         tokio::spawn(run(
             Arc::clone(&view),
@@ -184,6 +185,9 @@ pub async fn run_site_daemon(
         let _ = z.await;
     }
     let _ = serving.await;
+    if let Some(p) = page {
+        let _ = p.await;
+    }
     if let Some(t) = tracker {
         t.stop();
     }
@@ -194,6 +198,37 @@ pub async fn run_site_daemon(
         Err(why) => tracing::info!("no map saved: {}", why.0),
     }
     Ok(())
+}
+
+/// Serves the site daemon's page when `[web] listen` asks for it (as a zone daemon's: the
+/// default is 127.0.0.1:8080). One that cannot start is an error on the socket and the log,
+/// and the site daemon goes on without it.
+async fn start_page(
+    config: &Config,
+    view: &Arc<SiteView>,
+    publisher: &Publisher,
+    stop: &tokio::sync::watch::Receiver<bool>,
+) -> Option<tokio::task::JoinHandle<()>> {
+    match crate::web::WebServer::bind(&config.web).await {
+        Ok(None) => None,
+        Ok(Some(server)) => {
+            let url = server.url();
+            view.set_web(format!("page at {url}"));
+            view.announce(EventKind::Connected, format!("page at {url}"));
+            let source: Arc<dyn crate::web::PageSource> = Arc::clone(view) as _;
+            Some(tokio::spawn(server.run(
+                source,
+                publisher.clone(),
+                stop.clone(),
+            )))
+        }
+        Err(e) => {
+            let why = format!("no page: {e}; the site is served on the socket as before");
+            view.set_web(why.clone());
+            view.announce(EventKind::Error, why);
+            None
+        }
+    }
 }
 
 /// The site daemon's Zenoh session: a router when it listens (the zones connect to it), a

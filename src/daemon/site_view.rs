@@ -105,8 +105,9 @@ pub struct SiteView {
     /// The zone whose frame is the site's.
     pub(super) anchor: String,
     started: Instant,
-    /// The status line of its Zenoh side.
+    /// The status line of its Zenoh side, and of its page.
     zenoh: Mutex<String>,
+    web: Mutex<Option<String>>,
     state: Mutex<Zones>,
     publisher: Publisher,
     /// The fused map of the zones' scans, and where `save` writes it.
@@ -122,6 +123,7 @@ impl SiteView {
             anchor: anchor.to_string(),
             started: Instant::now(),
             zenoh: Mutex::new("opening its Zenoh session".into()),
+            web: Mutex::new(None),
             state: Mutex::new(Zones::default()),
             publisher,
             map: Mutex::new(SiteMap::new(&PublishConfig::default())),
@@ -136,6 +138,11 @@ impl SiteView {
             state_dir: Some(state_dir.to_path_buf()),
             ..self
         }
+    }
+
+    /// Says how its page stands (`status.web`).
+    pub(super) fn set_web(&self, line: String) {
+        *self.web.lock().unwrap_or_else(|e| e.into_inner()) = Some(line);
     }
 
     fn map(&self) -> std::sync::MutexGuard<'_, SiteMap> {
@@ -548,7 +555,7 @@ impl StatusSource for SiteView {
             uptime_s: self.started.elapsed().as_secs_f64(),
             queue_drops: 0,
             sensors: self.sensor_statuses(),
-            web: None,
+            web: self.web.lock().unwrap_or_else(|e| e.into_inner()).clone(),
             foxglove: None,
             zenoh: Some(self.zenoh.lock().unwrap_or_else(|e| e.into_inner()).clone()),
             zones: self.zone_statuses(),
@@ -612,8 +619,30 @@ impl StatusSource for SiteView {
     }
 
     fn reregister(&self, sensor: &str) -> Result<String, Refused> {
+        Err(self.ask_its_zone(sensor))
+    }
+
+    /// The page's drag of a unit: its zone places it, not the site daemon.
+    fn survey(
+        &self,
+        sensor: &str,
+        _: Option<super::socket::SurveyRequest>,
+    ) -> Result<super::protocol::Survey, Refused> {
+        Err(self.ask_its_zone(sensor))
+    }
+
+    /// The site's map files; the zones save their own poses, and the site frame is
+    /// rebuilt from them.
+    fn save(&self) -> Result<Saved, Refused> {
+        self.save_map()
+    }
+}
+
+impl SiteView {
+    /// Why the site daemon does not change a unit's pose: its zone's daemon does.
+    fn ask_its_zone(&self, sensor: &str) -> Refused {
         let zones: Vec<String> = self.lock().zones_with(sensor).map(str::to_string).collect();
-        Err(Refused(match zones.as_slice() {
+        Refused(match zones.as_slice() {
             [] => format!("this is the site daemon, and no zone has a sensor {sensor}"),
             [z] => {
                 format!("this is the site daemon; {sensor} is zone {z}'s: ask zone {z}'s daemon")
@@ -622,13 +651,20 @@ impl StatusSource for SiteView {
                 "this is the site daemon, and zones {} each have a sensor {sensor}: ask the daemon of the zone you mean, and give each sensor an id of its own across the site",
                 many.join(" and ")
             ),
-        }))
+        })
+    }
+}
+
+/// The site daemon's page: every zone's units in the site frame, the map of the scans the
+/// zones send, the tracks.
+impl crate::web::PageSource for SiteView {
+    fn occupancy(&self) -> Option<crate::fuse::OccupancyGrid> {
+        let map = self.map();
+        (map.units() > 0).then(|| map.grid())
     }
 
-    /// The site's map files; the zones save their own poses, and the site frame is
-    /// rebuilt from them.
-    fn save(&self) -> Result<Saved, Refused> {
-        self.save_map()
+    fn fields_of_view(&self) -> Vec<(String, f64, f64)> {
+        self.map().fields_of_view()
     }
 }
 
@@ -814,6 +850,12 @@ mod tests {
         };
         // East's last poses no longer list dock.
         assert!(why.contains("no zone has a sensor dock"), "{why}");
+        // Dragged on the site daemon's page, a unit is its zone's to place.
+        view.heard_poses("east", poses("east1", vec![placed("east1", 0.0, 0.0, 0.0)]));
+        let Err(Refused(why)) = view.survey("east1", None) else {
+            panic!("the site daemon places nothing itself")
+        };
+        assert!(why.contains("ask zone east's daemon"), "{why}");
     }
 
     /// A site anchored on west, zone east just come alive, and its events from then on.
