@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 
 use super::config::PublishConfig;
 use super::protocol::{
-    EventKind, Poses, Saved, SensorPose, SensorStatus, Status, ZoneFrame, ZoneStatus,
+    EventKind, Poses, Saved, SensorPose, SensorState, SensorStatus, Status, ZoneFrame, ZoneStatus,
 };
 use super::site_map::SiteMap;
 use super::socket::{Publisher, Refused, StatusSource};
@@ -680,13 +680,26 @@ pub(super) struct Heard {
 
 impl SiteView {
     /// Every zone's sensors' drivers, as their zones last said.
+    /// A lost zone's drivers are not known to stream: they read disconnected, with why.
     fn sensor_statuses(&self) -> Vec<SensorStatus> {
         let s = self.lock();
-        s.zones
-            .values()
-            .filter_map(|z| z.status.as_ref())
-            .flat_map(|st| st.sensors.iter().cloned())
-            .collect()
+        let mut out = Vec::new();
+        for (id, z) in &s.zones {
+            let Some(st) = &z.status else { continue };
+            for sensor in &st.sensors {
+                let mut sensor = sensor.clone();
+                if !z.alive {
+                    sensor.state = SensorState::Disconnected;
+                    sensor.rate_hz = None;
+                    sensor.last_error = Some(format!(
+                        "zone {id} is lost: the site daemon no longer hears it (its daemon stopped, or the link is down)"
+                    ));
+                    sensor.last_error_age_s = Some(z.since.elapsed().as_secs_f64());
+                }
+                out.push(sensor);
+            }
+        }
+        out
     }
 
     /// The zones to ask for views: alive, heard since, each with its placed sensors.
@@ -957,8 +970,26 @@ mod tests {
         assert_eq!((east.sensors, east.placed), (3, 2));
         assert_eq!(east.site_from_zone.map(|f| f.pairs), Some(2));
 
+        // Its drivers, as it says; lost, they are no longer known to stream.
+        let mut streaming = SensorStatus::new("tough", SensorState::Streaming);
+        streaming.rate_hz = Some(40.0);
+        let mut east_status = view.status();
+        east_status.sensors = vec![streaming];
+        view.heard_status("east", east_status);
+        let driver = |view: &SiteView| {
+            let s = view.status().sensors;
+            s.into_iter().find(|s| s.id == "tough").unwrap()
+        };
+        assert_eq!(driver(&view).state, SensorState::Streaming);
+
         // Lost: its poses stay, stale, through a join that no longer sees it.
         view.liveliness("east", false);
+        let lost = driver(&view);
+        assert_eq!(
+            (lost.state, lost.rate_hz),
+            (SensorState::Disconnected, None)
+        );
+        assert!(lost.last_error.unwrap().contains("zone east is lost"));
         view.set_frame(BTreeMap::from([(
             "west".to_string(),
             Ok((Pose2::identity(), [0.0; 3], 0)),
