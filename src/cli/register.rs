@@ -173,11 +173,29 @@ pub(super) fn register_files(
         ))
         .into());
     };
+    let site_params = SiteParams::default();
+    let n = inputs.len();
+    let all = n * n.saturating_sub(1) / 2;
     if progress {
-        let n = inputs.len();
-        eprintln!("registering {} pairs…", n * n.saturating_sub(1) / 2);
+        // Pair selection registers each sensor with its most alike first and widens only
+        // where that leaves gaps: how many is known at the end.
+        if n > site_params.partners + 1 {
+            eprintln!(
+                "registering {n} sensors: each with its {} most alike first, more where that leaves gaps (of {all} pairs)…",
+                site_params.partners
+            );
+        } else {
+            eprintln!("registering {all} pairs…");
+        }
     }
-    let site = register_site(&inputs, anchor, &params, &SiteParams::default());
+    let site = register_site(&inputs, anchor, &params, &site_params);
+    if progress && n > site_params.partners + 1 {
+        eprintln!(
+            "registered {} of {all} pairs in {} round(s)",
+            site.pairs.len(),
+            site.rounds
+        );
+    }
     Ok((anchor_id, prepared, site))
 }
 

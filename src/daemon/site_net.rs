@@ -454,7 +454,13 @@ fn heard(view: &SiteView, sample: &zenoh::sample::Sample) -> Option<(String, Vec
     let read = match (p.schema.as_str(), p.poses, p.status, p.scans) {
         (POSES_SCHEMA, Some(poses), _, _) => Some(ZoneSaid::Poses(poses)),
         (STATUS_SCHEMA, _, Some(status), _) => Some(ZoneSaid::Status(status)),
-        (DETECTIONS_SCHEMA, _, _, Some(scans)) => Some(ZoneSaid::Detections(scans)),
+        (DETECTIONS_SCHEMA, _, _, Some(scans)) => match super::site_tracks::check(&scans, p.t_ns) {
+            Ok(()) => Some(ZoneSaid::Detections(scans)),
+            Err(why) => {
+                view.heard_unreadable(zone, leaf, why);
+                return None;
+            }
+        },
         _ => None,
     };
     let Some(read) = read else {

@@ -16,6 +16,46 @@ use crate::geometry::Pose2;
 /// tenths of the newest.
 const HOLD_NS: u64 = 1_000_000_000;
 
+/// A scan with more people than this is not a scan of people.
+const MAX_PEOPLE: usize = 500;
+/// A scan stamped further than this from when its batch was sent is not of that batch.
+const MAX_AGE_NS: u64 = 5_000_000_000;
+/// No site is wider than this (m).
+const MAX_COORD_M: f64 = 100_000.0;
+
+/// Checks a zone's batch sent at `sent_ns` (its clock) before anything of it is tracked:
+/// stamps near when it was sent (a stamp far ahead would hold every other zone's back),
+/// sensor ids, a person-sized number of people at sane coordinates. Why not, when not.
+pub fn check(scans: &[Sightings], sent_ns: u64) -> Result<(), String> {
+    for s in scans {
+        if s.sensor.is_empty() || s.sensor.len() > 64 {
+            return Err(format!("a scan names sensor {:?}", s.sensor));
+        }
+        if s.t_ns.abs_diff(sent_ns) > MAX_AGE_NS {
+            return Err(format!(
+                "{}'s scan is stamped {:.1} s from when the batch was sent",
+                s.sensor,
+                (s.t_ns as f64 - sent_ns as f64) * 1e-9
+            ));
+        }
+        if s.people.len() > MAX_PEOPLE {
+            return Err(format!(
+                "{}'s scan lists {} people (at most {MAX_PEOPLE})",
+                s.sensor,
+                s.people.len()
+            ));
+        }
+        if let Some(p) = s
+            .people
+            .iter()
+            .find(|p| p.iter().any(|c| c.abs() > MAX_COORD_M))
+        {
+            return Err(format!("{}'s scan has a person at {p:?} m", s.sensor));
+        }
+    }
+    Ok(())
+}
+
 /// The zones' sightings on their way to the tracker.
 #[derive(Debug)]
 pub struct CrossZone {
@@ -136,6 +176,50 @@ mod tests {
             (last.x_m - end).abs() < 0.1 && (last.y_m - 1.0).abs() < 0.05,
             "{last:?} against ({end:.2}, 1.00)"
         );
+    }
+
+    #[test]
+    fn a_batch_that_cannot_be_people_is_refused_with_why() {
+        let t = 1_000_000_000_000u64;
+        let ok = Sightings {
+            sensor: "w".into(),
+            t_ns: t,
+            people: vec![[1.0, 2.0]],
+        };
+        assert_eq!(check(std::slice::from_ref(&ok), t + 100_000_000), Ok(()));
+        for (bad, says) in [
+            (
+                Sightings {
+                    t_ns: t + 60_000_000_000,
+                    ..ok.clone()
+                },
+                "stamped 60.0 s",
+            ),
+            (
+                Sightings {
+                    sensor: String::new(),
+                    ..ok.clone()
+                },
+                "names sensor",
+            ),
+            (
+                Sightings {
+                    people: vec![[0.0, 0.0]; MAX_PEOPLE + 1],
+                    ..ok.clone()
+                },
+                "501 people",
+            ),
+            (
+                Sightings {
+                    people: vec![[1e9, 0.0]],
+                    ..ok.clone()
+                },
+                "a person at",
+            ),
+        ] {
+            let why = check(&[ok.clone(), bad], t).unwrap_err();
+            assert!(why.contains(says), "{why}");
+        }
     }
 
     #[test]
