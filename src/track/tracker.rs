@@ -196,7 +196,8 @@ impl Tracker {
     }
 
     /// Takes the people one sensor saw at `t_ns`, site frame, as if detected in its scan
-    /// (for tests and benches that start from detections); steps as [`push`](Tracker::push).
+    /// (the site daemon's zones' sightings, and tests and benches that start from
+    /// detections); steps as [`push`](Tracker::push).
     pub fn push_detections(
         &mut self,
         id: &str,
