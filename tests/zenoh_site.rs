@@ -28,10 +28,11 @@ use scanfuse::daemon::protocol::{Message, Poses, SensorPose};
 /// How long any one expected thing may take before the test gives up (not a timing assert).
 const PATIENCE: Duration = Duration::from_secs(90);
 
-/// The site daemon's config: the router on `endpoint`, its page on 127.0.0.1:`page`.
+/// The site daemon's config: the router on `endpoint`, its page on 127.0.0.1:`page`, a
+/// counting zone `hall` over the whole site frame.
 fn site_config(dir: &Path, endpoint: &str, page: u16) -> std::path::PathBuf {
     let text = format!(
-        "[site]\nname = \"test\"\nrole = \"site\"\nanchor = \"west\"\nstate_dir = \"{}\"\nsocket = \"{}\"\n\n[web]\nlisten = \"127.0.0.1:{page}\"\n\n[zenoh]\nlisten = [\"{endpoint}\"]\n",
+        "[site]\nname = \"test\"\nrole = \"site\"\nanchor = \"west\"\nstate_dir = \"{}\"\nsocket = \"{}\"\n\n[web]\nlisten = \"127.0.0.1:{page}\"\n\n[zenoh]\nlisten = [\"{endpoint}\"]\n\n[[zone]]\nid = \"hall\"\npolygon = [[-60, -60], [60, -60], [60, 60], [-60, 60]]\n",
         dir.join("state").display(),
         dir.join("s.sock").display()
     );
@@ -367,13 +368,24 @@ fn people_across_zones(socket: &Path) {
     // Each id's units over its life.
     let mut by: std::collections::BTreeMap<u64, std::collections::BTreeSet<String>> =
         Default::default();
-    loop {
+    let (mut across, mut counted) = (false, None);
+    while !across || counted.is_none() {
+        // Longer than the rest: on a loaded machine the zones' replays of the 2 s hall start
+        // out of step, and then only someone standing where both zones see merges (57 s, once).
         assert!(
-            start.elapsed() < PATIENCE,
-            "no track seen by both zones: {lines} TRACKS lines, {tracked} tracks, by id {by:?}"
+            start.elapsed() < 2 * PATIENCE,
+            "no track seen by both zones ({across}) or no one counted in zone hall ({counted:?}): {lines} TRACKS lines, {tracked} tracks, by id {by:?}"
         );
-        let Message::Tracks(t) = watcher.read() else {
-            continue;
+        let t = match watcher.read() {
+            Message::Tracks(t) => t,
+            // The site file's zone counts the site's tracks, as a zone daemon's counts its own.
+            Message::Zones(z) => {
+                if let Some(hall) = z.zones.iter().find(|z| z.id == "hall" && z.count > 0) {
+                    counted.get_or_insert(hall.count);
+                }
+                continue;
+            }
+            _ => continue,
         };
         lines += 1;
         for track in &t.tracks {
@@ -382,7 +394,8 @@ fn people_across_zones(socket: &Path) {
             units.extend(track.sensors.iter().cloned());
             let east = units.iter().any(|s| s == "dock");
             let west = units.iter().any(|s| s != "dock");
-            if east && west {
+            if east && west && !across {
+                across = true;
                 println!(
                     "track {} (now at ({:.2}, {:.2}) m, seen by {:?}) has been seen by {units:?}, across both zones, {:?} after the watch began ({} TRACKS lines)",
                     track.id,
@@ -392,10 +405,10 @@ fn people_across_zones(socket: &Path) {
                     start.elapsed(),
                     lines
                 );
-                return;
             }
         }
     }
+    println!("zone hall of the site file counted {counted:?} people");
 }
 
 /// The site's poses against one daemon's (printed; within 5 cm and 0.3°) and against each
