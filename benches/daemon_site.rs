@@ -26,6 +26,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use scanfuse::daemon::protocol::Message;
+use scanfuse::emulator::playback::{DEFAULT_PERIOD_S, replay_span};
 use scanfuse::emulator::{Emulator, EmulatorConfig, Gated, ReplayGate};
 
 type Error = Box<dyn std::error::Error>;
@@ -127,17 +128,13 @@ fn main() -> Result<(), Error> {
     // One clock for all of them, as `scanfuse run --replay` has: each sensor scans at its
     // recorded instants, so the units keep the phases the simulator gave them (real units
     // free-run) instead of all starting their loop the moment the daemon asks.
-    let (mut origin_ns, mut last_ns) = (u64::MAX, 0);
-    for info in &rec.sensors {
+    let (origin_ns, pass_ns) = replay_span(rec.sensors.iter().filter_map(|info| {
         let scans = rec.scans_of(&info.id);
-        if let (Some(first), Some(last)) = (scans.first(), scans.last()) {
-            origin_ns = origin_ns.min(first.stamp_ns);
-            last_ns = last_ns.max(last.stamp_ns);
-        }
-    }
+        let period_s = info.geometry.map_or(DEFAULT_PERIOD_S, |g| g.period_s());
+        Some((scans.first()?.stamp_ns, scans.last()?.stamp_ns, period_s))
+    }))
+    .ok_or("the recording has no scans")?;
     let gate = ReplayGate::new(rec.sensors.len(), Some(1.0), None);
-    // The slowest unit's period past the last scan: every recording loops in step.
-    let pass_ns = last_ns.saturating_sub(origin_ns) + 50_000_000;
     let mut ports = Vec::new();
     for info in &rec.sensors {
         let emulator = Emulator::new(

@@ -24,6 +24,7 @@ use super::queue::drop_oldest;
 use super::signals::{Request, Signals};
 use super::socket::{Publisher, ServerOptions, SocketError, StatusServer, StatusSource};
 use super::state::PosesFile;
+use crate::emulator::playback::{DEFAULT_PERIOD_S, replay_span};
 use crate::emulator::{Emulator, EmulatorConfig, EmulatorError, Gated, ReplayGate};
 use crate::geometry::{Pose3, pose2};
 use crate::record::{self, RecordError};
@@ -172,10 +173,9 @@ impl Emulators {
     /// Reads the recordings of `replay:` sensors and sets up their shared clock; `None`
     /// without any. A recording that cannot be read is left for [`start_sensor`] to report.
     fn replay_clock(&mut self, config: &Config, options: &RunOptions) -> Option<ReplayClock> {
-        let mut origin_ns = u64::MAX;
-        let mut last_ns = 0u64;
+        let mut units = Vec::new();
         let mut scans_per_s = 0.0;
-        let mut longest_period_s: f64 = 0.025;
+        let mut longest_period_s = DEFAULT_PERIOD_S;
         let mut count = 0;
         for sensor in &config.sensors {
             let Connect::Replay { file, sensor: rid } = &sensor.connect else {
@@ -185,20 +185,28 @@ impl Emulators {
             let Some(recording) = self.recording(file).ok() else {
                 continue;
             };
+            let period_s = recording
+                .sensor(rid)
+                .and_then(|i| i.geometry)
+                .map(|g| g.period_s());
+            if let Some(p) = period_s {
+                scans_per_s += 1.0 / p.max(1e-3);
+                longest_period_s = longest_period_s.max(p);
+            }
             let scans = recording.scans_of(rid);
             if let (Some(first), Some(last)) = (scans.first(), scans.last()) {
-                origin_ns = origin_ns.min(first.stamp_ns);
-                last_ns = last_ns.max(last.stamp_ns);
-            }
-            if let Some(g) = recording.sensor(rid).and_then(|i| i.geometry) {
-                scans_per_s += 1.0 / g.period_s().max(1e-3);
-                longest_period_s = longest_period_s.max(g.period_s());
+                units.push((
+                    first.stamp_ns,
+                    last.stamp_ns,
+                    period_s.unwrap_or(DEFAULT_PERIOD_S),
+                ));
             }
         }
         if count == 0 {
             return None;
         }
-        let origin_ns = if origin_ns == u64::MAX { 0 } else { origin_ns };
+        let (origin_ns, pass_ns) =
+            replay_span(units).unwrap_or((0, (longest_period_s * 1e9) as u64));
         let speed = options.replay_speed;
         // Two scans of the slowest unit ahead, less if the queue could not hold that much.
         let lead_s = (2.0 * longest_period_s)
@@ -213,7 +221,7 @@ impl Emulators {
         Some(ReplayClock {
             gate: ReplayGate::new(count, speed.is_finite().then_some(speed), lead),
             origin_ns,
-            pass_ns: last_ns.saturating_sub(origin_ns) + (longest_period_s * 1e9) as u64,
+            pass_ns,
             base_ns: if options.replay_recorded_time {
                 origin_ns
             } else {

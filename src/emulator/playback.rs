@@ -100,6 +100,28 @@ impl Playback {
     }
 }
 
+/// The slowest period a unit is taken to have when its recording does not say (s): 40 Hz.
+pub const DEFAULT_PERIOD_S: f64 = 0.025;
+
+/// Where a replay of several units' recordings starts (the earliest first scan, ns) and how
+/// long one pass of it is (to the latest last scan, plus the slowest unit's period): the
+/// span every recording loops over, so that they loop in step. `units`: each one's first
+/// and last scan stamps and its period (s). `None` without a scan.
+pub fn replay_span(units: impl IntoIterator<Item = (u64, u64, f64)>) -> Option<(u64, u64)> {
+    let (mut origin_ns, mut last_ns, mut period_s) = (u64::MAX, 0, DEFAULT_PERIOD_S);
+    for (first, last, period) in units {
+        origin_ns = origin_ns.min(first);
+        last_ns = last_ns.max(last);
+        period_s = period_s.max(period);
+    }
+    (origin_ns != u64::MAX).then(|| {
+        (
+            origin_ns,
+            last_ns.saturating_sub(origin_ns) + (period_s * 1e9) as u64,
+        )
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -130,6 +152,16 @@ mod tests {
         let once = Playback::new(&scans(&[0, 25]), 25.0, 1.0, false);
         assert_eq!(once.due_ms(2), None);
         assert_eq!(once.current(1000.0), Some(1));
+    }
+
+    #[test]
+    fn a_replay_spans_every_unit_plus_the_slowest_period() {
+        assert_eq!(replay_span([]), None);
+        let units = [(1_000, 2_000_000_000, 0.025), (500, 1_000_000_000, 0.05)];
+        assert_eq!(
+            replay_span(units),
+            Some((500, 2_000_000_000 - 500 + 50_000_000))
+        );
     }
 
     #[test]
