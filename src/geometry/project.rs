@@ -4,6 +4,7 @@
 use std::cell::RefCell;
 use std::sync::Arc;
 
+use super::tables::Tables;
 use crate::scan::{Scan, ScanGeometry};
 use nalgebra::Point2;
 
@@ -74,7 +75,7 @@ pub fn beam_angles_rad(scan: &Scan, geometry: Option<&ScanGeometry>) -> Vec<f64>
 pub fn beam_directions(scan: &Scan, geometry: Option<&ScanGeometry>) -> Directions {
     type Key = (usize, u64, u64, Option<(u32, u32)>);
     thread_local! {
-        static TABLES: RefCell<Vec<(Key, Directions)>> = const { RefCell::new(Vec::new()) };
+        static TABLES: RefCell<Tables<Key, Directions>> = const { RefCell::new(Tables::new(LAYOUTS)) };
     }
     let key: Key = (
         scan.ranges_m.len(),
@@ -83,18 +84,12 @@ pub fn beam_directions(scan: &Scan, geometry: Option<&ScanGeometry>) -> Directio
         geometry.map(|g| (g.ares, g.afrt)),
     );
     TABLES.with_borrow_mut(|tables| {
-        if let Some(at) = tables.iter().position(|(k, _)| *k == key) {
-            return tables[at].1.clone();
-        }
-        let table: Directions = beam_angles_rad(scan, geometry)
-            .into_iter()
-            .map(f64::sin_cos)
-            .collect();
-        if tables.len() == LAYOUTS {
-            tables.remove(0);
-        }
-        tables.push((key, table.clone()));
-        table
+        tables.get(key, || {
+            beam_angles_rad(scan, geometry)
+                .into_iter()
+                .map(f64::sin_cos)
+                .collect()
+        })
     })
 }
 

@@ -4,6 +4,7 @@
 use super::RegisterParams;
 use super::motion::MotionTrack;
 use crate::features::{self, Features, PointClass};
+use crate::geometry::tables::Tables;
 use crate::geometry::{Mount, Pose2, ScanPoint, beam_angles_rad, project_scan};
 use crate::scan::{Scan, ScanGeometry};
 use nalgebra::{Point2, Vector2};
@@ -197,20 +198,14 @@ impl PolarRanges {
     }
 
     /// `cell_bins` for this bin width, built once: it takes 0.5 ms, a third of a model's
-    /// making, and a site has a few bin widths (one per kind of sensor). Past `WIDTHS` kept,
-    /// a table is built for each scan.
+    /// making, and a site has a few bin widths (one per kind of sensor; 16 are kept).
     fn shared_cell_bins(bin_rad: f64, bins: usize) -> Arc<[u16]> {
-        const WIDTHS: usize = 16;
-        static TABLES: Mutex<Vec<(u64, Arc<[u16]>)>> = Mutex::new(Vec::new());
+        type ByWidth = Tables<(u64, usize), Arc<[u16]>>;
+        static TABLES: Mutex<ByWidth> = Mutex::new(Tables::new(16));
         let mut tables = TABLES.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some((_, table)) = tables.iter().find(|(w, _)| *w == bin_rad.to_bits()) {
-            return table.clone();
-        }
-        let table: Arc<[u16]> = Self::cell_bins(bin_rad, bins).into();
-        if tables.len() < WIDTHS {
-            tables.push((bin_rad.to_bits(), table.clone()));
-        }
-        table
+        tables.get((bin_rad.to_bits(), bins), || {
+            Self::cell_bins(bin_rad, bins).into()
+        })
     }
 
     /// `cell_bin`: a step's bin where the bearings just outside both its ends (by far more
