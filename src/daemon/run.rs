@@ -438,13 +438,28 @@ async fn start_page(
     publisher: &Publisher,
     stop: &watch::Receiver<bool>,
 ) -> Option<JoinHandle<()>> {
-    match crate::web::WebServer::bind(&config.web).await {
+    let source: Arc<dyn crate::web::PageSource> = Arc::clone(pipeline) as _;
+    serve_page(&config.web, source, publisher, stop, |kind, line| {
+        pipeline.set_web(line.clone());
+        pipeline.announce(kind, None, line);
+    })
+    .await
+}
+
+/// Serves `source`'s page as `web` asks (the zone daemon's and the site daemon's): `say`
+/// takes the `status.web` line, and the kind of event it is (the page's address, or why
+/// there is no page and the daemon goes on without one).
+pub(super) async fn serve_page(
+    web: &super::config::WebConfig,
+    source: Arc<dyn crate::web::PageSource>,
+    publisher: &Publisher,
+    stop: &watch::Receiver<bool>,
+    say: impl Fn(EventKind, String),
+) -> Option<JoinHandle<()>> {
+    match crate::web::WebServer::bind(web).await {
         Ok(None) => None,
         Ok(Some(server)) => {
-            let url = server.url();
-            pipeline.set_web(format!("page at {url}"));
-            pipeline.announce(EventKind::Connected, None, format!("page at {url}"));
-            let source: Arc<dyn crate::web::PageSource> = Arc::clone(pipeline) as _;
+            say(EventKind::Connected, format!("page at {}", server.url()));
             Some(tokio::spawn(server.run(
                 source,
                 publisher.clone(),
@@ -452,9 +467,10 @@ async fn start_page(
             )))
         }
         Err(e) => {
-            let why = format!("no page: {e}; the sensors are served as before");
-            pipeline.set_web(why.clone());
-            pipeline.announce(EventKind::Error, None, why);
+            say(
+                EventKind::Error,
+                format!("no page: {e}; the daemon goes on without it"),
+            );
             None
         }
     }

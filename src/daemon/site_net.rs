@@ -209,26 +209,12 @@ async fn start_page(
     publisher: &Publisher,
     stop: &tokio::sync::watch::Receiver<bool>,
 ) -> Option<tokio::task::JoinHandle<()>> {
-    match crate::web::WebServer::bind(&config.web).await {
-        Ok(None) => None,
-        Ok(Some(server)) => {
-            let url = server.url();
-            view.set_web(format!("page at {url}"));
-            view.announce(EventKind::Connected, format!("page at {url}"));
-            let source: Arc<dyn crate::web::PageSource> = Arc::clone(view) as _;
-            Some(tokio::spawn(server.run(
-                source,
-                publisher.clone(),
-                stop.clone(),
-            )))
-        }
-        Err(e) => {
-            let why = format!("no page: {e}; the site is served on the socket as before");
-            view.set_web(why.clone());
-            view.announce(EventKind::Error, why);
-            None
-        }
-    }
+    let source: Arc<dyn crate::web::PageSource> = Arc::clone(view) as _;
+    super::run::serve_page(&config.web, source, publisher, stop, |kind, line| {
+        view.set_web(line.clone());
+        view.announce(kind, line);
+    })
+    .await
 }
 
 /// The site daemon's Zenoh session: a router when it listens (the zones connect to it), a
