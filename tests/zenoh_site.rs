@@ -430,7 +430,7 @@ fn people_across_zones(socket: &Path) {
 fn check_site(site: &Poses, whole: &Poses, dirs: &[tempfile::TempDir]) {
     let truth = truth_from("gate");
     println!(
-        "unit   zone   site frame (m, °)            one daemon                 Δ (mm, °)       to truth: site (mm, °)   one daemon (mm, °)"
+        "unit   zone   site frame (m, °)            one daemon                 Δ (mm, °)       to truth: site (mm, °)   one daemon (mm, °)   σ site, one daemon (mm, mm, °)"
     );
     for a in &site.sensors {
         let b = sensor(whole, &a.id).unwrap();
@@ -438,7 +438,7 @@ fn check_site(site: &Poses, whole: &Poses, dirs: &[tempfile::TempDir]) {
         let (site_t, site_yaw) = apart(xyyaw(a), truth[&a.id]);
         let (whole_t, whole_yaw) = apart(xyyaw(b), truth[&a.id]);
         println!(
-            "{:<6} {:<6} ({:7.3}, {:7.3}, {:7.2})  ({:7.3}, {:7.3}, {:7.2})  {:5.1}, {:5.3}    {:5.1}, {:5.3}             {:5.1}, {:5.3}",
+            "{:<6} {:<6} ({:7.3}, {:7.3}, {:7.2})  ({:7.3}, {:7.3}, {:7.2})  {:5.1}, {:5.3}    {:5.1}, {:5.3}             {:5.1}, {:5.3}        {}  {}",
             a.id,
             a.zone.as_deref().unwrap_or("?"),
             a.x_m.unwrap(),
@@ -452,7 +452,9 @@ fn check_site(site: &Poses, whole: &Poses, dirs: &[tempfile::TempDir]) {
             site_t * 1e3,
             site_yaw,
             whole_t * 1e3,
-            whole_yaw
+            whole_yaw,
+            sigmas(a),
+            sigmas(b)
         );
         let zone = match a.id.as_str() {
             "dock" => "east",
@@ -485,6 +487,13 @@ fn check_site(site: &Poses, whole: &Poses, dirs: &[tempfile::TempDir]) {
             );
         }
     }
+}
+
+/// A placed unit's σ as the socket gives it: x, y (mm), yaw (°).
+fn sigmas(p: &SensorPose) -> String {
+    let mm = |v: Option<f64>| v.map_or("?".into(), |v| format!("{:.0}", v * 1e3));
+    let deg = p.sigma_yaw_deg.map_or("?".into(), |v| format!("{v:.2}"));
+    format!("({}, {}, {deg})", mm(p.sigma_x_m), mm(p.sigma_y_m))
 }
 
 /// A placed unit's pose: x, y (m), yaw (°).
