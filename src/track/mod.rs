@@ -94,6 +94,13 @@ pub struct TrackParams {
     /// A confirmed track is listed while seen within the last 0.5 s; unseen longer (hidden
     /// behind others) it is kept, to take its person back, but not listed.
     pub shown_unseen_s: f64,
+    /// A track lost (ended unseen, or hidden past `shown_unseen_s`) gives its id to a new
+    /// track confirmed within 4 s (`reid_s`) where its last velocity carries it, within
+    /// 0.5 m (`reid_m`) + 0.5 m (`reid_m_per_s`) for every second unseen: a person hidden
+    /// behind others keeps their id.
+    pub reid_s: f64,
+    pub reid_m: f64,
+    pub reid_m_per_s: f64,
     /// No one walks faster than 2.5 m/s: a faster estimate is capped.
     pub max_speed_m_s: f64,
     /// A sensor whose pose changes by more than 0.1 m or 1° was moved: its background
@@ -139,6 +146,9 @@ impl Default for TrackParams {
             tentative_death_s: 0.2,
             death_s: 1.5,
             shown_unseen_s: 0.5,
+            reid_s: 4.0,
+            reid_m: 0.5,
+            reid_m_per_s: 0.5,
             max_speed_m_s: 2.5,
             repose_m: 0.1,
             repose_rad: 1f64.to_radians(),

@@ -6,11 +6,13 @@
 //! by three sensors is one detection), assigned to the tracks by the Hungarian method on a
 //! gated Mahalanobis cost ([`assign`]), and the tracks' Kalman filters
 //! ([`Kalman`]) updated; what no track takes starts a tentative track, confirmed after a few
-//! consistent detections; a track unseen for `death_s` ends. Ids are never reused.
+//! consistent detections; a track unseen for `death_s` ends. An id is never given to someone
+//! else: only to a new track where a lost track's person would be by now (`reid_s`), as that
+//! person come back.
 
 use std::collections::{BTreeMap, VecDeque};
 
-use nalgebra::Point2;
+use nalgebra::{Point2, Vector2};
 
 use super::TrackParams;
 use super::assign::assign;
@@ -112,11 +114,24 @@ struct TrackState {
     filter: Kalman,
     born_ns: u64,
     last_seen_ns: u64,
+    /// Where it was last seen, and its velocity then.
+    seen_at: Point2<f64>,
+    seen_v: Vector2<f64>,
     hits: u32,
     /// How long it has kept within `same_track_m` of an older track.
     together_ns: u64,
     /// Sensors that updated the track in the latest step.
     sensors: Vec<String>,
+}
+
+/// A confirmed track that ended unseen: its id waits `reid_s` for its person to come back.
+#[derive(Debug, Clone)]
+struct Ended {
+    id: u64,
+    born_ns: u64,
+    last_seen_ns: u64,
+    seen_at: Point2<f64>,
+    seen_v: Vector2<f64>,
 }
 
 /// The people tracker. Pure: feed it scans in stamp order ([`push`](Tracker::push)).
@@ -125,6 +140,7 @@ pub struct Tracker {
     params: TrackParams,
     sensors: BTreeMap<String, SensorState>,
     tracks: Vec<TrackState>,
+    ended: Vec<Ended>,
     next_id: u64,
     /// Time of the last step (ns, the scans' clock).
     last_step_ns: Option<u64>,
@@ -138,6 +154,7 @@ impl Tracker {
             params,
             sensors: BTreeMap::new(),
             tracks: Vec::new(),
+            ended: Vec::new(),
             next_id: 1,
             last_step_ns: None,
             newest_ns: None,
@@ -457,16 +474,15 @@ impl Tracker {
             t.filter.update(&mean(seen), p.sigma_meas_m);
             t.filter.limit_speed(p.max_speed_m_s);
             t.last_seen_ns = t_ns;
+            t.seen_at = t.filter.position();
+            t.seen_v = t.filter.velocity();
             t.hits += 1;
             t.sensors = seen
                 .iter()
                 .filter_map(|(_, k)| ids.get(*k).cloned())
                 .collect();
-            if t.id == 0 && t.hits >= p.confirm_hits {
-                t.id = self.next_id;
-                self.next_id += 1;
-            }
         }
+        self.confirm(t_ns);
         let (detections, _) = self.merged();
         // Two tracks on one person: the younger goes (the older keeps its id). Within
         // `same_track_m` and walking alike (a leg, a second track on one body) they are one at
@@ -522,6 +538,7 @@ impl Tracker {
         // Deaths.
         let (death_ns, tentative_ns) =
             ((p.death_s * 1e9) as u64, (p.tentative_death_s * 1e9) as u64);
+        let ended = &mut self.ended;
         self.tracks.retain(|t| {
             let unseen = t_ns.saturating_sub(t.last_seen_ns);
             if t.id == 0 {
@@ -529,6 +546,13 @@ impl Tracker {
             } else if unseen > death_ns {
                 let at = t.filter.position();
                 tracing::debug!("track {} ends at {:.2},{:.2}: unseen", t.id, at.x, at.y);
+                ended.push(Ended {
+                    id: t.id,
+                    born_ns: t.born_ns,
+                    last_seen_ns: t.last_seen_ns,
+                    seen_at: t.seen_at,
+                    seen_v: t.seen_v,
+                });
                 false
             } else {
                 true
@@ -548,12 +572,87 @@ impl Tracker {
                 filter: Kalman::new(d.at, p.sigma_meas_m, p.birth_sigma_v_m_s),
                 born_ns: d.stamp_ns,
                 last_seen_ns: t_ns,
+                seen_at: d.at,
+                seen_v: Vector2::zeros(),
                 hits: 1,
                 together_ns: 0,
                 sensors: Vec::new(),
             });
         }
         self.confirmed(t_ns)
+    }
+
+    /// Confirms the tentative tracks seen `confirm_hits` times. One born where a person whose
+    /// track was lost (ended unseen, or hidden longer than `shown_unseen_s`) would be by now
+    /// is that person come back: it takes the lost track's id (and age), and a hidden one
+    /// ends. Within `reid_s` of the loss, the lost person is looked for where their last
+    /// velocity carries them, within `reid_m` widened by `reid_m_per_s` for every second
+    /// unseen; the nearest (in gates) wins.
+    fn confirm(&mut self, t_ns: u64) {
+        let p = &self.params;
+        let reid_ns = (p.reid_s * 1e9) as u64;
+        self.ended
+            .retain(|e| t_ns.saturating_sub(e.last_seen_ns) <= reid_ns);
+        let due: Vec<usize> = (0..self.tracks.len())
+            .filter(|&i| self.tracks[i].id == 0 && self.tracks[i].hits >= p.confirm_hits)
+            .collect();
+        let shown_ns = (p.shown_unseen_s * 1e9) as u64;
+        let mut hidden_gone: Vec<usize> = Vec::new();
+        for i in due {
+            let (at, born_ns) = (self.tracks[i].filter.position(), self.tracks[i].born_ns);
+            // How far from where a lost track's person can be, in gates (< 1: within): on
+            // the way their last velocity carries them, or short of it (they slowed down).
+            let off = |last_seen_ns: u64, seen_at: Point2<f64>, seen_v: Vector2<f64>| {
+                let gap_s = t_ns.saturating_sub(last_seen_ns) as f64 * 1e-9;
+                let gate = p.reid_m + p.reid_m_per_s * gap_s;
+                let way = seen_v * gap_s;
+                let along = (at - seen_at).dot(&way) / way.norm_squared().max(1e-12);
+                let nearest = seen_at + way * along.clamp(0.0, 1.0);
+                (nearest - at).norm() / gate
+            };
+            let hidden = (0..self.tracks.len())
+                .filter(|&k| k != i && !hidden_gone.contains(&k))
+                .map(|k| &self.tracks[k])
+                .filter(|t| t.id != 0 && t_ns.saturating_sub(t.last_seen_ns) > shown_ns)
+                .filter(|t| born_ns >= t.last_seen_ns)
+                .map(|t| (off(t.last_seen_ns, t.seen_at, t.seen_v), t.id, t.born_ns));
+            let lost = self
+                .ended
+                .iter()
+                .filter(|e| born_ns >= e.last_seen_ns)
+                .map(|e| (off(e.last_seen_ns, e.seen_at, e.seen_v), e.id, e.born_ns));
+            let back = hidden
+                .chain(lost)
+                .filter(|(off, _, _)| *off < 1.0)
+                .min_by(|x, y| x.0.total_cmp(&y.0));
+            match back {
+                Some((_, id, born)) => {
+                    tracing::debug!(
+                        "track {id} takes its person back at {:.2},{:.2}",
+                        at.x,
+                        at.y
+                    );
+                    self.ended.retain(|e| e.id != id);
+                    if let Some(k) = self.tracks.iter().position(|t| t.id == id) {
+                        hidden_gone.push(k);
+                    }
+                    let t = &mut self.tracks[i];
+                    t.id = id;
+                    t.born_ns = born;
+                }
+                None => {
+                    self.tracks[i].id = self.next_id;
+                    self.next_id += 1;
+                }
+            }
+        }
+        if !hidden_gone.is_empty() {
+            let mut k = 0;
+            self.tracks.retain(|_| {
+                k += 1;
+                !hidden_gone.contains(&(k - 1))
+            });
+        }
     }
 
     /// The confirmed tracks at `t_ns`, ids ascending.
@@ -721,6 +820,48 @@ mod tests {
         for (id, off_m) in last.into_iter().flatten() {
             assert!(off_m < 0.1, "track {id} is {off_m:.2} m off its walker");
         }
+    }
+
+    /// A walker hidden from every sensor for 2.5 s (behind others: ended unseen after 1.5 s)
+    /// who comes back where their walk leads gets their id back; one who appears 3 m off
+    /// that way, or after `reid_s`, is someone else and gets a new id.
+    #[test]
+    fn a_person_hidden_a_while_comes_back_with_their_id_and_a_stranger_does_not_take_it() {
+        let run = |hidden_s: f64, sideways_m: f64| {
+            let mut tracker = Tracker::new(TrackParams::default());
+            let mut rng = ChaCha8Rng::seed_from_u64(9);
+            let (mut before, mut after) = (None, None);
+            for k in 0..((3.0 + hidden_s + 2.0) * S as f64 / TICK as f64) as u64 {
+                let t_ns = k * TICK;
+                let t_s = t_ns as f64 * 1e-9;
+                let back = t_s >= 2.0 + hidden_s;
+                let at = Point2::new(1.2 * t_s, 2.0 + if back { sideways_m } else { 0.0 });
+                let seen = if t_s < 2.0 || back {
+                    vec![noisy(&mut rng, at)]
+                } else {
+                    Vec::new()
+                };
+                if let Some(out) = tracker.push_detections("a", t_ns, &seen)
+                    && let Some(t) = out.tracks.first()
+                {
+                    if t_s < 2.0 {
+                        before = Some(t.id);
+                    } else if back {
+                        after = Some(t.id);
+                    }
+                }
+            }
+            (
+                before.expect("tracked before"),
+                after.expect("tracked after"),
+            )
+        };
+        let (before, after) = run(2.5, 0.0);
+        assert_eq!(before, after, "the walker came back where their walk led");
+        let (before, after) = run(2.5, 3.0);
+        assert!(after > before, "someone 3 m to the side is someone else");
+        let (before, after) = run(TrackParams::default().reid_s + 0.5, 0.0);
+        assert!(after > before, "past reid_s the id is not given back");
     }
 
     #[test]

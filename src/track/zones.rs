@@ -178,7 +178,8 @@ struct LineTotals {
 }
 
 /// Counts occupancy and crossings from a stream of [`Tracks`]. State is per track: tracks not
-/// listed in an update are forgotten (ids are never reused, so a returning id cannot be one).
+/// listed in an update are forgotten; an id listed again (its person seen again after hiding)
+/// starts afresh, so a jump over a line while unseen is not counted.
 #[derive(Debug, Clone)]
 pub struct Counter {
     zones: Vec<Zone>,
