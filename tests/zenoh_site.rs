@@ -178,7 +178,8 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
     let whole = wait_for(PATIENCE, "the one daemon to place all five", || {
         all_placed(&mut reference, &ids)
     });
-    check_site(&joined, &whole, &dirs);
+    let placed_at = Instant::now();
+    check_site("first join", &joined, &whole, &dirs);
     let status = site.status();
     for z in &status.zones {
         println!(
@@ -210,6 +211,10 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
     let east_status = status.zones.iter().find(|z| z.zone == "east").unwrap();
     let frame = east_status.site_from_zone.expect("east is placed");
     assert!(frame.pairs >= 1 && frame.sigma_x_m > 0.0, "{frame:?}");
+    // Joined again every 5 s on later moments' views, four times: each link averages them.
+    std::thread::sleep(Duration::from_secs(23).saturating_sub(placed_at.elapsed()));
+    let refined = wait_all_placed(&mut site, &ids, "every unit still placed");
+    check_site("five joins averaged", &refined, &whole, &dirs);
 
     // East killed: lost within the lease, its poses kept, marked stale.
     let killed = Instant::now();
@@ -273,7 +278,12 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
         "site daemon restarted → all placed in {:?}",
         restarted.elapsed()
     );
-    check_site(&again, &whole, &dirs);
+    check_site(
+        "the restarted site daemon's first join",
+        &again,
+        &whole,
+        &dirs,
+    );
     wait_for(PATIENCE, "west to hear the site daemon again", || {
         west.status()
             .zenoh
@@ -427,8 +437,9 @@ fn people_across_zones(socket: &Path) {
 /// The site's poses against one daemon's (printed; within 5 cm and 0.3°), both against the
 /// recording's truth in the anchor unit's frame (printed; the site's within 5 cm and 0.3°),
 /// and against each zone's own (to the millimetre: the site frame moves each zone whole).
-fn check_site(site: &Poses, whole: &Poses, dirs: &[tempfile::TempDir]) {
+fn check_site(what: &str, site: &Poses, whole: &Poses, dirs: &[tempfile::TempDir]) {
     let truth = truth_from("gate");
+    println!("{what}:");
     println!(
         "unit   zone   site frame (m, °)            one daemon                 Δ (mm, °)       to truth: site (mm, °)   one daemon (mm, °)   σ site, one daemon (mm, mm, °)"
     );

@@ -29,7 +29,7 @@ use super::pipeline_track::{Sightings, TrackIn, TrackerTask, track_queue_len};
 use super::protocol::{EventKind, Poses, Status, ZoneStatus};
 use super::queue::DropOldestSender;
 use super::site_tracks::CrossZone;
-use super::site_view::{Heard, Placed, SiteView, join_frame};
+use super::site_view::{Heard, KeptPair, Placed, SiteView, join_frame};
 use super::socket::Publisher;
 use super::zone_net::{
     DETECTIONS_SCHEMA, POSES_SCHEMA, Placed as PlacedKey, SCAN_SCHEMA, STATUS_SCHEMA, ViewPayload,
@@ -46,6 +46,11 @@ const SETTLE: Duration = Duration::from_secs(2);
 /// A join is tried again this often while a zone with placed sensors is not placed (its
 /// views fill in as the crowd moves on).
 const RETRY: Duration = Duration::from_secs(30);
+/// Once placed, the zones are joined again this often, `REFINES` times, on the views of
+/// later moments: each link averages its pairs over them (one moment's views, through a
+/// crowd, put a unit a few cm off), until what the zones publish changes.
+const REFINE_EVERY: Duration = Duration::from_secs(5);
+const REFINES: usize = 4;
 /// How often the site frame is published though nothing changed.
 const EVERY: Duration = Duration::from_secs(1);
 
@@ -297,7 +302,10 @@ pub async fn run(
     let mut published: Option<(Instant, Vec<ZoneStatus>)> = None;
     let mut seen: Option<(Instant, Vec<(String, PlacedKey)>)> = None;
     let mut joined: Option<(Instant, Vec<(String, PlacedKey)>)> = None;
-    let mut joining: Option<tokio::task::JoinHandle<Option<BTreeMap<String, Placed>>>> = None;
+    let mut joining: Option<tokio::task::JoinHandle<Option<Joined>>> = None;
+    // The cross pairs registered since what the zones publish last changed, and how many
+    // joins registered them.
+    let mut kept: (Vec<KeptPair>, usize) = (Vec::new(), 0);
     let mut cross = CrossZone::default();
     let mut fused = Instant::now();
     tokio::pin!(stop);
@@ -350,9 +358,10 @@ pub async fn run(
         // A join finished: its frame is the site's.
         if joining.as_ref().is_some_and(|j| j.is_finished())
             && let Some(j) = joining.take()
-            && let Ok(Some(frame)) = j.await
+            && let Ok(Some((frame, pairs))) = j.await
         {
             view.set_frame(frame);
+            kept = (pairs, kept.1 + 1);
         }
         // A join starts when what the zones publish held still after a change, or again
         // after a while when a zone is still not placed.
@@ -363,14 +372,23 @@ pub async fn run(
         let settled = seen.as_ref().is_some_and(|(at, _)| at.elapsed() >= SETTLE);
         let due = match &joined {
             None => true,
-            Some((at, k)) => *k != now_key || (at.elapsed() >= RETRY && view.someone_unplaced()),
+            Some((at, k)) => {
+                *k != now_key
+                    || (at.elapsed() >= RETRY && view.someone_unplaced())
+                    || (at.elapsed() >= REFINE_EVERY && kept.1 <= REFINES)
+            }
         };
         if settled && due && joining.is_none() && !now_key.is_empty() {
+            if joined.as_ref().is_some_and(|(_, k)| *k != now_key) {
+                // A zone's own poses changed: what its pairs said before may no longer hold.
+                kept = (Vec::new(), 0);
+            }
             joined = Some((Instant::now(), now_key));
             joining = Some(tokio::spawn(join(
                 Arc::clone(&view),
                 Arc::clone(&session),
                 site.clone(),
+                kept.0.clone(),
             )));
         }
         let zones = view.zone_statuses();
@@ -500,13 +518,17 @@ enum ZoneSaid {
     Detections(Vec<Sightings>),
 }
 
-/// Asks every alive zone for its views and joins the zones; `None` when no zone, or not the
-/// anchor zone, was heard.
+/// A join's frame, and the cross pairs it registered (with those it was given).
+type Joined = (BTreeMap<String, Placed>, Vec<KeptPair>);
+
+/// Asks every alive zone for its views and joins the zones, averaging each link with the
+/// `earlier` joins' pairs; `None` when no zone, or not the anchor zone, was heard.
 async fn join(
     view: Arc<SiteView>,
     session: Arc<zenoh::Session>,
     site: String,
-) -> Option<BTreeMap<String, Placed>> {
+    earlier: Vec<KeptPair>,
+) -> Option<Joined> {
     let zones = view.to_ask();
     if zones.is_empty() {
         return None;
@@ -534,7 +556,7 @@ async fn join(
         }
     }
     let anchor = view.anchor.clone();
-    tokio::task::spawn_blocking(move || join_frame(&anchor, heard))
+    tokio::task::spawn_blocking(move || join_frame(&anchor, heard, earlier))
         .await
         .ok()
         .flatten()

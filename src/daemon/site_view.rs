@@ -16,8 +16,8 @@ use super::site_map::SiteMap;
 use super::socket::{Publisher, Refused, StatusSource};
 use super::zone_net::{Placed as PlacedKey, ViewPayload, placed_key};
 use crate::geometry::{Pose2, pose2};
-use crate::register::zones::{ZoneInput, ZoneParams, ZoneSensor, join_zones};
-use crate::register::{RegisterParams, ScanModel};
+use crate::register::zones::{CrossPair, ZoneInput, ZoneParams, ZoneSensor, join_zones_with};
+use crate::register::{PairResult, RegisterParams, ScanModel};
 
 /// What the site daemon knows of one zone.
 #[derive(Debug, Clone)]
@@ -722,10 +722,30 @@ impl SiteView {
     }
 }
 
-/// Where each zone that sent something stands in the frame of zone `anchor`, or why not;
-/// `None` without the anchor zone among them (the frame is its frame: what was placed before
-/// stays placed). CPU-bound (it registers the cross pairs): run it off the async runtime.
-pub(super) fn join_frame(anchor: &str, heard: Vec<Heard>) -> Option<BTreeMap<String, Placed>> {
+/// A cross pair a join registered, by zone and sensor ids: the next joins of the same zones
+/// average it with theirs.
+#[derive(Debug, Clone)]
+pub(super) struct KeptPair {
+    za: String,
+    s: String,
+    zb: String,
+    t: String,
+    result: PairResult,
+}
+
+/// How many moments' registrations of one sensor pair are kept (the newest).
+const MOMENTS_KEPT: usize = 5;
+
+/// Where each zone that sent something stands in the frame of zone `anchor`, or why not,
+/// from the cross pairs registered now and `earlier` (see [`KeptPair`]), with the registered
+/// pairs to keep for the next join; `None` without the anchor zone among them (the frame is
+/// its frame: what was placed before stays placed). CPU-bound (it registers the cross
+/// pairs): run it off the async runtime.
+pub(super) fn join_frame(
+    anchor: &str,
+    heard: Vec<Heard>,
+    earlier: Vec<KeptPair>,
+) -> Option<(BTreeMap<String, Placed>, Vec<KeptPair>)> {
     if !heard.iter().any(|h| h.zone == anchor) {
         return None;
     }
@@ -764,27 +784,59 @@ pub(super) fn join_frame(anchor: &str, heard: Vec<Heard>) -> Option<BTreeMap<Str
         register: params,
         ..ZoneParams::default()
     };
-    let result = join_zones(&zones, a, &p);
-    Some(
-        zones
-            .iter()
-            .zip(result.zones)
-            .map(|(z, placement)| {
-                let placed = match placement.site_from_zone {
-                    Ok((pose, sigma)) => Ok((pose, sigma, placement.pairs)),
-                    Err(_) if z.sensors.is_empty() && unanswered.contains(&z.id) => Err(format!(
-                        "zone {} sent no static views when asked (it may still be starting)",
-                        z.id
-                    )),
-                    Err(_) if z.sensors.is_empty() => {
-                        Err(format!("zone {} has no placed sensors yet", z.id))
-                    }
-                    Err(why) => Err(why),
-                };
-                (z.id.clone(), placed)
+    let at = |zone: &str, sensor: &str| {
+        let z = zones.iter().position(|z| z.id == zone)?;
+        Some((z, zones[z].sensors.iter().position(|s| s.id == sensor)?))
+    };
+    let earlier: Vec<CrossPair> = earlier
+        .into_iter()
+        .filter_map(|k| {
+            let ((za, s), (zb, t)) = (at(&k.za, &k.s)?, at(&k.zb, &k.t)?);
+            Some(CrossPair {
+                za,
+                s,
+                zb,
+                t,
+                result: k.result,
+                used: false,
             })
-            .collect(),
-    )
+        })
+        .collect();
+    let result = join_zones_with(&zones, a, &p, earlier);
+    // This join's pairs come first: the newest of each sensor pair are kept.
+    let mut kept: Vec<KeptPair> = Vec::new();
+    for c in result.pairs.iter().filter(|c| c.result.registered()) {
+        let k = KeptPair {
+            za: zones[c.za].id.clone(),
+            s: zones[c.za].sensors[c.s].id.clone(),
+            zb: zones[c.zb].id.clone(),
+            t: zones[c.zb].sensors[c.t].id.clone(),
+            result: c.result.clone(),
+        };
+        let times = kept.iter().filter(|o| (&o.s, &o.t) == (&k.s, &k.t)).count();
+        if times < MOMENTS_KEPT {
+            kept.push(k);
+        }
+    }
+    let placed: BTreeMap<String, Placed> = zones
+        .iter()
+        .zip(result.zones)
+        .map(|(z, placement)| {
+            let placed = match placement.site_from_zone {
+                Ok((pose, sigma)) => Ok((pose, sigma, placement.pairs)),
+                Err(_) if z.sensors.is_empty() && unanswered.contains(&z.id) => Err(format!(
+                    "zone {} sent no static views when asked (it may still be starting)",
+                    z.id
+                )),
+                Err(_) if z.sensors.is_empty() => {
+                    Err(format!("zone {} has no placed sensors yet", z.id))
+                }
+                Err(why) => Err(why),
+            };
+            (z.id.clone(), placed)
+        })
+        .collect();
+    Some((placed, kept))
 }
 
 #[cfg(test)]
@@ -820,8 +872,9 @@ mod tests {
             placed: Vec::new(),
             views: Vec::new(),
         };
-        assert!(join_frame("west", vec![heard("east")]).is_none());
-        let frame = join_frame("west", vec![heard("west"), heard("east")]).unwrap();
+        assert!(join_frame("west", vec![heard("east")], Vec::new()).is_none());
+        let (frame, _) =
+            join_frame("west", vec![heard("west"), heard("east")], Vec::new()).unwrap();
         let east = frame["east"].as_ref().unwrap_err();
         assert!(east.contains("no placed sensors"), "{east}");
         let view = SiteView::new("hall", "west", Publisher::new(16));

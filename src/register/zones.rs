@@ -90,8 +90,22 @@ type At = (usize, usize);
 
 /// Places every zone it can in the frame of zone `anchor`.
 pub fn join_zones(zones: &[ZoneInput], anchor: usize, p: &ZoneParams) -> ZonesResult {
+    join_zones_with(zones, anchor, p, Vec::new())
+}
+
+/// As [`join_zones`], with the cross pairs `earlier` joins registered on the same sensors
+/// (static views of other moments, through other people) beside this join's: each link
+/// averages them. A sensor pair measured k times counts as one measurement (each of its
+/// edges' covariance × k): the moments share most of the walls, so they are not independent.
+/// Pairs naming a zone or sensor `zones` lacks are dropped.
+pub fn join_zones_with(
+    zones: &[ZoneInput],
+    anchor: usize,
+    p: &ZoneParams,
+    earlier: Vec<CrossPair>,
+) -> ZonesResult {
     let tried = cross_pairs(zones, p);
-    let pairs: Vec<CrossPair> = tried
+    let mut pairs: Vec<CrossPair> = tried
         .par_iter()
         .map(|&((za, s), (zb, t))| CrossPair {
             za,
@@ -106,6 +120,13 @@ pub fn join_zones(zones: &[ZoneInput], anchor: usize, p: &ZoneParams) -> ZonesRe
             used: false,
         })
         .collect();
+    let exists = |z: usize, s: usize| zones.get(z).is_some_and(|z| s < z.sensors.len());
+    pairs.extend(
+        earlier
+            .into_iter()
+            .filter(|c| exists(c.za, c.s) && exists(c.zb, c.t) && c.za != c.zb)
+            .map(|c| CrossPair { used: false, ..c }),
+    );
     link(zones, anchor, pairs, &p.site)
 }
 
@@ -301,9 +322,18 @@ fn link(
             if between.is_empty() {
                 continue;
             }
+            let sensors = |k: usize| (pairs[k].s, pairs[k].t);
             let found: Vec<Edge> = between
                 .iter()
-                .map(|&k| zone_edge(zones, &pairs[k]))
+                .map(|&k| {
+                    let mut e = zone_edge(zones, &pairs[k]);
+                    let times = between
+                        .iter()
+                        .filter(|&&m| sensors(m) == sensors(k))
+                        .count();
+                    e.covariance *= times as f64;
+                    e
+                })
                 .collect();
             match agreeing(&found.iter().collect::<Vec<_>>(), sp) {
                 Ok(mut kept) => {
@@ -448,6 +478,52 @@ mod tests {
         assert_eq!(
             got.zones[0].site_from_zone.as_ref().ok().map(|p| p.0),
             Some(Pose2::identity())
+        );
+    }
+
+    /// Earlier joins' pairs (other moments' views) are averaged with this join's: pairs that
+    /// put east 3 cm to one side, beside this join's, move the link half way, and σ does not
+    /// shrink as for independent measurements (by √2) from counting each sensor pair twice.
+    #[test]
+    fn earlier_joins_pairs_are_averaged_in_and_a_pair_counted_twice_is_one_measurement() {
+        let (walls, sensors) = hall();
+        let zones = zones_of(&walls, &sensors);
+        let p = ZoneParams::default();
+        let now = join_zones(&zones, 0, &p);
+        let east = |r: &ZonesResult| r.zones[1].site_from_zone.clone().expect("east placed");
+        let (at_now, sigma_now) = east(&now);
+        // The same registrations, each pair's pose 3 cm off along its A's x.
+        let shifted: Vec<CrossPair> = now
+            .pairs
+            .iter()
+            .filter(|c| c.result.registered())
+            .map(|c| {
+                let mut c = c.clone();
+                c.result.a_from_b = pose2(0.03, 0.0, 0.0) * c.result.a_from_b;
+                c
+            })
+            .collect();
+        let alone = link(&zones, 0, shifted.clone(), &p.site);
+        let (at_shifted, _) = east(&alone);
+        let both = join_zones_with(&zones, 0, &p, shifted);
+        let (at_both, sigma_both) = east(&both);
+        let (apart, _) = pose_error(&at_now, &at_shifted);
+        assert!(apart > 0.02, "the shift moved east {apart:.3} m");
+        let (to_now, _) = pose_error(&at_both, &at_now);
+        let (to_shifted, _) = pose_error(&at_both, &at_shifted);
+        assert!(
+            (to_now - apart / 2.0).abs() < 0.005 && (to_shifted - apart / 2.0).abs() < 0.005,
+            "averaged: {to_now:.4} m from this join's, {to_shifted:.4} m from the earlier ({apart:.4} apart)"
+        );
+        for k in 0..3 {
+            assert!(
+                sigma_both[k] > 0.85 * sigma_now[k],
+                "σ {sigma_both:?} against {sigma_now:?}"
+            );
+        }
+        assert!(
+            both.pairs.iter().filter(|c| c.used).count()
+                > now.pairs.iter().filter(|c| c.used).count()
         );
     }
 
