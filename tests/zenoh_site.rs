@@ -5,7 +5,8 @@
 //! millimetre: zones stay authoritative), and where one daemon holding all five puts them,
 //! within 5 cm and 0.3°: a zone solves its units from its own pairs only, so its poses differ
 //! from one daemon's by up to a few cm, and that carries into the links. The table prints each
-//! unit's Δ to one daemon and both against the recording's truth. A zone killed is lost within
+//! unit's Δ to one daemon and both against the recording's truth, at the first join and once
+//! the site daemon has averaged five moments' joins. A zone killed is lost within
 //! 2 s, its poses kept and marked stale, and started again it rejoins with nothing else
 //! restarted; the site daemon restarted rebuilds the site from the zones. The zones send what
 //! their trackers see (`[zenoh] detections = true`), west its scans too (`scans_hz`): the site
