@@ -7,7 +7,10 @@
 //! `SCANFUSE_BENCH_S` s (default 600) pass: when each zone's own units were placed and when the
 //! zone was placed in the site frame (from the zones' start), each placed unit's error in the
 //! site frame against the recording's truth (median and worst per zone), and per process its CPU (share of one core over
-//! the run), RSS and peak RSS, and the bytes a second each zone sends the site daemon.
+//! the run), RSS and peak RSS, and the bytes a second each zone sends the site daemon. Then,
+//! `SCANFUSE_BENCH_REFINE_S` s later (default 40; 0 skips), each zone's errors again, once the
+//! site daemon has joined the zones on later moments' views and averaged its links, and its
+//! CPU meanwhile.
 //!
 //! Run: `cargo bench --bench zones_site` (`SCANFUSE_BIN` picks the binary; default the one
 //! cargo built for the bench). 11 processes share the machine's cores: the times are this
@@ -184,17 +187,35 @@ fn main() -> Result<(), Error> {
             .map(|t| pose2(t.x_m, t.y_m, t.yaw_deg.to_radians()))
     };
     let world_from_site = truth(&poses.anchor).ok_or("no truth for the anchor")?;
-    let mut errors: Vec<(String, f64, f64)> = Vec::new();
-    for s in poses.sensors.iter().filter(|s| s.registered && !s.stale) {
-        let (Some(x), Some(y), Some(yaw), Some(t)) = (s.x_m, s.y_m, s.yaw_deg, truth(&s.id)) else {
-            continue;
-        };
-        let (dt, dyaw) = pose_error(
-            &pose2(x, y, yaw.to_radians()),
-            &(world_from_site.inverse() * t),
-        );
-        errors.push((s.id.clone(), dt, dyaw.to_degrees()));
-    }
+    let errors_of = |poses: &Poses| -> Vec<(String, f64, f64)> {
+        let mut errors = Vec::new();
+        for s in poses.sensors.iter().filter(|s| s.registered && !s.stale) {
+            let (Some(x), Some(y), Some(yaw), Some(t)) = (s.x_m, s.y_m, s.yaw_deg, truth(&s.id))
+            else {
+                continue;
+            };
+            let (dt, dyaw) = pose_error(
+                &pose2(x, y, yaw.to_radians()),
+                &(world_from_site.inverse() * t),
+            );
+            errors.push((s.id.clone(), dt, dyaw.to_degrees()));
+        }
+        errors
+    };
+    // A zone's units' errors, cm: "median / max".
+    let in_zone = |errors: &[(String, f64, f64)], zone: &str| {
+        let mut mine: Vec<f64> = errors
+            .iter()
+            .filter(|e| zone_of.get(&e.0).map(String::as_str) == Some(zone))
+            .map(|e| e.1 * 100.0)
+            .collect();
+        mine.sort_by(f64::total_cmp);
+        match (mine.get(mine.len() / 2), mine.last()) {
+            (Some(mid), Some(max)) => format!("{mid:.1} / {max:.1}"),
+            _ => "-".to_string(),
+        }
+    };
+    let mut errors = errors_of(&poses);
 
     println!(
         "\nzone  units  own units placed at  in the site frame at  pairs  error median/max cm  sends B/s  CPU of a core  RSS MiB (peak)"
@@ -204,16 +225,7 @@ fn main() -> Result<(), Error> {
         let cpu = (common::cpu_ticks(d.0.id()).unwrap_or(0) - ticks0[k]) as f64 / tps / elapsed;
         let (rss, peak) = rss_mib(d.0.id());
         let at = |v: Option<f64>| v.map_or("never".to_string(), |t| format!("{t:.1} s"));
-        let mut mine: Vec<f64> = errors
-            .iter()
-            .filter(|e| zone_of.get(&e.0) == Some(zone))
-            .map(|e| e.1 * 100.0)
-            .collect();
-        mine.sort_by(f64::total_cmp);
-        let error = match (mine.get(mine.len() / 2), mine.last()) {
-            (Some(mid), Some(max)) => format!("{mid:.1} / {max:.1}"),
-            _ => "-".to_string(),
-        };
+        let error = in_zone(&errors, zone);
         println!(
             "{zone}  {:>5}  {:>19}  {:>20}  {:>5}  {error:>19}  {:>9.0}  {:>13.2}  {rss:>6.0} ({peak:.0})",
             z.map_or(0, |z| z.sensors),
@@ -237,6 +249,39 @@ fn main() -> Result<(), Error> {
         "{placed} of {} zones in the site frame; the last at {all:.1} s after the zones started",
         daemons.len()
     );
+    summary(&mut errors, &zone_of);
+
+    // The site daemon joins the zones again on later moments' views and averages each link
+    // (`site_net`'s refines): the errors once it has.
+    let refine_s = common::env_f64("SCANFUSE_BENCH_REFINE_S", 40.0);
+    if refine_s > 0.0 && placed == daemons.len() {
+        let (ticks, from) = (common::cpu_ticks(site.0.id()).unwrap_or(0), Instant::now());
+        std::thread::sleep(Duration::from_secs_f64(refine_s));
+        let (_, later) = ask(&site_socket)?;
+        let cpu = (common::cpu_ticks(site.0.id()).unwrap_or(0) - ticks) as f64
+            / tps
+            / from.elapsed().as_secs_f64();
+        let mut after = errors_of(&later);
+        println!("
+{refine_s:.0} s later, the links averaged over the moments the site daemon joined again (site daemon CPU {cpu:.2} of a core meanwhile):");
+        println!("zone  error median/max cm: at the first frame → now");
+        for (zone, _, _) in &daemons {
+            println!(
+                "{zone}  {:>19} → {}",
+                in_zone(&errors, zone),
+                in_zone(&after, zone)
+            );
+        }
+        summary(&mut after, &zone_of);
+    }
+    Ok(())
+}
+
+/// The worst and median unit against the truth, and how many are off by a look-alike.
+fn summary(
+    errors: &mut [(String, f64, f64)],
+    zone_of: &std::collections::BTreeMap<String, String>,
+) {
     errors.sort_by(|a, b| b.1.total_cmp(&a.1));
     let wrong = errors.iter().filter(|e| e.1 > 0.1 || e.2 > 1.0).count();
     if let Some(worst) = errors.first() {
@@ -251,5 +296,4 @@ fn main() -> Result<(), Error> {
             zone_of.get(&worst.0).map_or("?", String::as_str)
         );
     }
-    Ok(())
 }

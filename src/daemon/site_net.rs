@@ -363,8 +363,9 @@ pub async fn run(
             view.set_frame(frame);
             kept = (pairs, kept.1 + 1);
         }
-        // A join starts when what the zones publish held still after a change, or again
-        // after a while when a zone is still not placed.
+        // A join starts when what the zones publish held still after a change, again after a
+        // while when a zone is still not placed, and `REFINES` times after a change to
+        // average the links over later moments.
         let now_key = view.join_key();
         if seen.as_ref().is_none_or(|(_, k)| *k != now_key) {
             seen = Some((Instant::now(), now_key.clone()));
