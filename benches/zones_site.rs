@@ -8,9 +8,9 @@
 //! zone was placed in the site frame (from the zones' start), each placed unit's error in the
 //! site frame against the recording's truth (median and worst per zone), and per process its CPU (share of one core over
 //! the run), RSS and peak RSS, and the bytes a second each zone sends the site daemon. Then,
-//! `SCANFUSE_BENCH_REFINE_S` s later (default 40; 0 skips), each zone's errors again, once the
-//! site daemon has joined the zones on later moments' views and averaged its links, and its
-//! CPU meanwhile.
+//! `SCANFUSE_BENCH_REFINE_S` s later (default 40; 0 skips), each zone's errors when every zone
+//! was first placed and now, once the site daemon has joined the zones on later moments'
+//! views and averaged its links, and its CPU meanwhile.
 //!
 //! Run: `cargo bench --bench zones_site` (`SCANFUSE_BIN` picks the binary; default the one
 //! cargo built for the bench). 11 processes share the machine's cores: the times are this
@@ -143,6 +143,8 @@ fn main() -> Result<(), Error> {
     let mut own_at: Vec<Option<f64>> = vec![None; daemons.len()];
     let mut site_at: Vec<Option<f64>> = vec![None; daemons.len()];
     let mut last = None;
+    // The poses when every zone was first in the site frame (before any refine).
+    let mut first: Option<Poses> = None;
     while started.elapsed() < patience {
         std::thread::sleep(Duration::from_millis(500));
         let t = started.elapsed().as_secs_f64();
@@ -171,6 +173,9 @@ fn main() -> Result<(), Error> {
         let last_joined = site_at.iter().flatten().fold(0.0f64, |a, &t| a.max(t));
         let done = site_at.iter().all(Option::is_some)
             && (own_at.iter().all(Option::is_some) || t > last_joined + 60.0);
+        if first.is_none() && site_at.iter().all(Option::is_some) {
+            first = Some(poses.clone());
+        }
         last = Some((status, poses));
         if done {
             break;
@@ -262,13 +267,16 @@ fn main() -> Result<(), Error> {
             / tps
             / from.elapsed().as_secs_f64();
         let mut after = errors_of(&later);
-        println!("
-{refine_s:.0} s later, the links averaged over the moments the site daemon joined again (site daemon CPU {cpu:.2} of a core meanwhile):");
-        println!("zone  error median/max cm: at the first frame → now");
+        println!();
+        println!(
+            "{refine_s:.0} s later, the links averaged over the moments the site daemon joined again (site daemon CPU {cpu:.2} of a core meanwhile):"
+        );
+        println!("zone  error median/max cm: when every zone was first placed → now");
+        let at_first = first.as_ref().map(errors_of).unwrap_or_default();
         for (zone, _, _) in &daemons {
             println!(
                 "{zone}  {:>19} → {}",
-                in_zone(&errors, zone),
+                in_zone(&at_first, zone),
                 in_zone(&after, zone)
             );
         }
