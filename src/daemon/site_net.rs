@@ -302,7 +302,8 @@ pub async fn run(
     let mut published: Option<(Instant, Vec<ZoneStatus>)> = None;
     let mut seen: Option<(Instant, Vec<(String, PlacedKey)>)> = None;
     let mut joined: Option<(Instant, Vec<(String, PlacedKey)>)> = None;
-    let mut joining: Option<tokio::task::JoinHandle<Option<Joined>>> = None;
+    // The join running, and whether it refines the links the site stands on.
+    let mut joining: Option<(tokio::task::JoinHandle<Option<Joined>>, bool)> = None;
     // The cross pairs registered since what the zones publish last changed, and how many
     // joins registered them.
     let mut kept: (Vec<KeptPair>, usize) = (Vec::new(), 0);
@@ -356,11 +357,15 @@ pub async fn run(
             view.fuse_map();
         }
         // A join finished: its frame is the site's.
-        if joining.as_ref().is_some_and(|j| j.is_finished())
-            && let Some(j) = joining.take()
+        if joining.as_ref().is_some_and(|(j, _)| j.is_finished())
+            && let Some((j, again)) = joining.take()
             && let Ok(Some((frame, pairs))) = j.await
         {
-            view.set_frame(frame);
+            if again {
+                view.refine_frame(frame);
+            } else {
+                view.set_frame(frame);
+            }
             kept = (pairs, kept.1 + 1);
         }
         // A join starts when what the zones publish held still after a change, again after a
@@ -386,13 +391,14 @@ pub async fn run(
             // Refining registers again only the pairs that linked; a full join looks for more.
             let again = refine && !changed && !retry && !kept.0.is_empty();
             joined = Some((Instant::now(), now_key));
-            joining = Some(tokio::spawn(join(
+            let task = tokio::spawn(join(
                 Arc::clone(&view),
                 Arc::clone(&session),
                 site.clone(),
                 kept.0.clone(),
                 again,
-            )));
+            ));
+            joining = Some((task, again));
         }
         let zones = view.zone_statuses();
         let same = |a: &[ZoneStatus], b: &[ZoneStatus]| {
@@ -424,7 +430,7 @@ pub async fn run(
             published = Some((Instant::now(), zones));
         }
     }
-    if let Some(j) = joining {
+    if let Some((j, _)) = joining {
         j.abort();
     }
     drop(token);

@@ -405,6 +405,39 @@ impl SiteView {
         })
     }
 
+    /// Takes a refining join's result (the links averaged over more moments): it may move a
+    /// placed zone by a little, never far and never unplace it. A placement more than
+    /// `REFINE_MAX_M` or `REFINE_MAX_DEG` from where the zone stands is another pose, not a
+    /// refinement of this one (a later moment's look-alike): the zone stays, and that is said.
+    pub(super) fn refine_frame(&self, mut frame: BTreeMap<String, Placed>) {
+        let standing = self.lock().frame.clone();
+        for (zone, placed) in frame.iter_mut() {
+            let Some(Ok(old)) = standing.get(zone) else {
+                continue;
+            };
+            let far = match placed {
+                Ok((pose, _, _)) => {
+                    let (dt, dyaw) = crate::geometry::pose_error(pose, &old.0);
+                    (dt > REFINE_MAX_M || dyaw > REFINE_MAX_DEG.to_radians()).then_some((dt, dyaw))
+                }
+                Err(_) => None,
+            };
+            if let Some((dt, dyaw)) = far {
+                self.announce(
+                    EventKind::Error,
+                    format!(
+                        "zone {zone}: a later moment's views link it {dt:.2} m / {:.1}° from where it stands; it stays where it is (a look-alike, or the zone was moved: its own poses would then change and it is joined afresh)",
+                        dyaw.to_degrees()
+                    ),
+                );
+            }
+            if far.is_some() || placed.is_err() {
+                *placed = Ok(*old);
+            }
+        }
+        self.set_frame(frame);
+    }
+
     /// Takes a join's result. A zone the join did not see (lost meanwhile) keeps where it
     /// stood, as its poses do. Says what changed: a zone placed, moved by more than 1 cm or
     /// 0.1°, or newly unplaced and why.
@@ -722,8 +755,9 @@ impl SiteView {
     }
 }
 
-/// A cross pair a join registered, by zone and sensor ids: the next joins of the same zones
-/// average it with theirs.
+/// A cross pair a join linked two zones by, by zone and sensor ids: the next joins of the
+/// same zones average it with theirs. Only linking pairs are kept: a look-alike pair that
+/// registered but was outvoted must not gather votes over the moments.
 #[derive(Debug, Clone)]
 pub(super) struct KeptPair {
     za: String,
@@ -735,6 +769,9 @@ pub(super) struct KeptPair {
 
 /// How many moments' registrations of one sensor pair are kept (the newest).
 const MOMENTS_KEPT: usize = 5;
+/// A refining join moves a placed zone at most this far (see [`SiteView::refine_frame`]).
+const REFINE_MAX_M: f64 = 0.3;
+const REFINE_MAX_DEG: f64 = 1.0;
 
 /// Where each zone that sent something stands in the frame of zone `anchor`, or why not,
 /// from the cross pairs registered now and `earlier` (see [`KeptPair`]; with `again`, only
@@ -807,7 +844,7 @@ pub(super) fn join_frame(
     let result = join_zones_with(&zones, a, &p, earlier, again);
     // This join's pairs come first: the newest of each sensor pair are kept.
     let mut kept: Vec<KeptPair> = Vec::new();
-    for c in result.pairs.iter().filter(|c| c.result.registered()) {
+    for c in result.pairs.iter().filter(|c| c.used) {
         let k = KeptPair {
             za: zones[c.za].id.clone(),
             s: zones[c.za].sensors[c.s].id.clone(),
@@ -965,6 +1002,30 @@ mod tests {
         }
         let said = events.try_recv().expect("the clock right again");
         assert!(said.contains("agrees"), "{said}");
+    }
+
+    /// A refining join moves a placed zone a little; a placement far from where it stands
+    /// (a later moment's look-alike) or none at all leaves it where it is.
+    #[test]
+    fn a_refining_join_moves_a_zone_a_little_never_far_and_never_unplaces_it() {
+        let view = SiteView::new("hall", "west", Publisher::new(16));
+        let at = |x: f64, yaw: f64| -> Placed { Ok((pose2(x, 0.0, yaw), [0.01, 0.01, 0.001], 2)) };
+        let east = |v: &SiteView| v.lock().frame["east"].clone();
+        let one = |p: Placed| BTreeMap::from([("east".to_string(), p)]);
+        view.set_frame(one(at(20.0, 0.0)));
+        view.refine_frame(one(at(20.02, 0.001)));
+        assert_eq!(east(&view), at(20.02, 0.001));
+        view.refine_frame(one(at(180.0, std::f64::consts::PI)));
+        assert_eq!(
+            east(&view),
+            at(20.02, 0.001),
+            "turned round: not a refinement"
+        );
+        view.refine_frame(one(Err("their sensor pairs disagree".into())));
+        assert_eq!(east(&view), at(20.02, 0.001));
+        // A join afresh (a zone's own poses changed) may move it anywhere.
+        view.set_frame(one(at(180.0, 0.0)));
+        assert_eq!(east(&view), at(180.0, 0.0));
     }
 
     #[test]
