@@ -38,6 +38,16 @@ pub struct Sightings {
     pub people: Vec<[f64; 2]>,
 }
 
+impl Sightings {
+    /// The body centres as points, for the tracker.
+    pub fn points(&self) -> Vec<nalgebra::Point2<f64>> {
+        self.people
+            .iter()
+            .map(|&[x, y]| nalgebra::Point2::new(x, y))
+            .collect()
+    }
+}
+
 /// What the tracker takes.
 #[derive(Debug, Clone)]
 pub enum TrackIn {
@@ -104,12 +114,7 @@ impl TrackerTask {
                             step
                         }
                         TrackIn::Sighted(s) => {
-                            let people: Vec<_> = s
-                                .people
-                                .iter()
-                                .map(|&[x, y]| nalgebra::Point2::new(x, y))
-                                .collect();
-                            tracker.push_detections(&s.sensor, s.t_ns, &people)
+                            tracker.push_detections(&s.sensor, s.t_ns, &s.points())
                         }
                     };
                     if let Some(tracks) = step {

@@ -146,12 +146,7 @@ mod tests {
             let mut ready = cross.take("west", Some(&Pose2::identity()), west);
             ready.extend(cross.take("east", Some(&site_from_east), east));
             for s in ready {
-                let people: Vec<_> = s
-                    .people
-                    .iter()
-                    .map(|&[x, y]| nalgebra::Point2::new(x, y))
-                    .collect();
-                if let Some(tracks) = tracker.push_detections(&s.sensor, s.t_ns, &people) {
+                if let Some(tracks) = tracker.push_detections(&s.sensor, s.t_ns, &s.points()) {
                     assert!(tracks.tracks.len() <= 1, "{tracks:?}");
                     for t in &tracks.tracks {
                         ids.insert(t.id);

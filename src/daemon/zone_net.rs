@@ -407,6 +407,9 @@ pub async fn run(
             _ = send.tick(), if detections.is_some() => {
                 if let Some((rx, publisher)) = &detections {
                     let scans: Vec<Sightings> = std::iter::from_fn(|| rx.try_recv().ok()).collect();
+                    if scans.is_empty() {
+                        continue;
+                    }
                     let payload = serde_json::to_vec(&Wrapped {
                         schema: DETECTIONS_SCHEMA,
                         site: &site,
@@ -415,12 +418,11 @@ pub async fn run(
                         body: Body::Detections { scans: &scans },
                     });
                     match payload {
-                        Ok(bytes) if !scans.is_empty() => {
+                        Ok(bytes) => {
                             if let Err(e) = publisher.put(bytes).await {
                                 tracing::warn!("publishing {detections_key} failed: {e}");
                             }
                         }
-                        Ok(_) => {}
                         Err(e) => tracing::warn!("the zone's detections did not serialise: {e}"),
                     }
                 }
