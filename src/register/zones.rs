@@ -6,7 +6,9 @@
 //! Every registered cross pair (s of zone A, t of zone B) says where B stands in A:
 //! `a_from_b = a_from_s · s_from_t · (b_from_t)⁻¹`. The pairs between two zones must agree:
 //! the largest set that agrees (the site's cycle tolerance) is the link, and a rival set half
-//! its size or more leaves the two unlinked (a look-alike across zones). Links that disagree
+//! its size or more leaves the two unlinked (a look-alike across zones). A set stands only
+//! where the two zones' whole views bear its pose out (every sensor of one against every
+//! sensor of the other, not just the pairs that registered). Links that disagree
 //! around triangles of zones are dropped as inside a site (`consistent_edges`), and the weighted
 //! least squares of the site (`solve`) places every zone the links reach, with σ.
 
@@ -14,6 +16,7 @@ use nalgebra::Matrix3;
 use rayon::prelude::*;
 
 use super::site::{Edge, SiteParams, consistent_edges, solve};
+use super::score::score;
 use super::{PairResult, RegisterParams, ScanModel, register_pair};
 use crate::geometry::{Pose2, pose_error, pose2, wrap_angle_rad};
 
@@ -43,6 +46,9 @@ pub struct ZoneParams {
     /// pairs among each zone's `outward` sensors that see most past their zone ([`outward`]).
     pub all_pairs_up_to: usize,
     pub outward: usize,
+    /// A link stands only where the two zones' whole views bear it out: at most this share
+    /// of the points where they meet may land in the other's free space ([`WholeView`]).
+    pub whole_view_violation: f64,
 }
 
 impl Default for ZoneParams {
@@ -52,6 +58,7 @@ impl Default for ZoneParams {
             site: SiteParams::default(),
             all_pairs_up_to: 400,
             outward: 6,
+            whole_view_violation: 0.15,
         }
     }
 }
@@ -137,7 +144,7 @@ pub fn join_zones_with(
         })
         .collect();
     pairs.extend(earlier);
-    link(zones, anchor, pairs, &p.site)
+    link(zones, anchor, pairs, p)
 }
 
 /// The cross pairs worth registering, each once, the lower zone first.
@@ -260,54 +267,136 @@ fn zone_edge(zones: &[ZoneInput], c: &CrossPair) -> Edge {
     }
 }
 
+/// How two zones' whole views agree with one standing at a given pose in the other's frame:
+/// every pair of their sensors within reach of each other scored at the pose it implies
+/// (`score`, both directions), the points that land on the other's points and those that
+/// land in its free space summed over all of them.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct WholeView {
+    pub hits: f64,
+    pub violations: f64,
+}
+
+impl WholeView {
+    /// The share of the points that meet the other zone's view which contradict it.
+    pub fn violation(&self) -> f64 {
+        self.violations / (self.hits + self.violations).max(1.0)
+    }
+}
+
+/// [`WholeView`] of zones `za` and `zb` with `zb` at `a_from_b`. Sensor pairs farther apart
+/// than both their farthest returns cannot meet and are skipped.
+fn whole_view(
+    zones: &[ZoneInput],
+    za: usize,
+    zb: usize,
+    a_from_b: &Pose2,
+    p: &RegisterParams,
+) -> WholeView {
+    let reach = |s: &ZoneSensor| {
+        s.model
+            .points()
+            .iter()
+            .map(|q| q.coords.norm())
+            .fold(0.0, f64::max)
+    };
+    let (a, b) = (&zones[za].sensors, &zones[zb].sensors);
+    let reach_b: Vec<f64> = b.iter().map(reach).collect();
+    a.par_iter()
+        .map(|s| {
+            let reach_s = reach(s);
+            let mut sum = WholeView::default();
+            for (t, reach_t) in b.iter().zip(&reach_b) {
+                let s_from_t = s.zone_from_sensor.inverse() * a_from_b * t.zone_from_sensor;
+                if s_from_t.translation.vector.norm() > reach_s + reach_t {
+                    continue;
+                }
+                let sc = score(&s.model, &t.model, &s_from_t, p);
+                let (ns, nt) = (
+                    s.model.score_sample.len() as f64,
+                    t.model.score_sample.len() as f64,
+                );
+                sum.hits += sc.b_in_a.overlap * nt + sc.a_in_b.overlap * ns;
+                sum.violations += sc.b_in_a.violation * nt + sc.a_in_b.violation * ns;
+            }
+            sum
+        })
+        .reduce(WholeView::default, |x, y| WholeView {
+            hits: x.hits + y.hits,
+            violations: x.violations + y.violations,
+        })
+}
+
 /// The link between two zones from their registered cross pairs (`edges[k]` from `pairs[k]`):
-/// the indices of the largest agreeing set, or why there is none.
-fn agreeing(edges: &[&Edge], sp: &SiteParams) -> Result<Vec<usize>, String> {
+/// the indices of the largest agreeing set whose pose `bears_out` (the zones' whole views at
+/// it), or why there is none. Sets are tried largest first until two bear out: a rival half
+/// as large as the best leaves the zones unlinked. (On a concourse whose bays look alike, lone
+/// pairs between zones 200 m apart registered, each a set of its own without a rival, and
+/// turned half the site round; at their poses 31–87 % of the points where the two zones' views
+/// meet contradicted the other's view, at the true links 3–6 %.)
+fn agreeing(
+    edges: &[&Edge],
+    sp: &SiteParams,
+    bears_out: impl Fn(&Edge) -> Result<(), String>,
+) -> Result<Vec<usize>, String> {
     let agrees = |x: &Edge, y: &Edge| {
         let (dt, dyaw) = pose_error(&x.a_from_b, &y.a_from_b);
         dt <= sp.cycle_m && dyaw <= sp.cycle_rad
     };
-    let cluster = |k: usize, among: &[usize]| -> Vec<usize> {
-        among
-            .iter()
-            .copied()
-            .filter(|&m| agrees(edges[k], edges[m]))
-            .collect()
-    };
+    let strength = |c: &[usize]| c.iter().map(|&m| edges[m].strength).sum::<f64>();
     let largest = |among: &[usize]| -> Vec<usize> {
         among
             .iter()
-            .map(|&k| cluster(k, among))
+            .map(|&k| {
+                among
+                    .iter()
+                    .copied()
+                    .filter(|&m| agrees(edges[k], edges[m]))
+                    .collect::<Vec<usize>>()
+            })
             .max_by(|x, y| {
-                let strength = |c: &[usize]| c.iter().map(|&m| edges[m].strength).sum::<f64>();
                 x.len()
                     .cmp(&y.len())
                     .then(strength(x).total_cmp(&strength(y)))
             })
             .unwrap_or_default()
     };
-    let all: Vec<usize> = (0..edges.len()).collect();
-    let best = largest(&all);
-    let rest: Vec<usize> = all.into_iter().filter(|k| !best.contains(k)).collect();
-    let rival = largest(&rest);
-    if !rival.is_empty() && 2 * rival.len() >= best.len() {
-        let at = |c: &[usize]| {
-            let e = edges[c[0]];
-            format!(
-                "{} at ({:.2}, {:.2}) m, {:.1}°",
-                c.len(),
-                e.a_from_b.translation.x,
-                e.a_from_b.translation.y,
-                e.a_from_b.rotation.angle().to_degrees()
-            )
-        };
-        return Err(format!(
-            "their sensor pairs disagree: {} against {}",
-            at(&best),
-            at(&rival)
-        ));
+    let at = |c: &[usize]| {
+        let e = edges[c[0]];
+        format!(
+            "{} at ({:.2}, {:.2}) m, {:.1}°",
+            c.len(),
+            e.a_from_b.translation.x,
+            e.a_from_b.translation.y,
+            e.a_from_b.rotation.angle().to_degrees()
+        )
+    };
+    let mut left: Vec<usize> = (0..edges.len()).collect();
+    let mut borne: Vec<Vec<usize>> = Vec::new();
+    let mut refuted: Vec<String> = Vec::new();
+    while borne.len() < 2 && !left.is_empty() {
+        let mut set = largest(&left);
+        left.retain(|k| !set.contains(k));
+        // The strongest first: its pose stands for the set's.
+        set.sort_by(|&x, &y| edges[y].strength.total_cmp(&edges[x].strength));
+        match bears_out(edges[set[0]]) {
+            Ok(()) => borne.push(set),
+            Err(why) => refuted.push(format!("{} ({why})", at(&set))),
+        }
     }
-    Ok(best)
+    match borne.as_slice() {
+        [] => Err(format!(
+            "their sensor pairs place it only where the two zones' whole views contradict each other: {}",
+            refuted.join(", ")
+        )),
+        [best] => Ok(best.clone()),
+        [best, rival] if 2 * rival.len() >= best.len() => Err(format!(
+            "their sensor pairs disagree: {} against {}",
+            at(best),
+            at(rival)
+        )),
+        [best, ..] => Ok(best.clone()),
+    }
 }
 
 /// Links the zones from their registered cross pairs and solves where each stands.
@@ -315,8 +404,9 @@ fn link(
     zones: &[ZoneInput],
     anchor: usize,
     mut pairs: Vec<CrossPair>,
-    sp: &SiteParams,
+    p: &ZoneParams,
 ) -> ZonesResult {
+    let sp = &p.site;
     let n = zones.len();
     let mut edges: Vec<Edge> = Vec::new();
     let mut from_pair: Vec<usize> = Vec::new();
@@ -345,10 +435,21 @@ fn link(
                     e
                 })
                 .collect();
-            match agreeing(&found.iter().collect::<Vec<_>>(), sp) {
-                Ok(mut kept) => {
-                    // The strongest first: the cycle check takes the first edge of each pair.
-                    kept.sort_by(|&x, &y| found[y].strength.total_cmp(&found[x].strength));
+            let bears_out = |e: &Edge| {
+                let whole = whole_view(zones, za, zb, &e.a_from_b, &p.register);
+                if whole.violation() <= p.whole_view_violation {
+                    Ok(())
+                } else {
+                    Err(format!(
+                        "{:.0} % of the points where their views meet land in the other's free space",
+                        100.0 * whole.violation()
+                    ))
+                }
+            };
+            match agreeing(&found.iter().collect::<Vec<_>>(), sp, bears_out) {
+                Ok(kept) => {
+                    // Strongest first (as `agreeing` gives them): the cycle check takes the
+                    // first edge of each pair.
                     for k in kept {
                         edges.push(found[k].clone());
                         from_pair.push(between[k]);
@@ -513,7 +614,7 @@ mod tests {
                 c
             })
             .collect();
-        let alone = link(&zones, 0, shifted.clone(), &p.site);
+        let alone = link(&zones, 0, shifted.clone(), &p);
         let (at_shifted, _) = east(&alone);
         let both = join_zones_with(&zones, 0, &p, shifted.clone(), false);
         let again = join_zones_with(&zones, 0, &p, shifted.clone(), true);
@@ -622,7 +723,7 @@ mod tests {
             between >= 2,
             "west and east share {between} registered pairs"
         );
-        let got = link(&zones, 0, pairs, &SiteParams::default());
+        let got = link(&zones, 0, pairs, &ZoneParams::default());
         let east = &got.zones[1].site_from_zone;
         // East may still be placed through north (a chain that does agree), but never at
         // the rival's pose.
@@ -632,5 +733,47 @@ mod tests {
         } else {
             assert!(east.as_ref().unwrap_err().contains("disagree"), "{east:?}");
         }
+    }
+
+    /// A lone cross pair registered at a look-alike pose (zones that share no view: on a
+    /// concourse whose bays repeat, such pairs turned half the site round) has no rival, but
+    /// the two zones' whole views at its pose contradict each other: it links nothing. Before
+    /// the check, north was placed where the pair put it.
+    #[test]
+    fn a_lone_look_alike_pair_the_whole_views_contradict_links_nothing() {
+        let (mut walls, mut sensors) = hall();
+        walls.extend(polygon(&[
+            (100.0, 0.0),
+            (107.0, 0.0),
+            (107.0, 5.0),
+            (100.0, 5.0),
+        ]));
+        sensors[4].1 = pose2(101.0, 1.0, 0.3);
+        sensors[5].1 = pose2(106.0, 4.0, -2.5);
+        let zones = zones_of(&walls, &sensors);
+        let p = ZoneParams::default();
+        let good = join_zones(&zones, 0, &p);
+        let mut look_alike = good
+            .pairs
+            .iter()
+            .find(|c| c.za == 0 && c.zb == 1 && c.used)
+            .expect("west and east linked")
+            .clone();
+        // West's s1 against north's s4, turned half round in the middle of the hall.
+        (look_alike.s, look_alike.zb, look_alike.t) = (1, 2, 0);
+        look_alike.result.a_from_b = pose2(1.0, -2.0, 3.1);
+        let mut pairs = good.pairs.clone();
+        pairs.push(look_alike);
+        let got = link(&zones, 0, pairs.clone(), &p);
+        let why = got.zones[2].site_from_zone.as_ref().unwrap_err();
+        assert!(why.contains("whole views contradict"), "{why}");
+        assert!(got.zones[1].site_from_zone.is_ok(), "{:?}", got.zones[1]);
+        // Without the whole views, the pair alone would have placed it: what the check is for.
+        let off = ZoneParams {
+            whole_view_violation: 1.0,
+            ..ZoneParams::default()
+        };
+        let unchecked = link(&zones, 0, pairs, &off);
+        assert!(unchecked.zones[2].site_from_zone.is_ok());
     }
 }

@@ -24,6 +24,7 @@ mod real;
 mod sim;
 mod site;
 mod tracking;
+mod zones;
 
 use real::{Logs, load_logs, real_cases, real_sites};
 use sim::{SiteDraw, load_plans, sim_cases, sites};
@@ -52,6 +53,9 @@ pub struct Args {
     /// Sites to solve, per kind (installed, random, real).
     #[arg(long, default_value_t = 3)]
     pub sites: usize,
+    /// Zones a concourse is split into along its length (`--only zones`).
+    #[arg(long, default_value_t = 10)]
+    pub zones: usize,
     /// Sensors per site (at least 2; at most 500 with --floor).
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u16).range(2..))]
     pub site_sensors: u16,
@@ -72,7 +76,7 @@ pub struct Args {
     #[arg(long, default_value = "fixtures/plans-crowd")]
     pub track_plans: PathBuf,
     /// Parts to run: sim, site, real, classes (comma separated; default all), and tracking,
-    /// crowd and drawing (only when named).
+    /// crowd, drawing and zones (only when named).
     #[arg(long, value_delimiter = ',')]
     pub only: Vec<String>,
     /// Desks of clutter added to each building drawing (`--only drawing`): entities no scanner
@@ -163,6 +167,9 @@ pub fn run(args: Args) -> Result<()> {
     }
     if args.only.iter().any(|o| o == "drawing") {
         drawing::run(&load_plans(&args.plans)?, &args, &params)?;
+    }
+    if args.only.iter().any(|o| o == "zones") {
+        zones::run(&args, &params)?;
     }
     if args.only.iter().any(|o| o == "crowd") {
         crowd::run(&args.track_plans, args.seed, &params)?;

@@ -1,0 +1,147 @@
+//! `eval --only zones`: generated concourses split along their length into zones, each zone
+//! registered on its own (as a zone daemon does) and the zones joined into one site frame
+//! (`register::zones`, as the site daemon does), scored against the simulator's truth. The
+//! same join as `cargo bench --bench zones_site`, without the processes and the network: a
+//! seed a minute, where the bench takes five.
+
+use anyhow::{Context, Result};
+use scanfuse::geometry::{Pose2, pose_error};
+use scanfuse::register::RegisterParams;
+use scanfuse::register::site::{SiteParams, register_site};
+use scanfuse::register::zones::{ZoneInput, ZoneParams, ZoneSensor, join_zones};
+use scanfuse::sim::generate::{FloorSpec, concourse};
+use std::time::Instant;
+
+use super::Args;
+use super::sim::{simulate_models, site_inputs, truth_pose};
+
+/// A zone counts as right within this of the truth (m, °), or within 3σ of it: a zone at the
+/// end of a chain of links carries the error of every link and zone before it, and says so.
+const RIGHT_M: f64 = 0.10;
+const RIGHT_DEG: f64 = 1.0;
+
+/// Concourses of `--site-sensors` scanners (seeds from `--seed`), in `--zones` zones.
+pub(super) fn run(args: &Args, params: &RegisterParams) -> Result<()> {
+    let n = usize::from(args.site_sensors);
+    let zones = args.zones.max(1);
+    println!(
+        "\n== Concourses of {n} scanners in {zones} zones, each zone registered alone and the zones joined (register::zones): every zone within {:.0} cm / {RIGHT_DEG}° of the truth, or within 3σ? ==",
+        RIGHT_M * 100.0
+    );
+    println!(
+        "{:>5} {:>6} {:>7} {:>6} {:>7} {:>7} {:>6} {:>9} {:>8} {:>7}  wrong and unplaced zones",
+        "seed",
+        "units",
+        "placed",
+        "zones",
+        "≤10cm",
+        "≤3σ",
+        "wrong",
+        "worst cm",
+        "worst °",
+        "join s"
+    );
+    let (mut all, mut placed, mut right, mut sigma_right) = (0, 0, 0, 0);
+    for k in 0..args.sites {
+        let seed = args.seed.wrapping_add(k as u64);
+        let plan = concourse(FloorSpec { sensors: n }, seed, 0)
+            .with_context(|| format!("--floor concourse --site-sensors {n}"))?;
+        let models = match simulate_models(&plan, seed, 0.0, params)? {
+            Ok(models) => models,
+            Err(why) => {
+                println!("{seed:>5} refused: {why}");
+                continue;
+            }
+        };
+        // Along the concourse: the generator names its units by bay, as the bench splits them.
+        let mut models = models;
+        models.sort_by(|a, b| a.0.id.cmp(&b.0.id));
+        let per = models.len().div_ceil(zones);
+        let mut inputs: Vec<ZoneInput> = Vec::new();
+        let mut truths: Vec<Pose2> = Vec::new();
+        let mut units_placed = 0;
+        for (z, chunk) in models.chunks(per).enumerate() {
+            let chunk = chunk.to_vec();
+            let truth: Vec<Option<Pose2>> = chunk.iter().map(|(i, _)| truth_pose(i)).collect();
+            let site = register_site(&site_inputs(chunk.clone()), 0, params, &SiteParams::default());
+            let sensors: Vec<ZoneSensor> = site
+                .sensors
+                .iter()
+                .zip(chunk)
+                .filter_map(|(placement, (info, model))| {
+                    let p = placement.pose.as_ref().ok()?;
+                    Some(ZoneSensor {
+                        id: info.id.clone(),
+                        model,
+                        zone_from_sensor: p.pose.planar(),
+                        sigma: [p.sigma_x_m, p.sigma_y_m, p.sigma_yaw_rad],
+                    })
+                })
+                .collect();
+            units_placed += sensors.len();
+            truths.push(truth[0].unwrap_or_else(Pose2::identity));
+            inputs.push(ZoneInput {
+                id: format!("z{z:02}"),
+                sensors,
+            });
+        }
+        let t0 = Instant::now();
+        let p = ZoneParams {
+            register: params.clone(),
+            ..ZoneParams::default()
+        };
+        let joined = join_zones(&inputs, 0, &p);
+        let join_s = t0.elapsed().as_secs_f64();
+        let (mut worst_m, mut worst_deg, mut ok, mut here) = (0f64, 0f64, 0, 0);
+        let mut within_sigma = 0;
+        let mut notes: Vec<String> = Vec::new();
+        for (z, zone) in joined.zones.iter().enumerate() {
+            match &zone.site_from_zone {
+                Ok((pose, sigma)) => {
+                    here += 1;
+                    let (m, rad) = pose_error(pose, &(truths[0].inverse() * truths[z]));
+                    let deg = rad.to_degrees();
+                    worst_m = worst_m.max(m);
+                    worst_deg = worst_deg.max(deg);
+                    let sigma_m = sigma[0].hypot(sigma[1]);
+                    if m <= RIGHT_M && deg <= RIGHT_DEG {
+                        ok += 1;
+                    } else if m <= 3.0 * sigma_m && rad <= 3.0 * sigma[2] {
+                        ok += 1;
+                        within_sigma += 1;
+                    } else {
+                        notes.push(format!(
+                            "{} off {m:.2} m {deg:.1}° (σ {:.2} m {:.2}°)",
+                            zone.id,
+                            sigma_m,
+                            sigma[2].to_degrees()
+                        ));
+                    }
+                }
+                Err(_) => notes.push(format!("{} unplaced", zone.id)),
+            }
+        }
+        println!(
+            "{seed:>5} {n:>6} {units_placed:>7} {here:>6} {:>7} {within_sigma:>7} {:>6} {:>9.1} {worst_deg:>8.2} {join_s:>7.1}  {}",
+            ok - within_sigma,
+            here - ok,
+            worst_m * 100.0,
+            notes.join(", ")
+        );
+        for zone in joined.zones.iter().filter(|z| z.site_from_zone.is_err()) {
+            if let Err(why) = &zone.site_from_zone {
+                println!("      {}: {why}", zone.id);
+            }
+        }
+        all += inputs.len();
+        placed += here;
+        right += ok;
+        sigma_right += within_sigma;
+    }
+    println!(
+        "zones placed {placed} of {all}: within 10 cm / 1° {}, farther but within 3σ {sigma_right}, wrong {} (must be 0)",
+        right - sigma_right,
+        placed - right
+    );
+    Ok(())
+}
