@@ -238,6 +238,14 @@ fn zone_of(key: &str) -> Option<&str> {
     key.split('/').nth(2)
 }
 
+/// The cross pairs the site's links were made of since what the zones publish last changed,
+/// and how many joins made them: what a refining join registers again.
+#[derive(Default)]
+struct Links {
+    pairs: Vec<KeptPair>,
+    joins: usize,
+}
+
 /// Runs the site daemon's Zenoh side until `stop` resolves.
 pub async fn run(
     view: Arc<SiteView>,
@@ -304,9 +312,7 @@ pub async fn run(
     let mut joined: Option<(Instant, Vec<(String, PlacedKey)>)> = None;
     // The join running, and whether it refines the links the site stands on.
     let mut joining: Option<(tokio::task::JoinHandle<Option<Joined>>, bool)> = None;
-    // The cross pairs registered since what the zones publish last changed, and how many
-    // joins registered them.
-    let mut kept: (Vec<KeptPair>, usize) = (Vec::new(), 0);
+    let mut links = Links::default();
     let mut cross = CrossZone::default();
     let mut fused = Instant::now();
     tokio::pin!(stop);
@@ -366,7 +372,10 @@ pub async fn run(
             } else {
                 view.set_frame(frame);
             }
-            kept = (pairs, kept.1 + 1);
+            links = Links {
+                pairs,
+                joins: links.joins + 1,
+            };
         }
         // A join starts when what the zones publish held still after a change, again after a
         // while when a zone is still not placed, and `REFINES` times after a change to
@@ -381,21 +390,21 @@ pub async fn run(
             joined.as_ref().is_some_and(|(at, _)| at.elapsed() >= RETRY) && view.someone_unplaced();
         let refine = joined
             .as_ref()
-            .is_some_and(|(at, _)| at.elapsed() >= REFINE_EVERY && kept.1 <= REFINES);
+            .is_some_and(|(at, _)| at.elapsed() >= REFINE_EVERY && links.joins <= REFINES);
         let due = joined.is_none() || changed || retry || refine;
         if settled && due && joining.is_none() && !now_key.is_empty() {
             if changed {
                 // A zone's own poses changed: what its pairs said before may no longer hold.
-                kept = (Vec::new(), 0);
+                links = Links::default();
             }
             // Refining registers again only the pairs that linked; a full join looks for more.
-            let again = refine && !changed && !retry && !kept.0.is_empty();
+            let again = refine && !changed && !retry && !links.pairs.is_empty();
             joined = Some((Instant::now(), now_key));
             let task = tokio::spawn(join(
                 Arc::clone(&view),
                 Arc::clone(&session),
                 site.clone(),
-                kept.0.clone(),
+                links.pairs.clone(),
                 again,
             ));
             joining = Some((task, again));

@@ -112,11 +112,7 @@ struct TrackState {
     /// 0 while tentative; the public id once confirmed.
     id: u64,
     filter: Kalman,
-    born_ns: u64,
-    last_seen_ns: u64,
-    /// Where it was last seen, and its velocity then.
-    seen_at: Point2<f64>,
-    seen_v: Vector2<f64>,
+    seen: Seen,
     hits: u32,
     /// How long it has kept within `same_track_m` of an older track.
     together_ns: u64,
@@ -128,10 +124,17 @@ struct TrackState {
 #[derive(Debug, Clone)]
 struct Ended {
     id: u64,
+    seen: Seen,
+}
+
+/// When a track was born and when, where and how fast its person was last seen: what
+/// re-identification compares a newcomer with.
+#[derive(Debug, Clone, Copy)]
+struct Seen {
     born_ns: u64,
-    last_seen_ns: u64,
-    seen_at: Point2<f64>,
-    seen_v: Vector2<f64>,
+    last_ns: u64,
+    at: Point2<f64>,
+    v: Vector2<f64>,
 }
 
 /// The people tracker. Pure: feed it scans in stamp order ([`push`](Tracker::push)).
@@ -473,9 +476,9 @@ impl Tracker {
             }
             t.filter.update(&mean(seen), p.sigma_meas_m);
             t.filter.limit_speed(p.max_speed_m_s);
-            t.last_seen_ns = t_ns;
-            t.seen_at = t.filter.position();
-            t.seen_v = t.filter.velocity();
+            t.seen.last_ns = t_ns;
+            t.seen.at = t.filter.position();
+            t.seen.v = t.filter.velocity();
             t.hits += 1;
             t.sensors = seen
                 .iter()
@@ -498,7 +501,7 @@ impl Tracker {
                 }
                 let apart = (a.filter.position() - b.filter.position()).norm();
                 if apart <= p.same_track_m {
-                    let younger = if a.born_ns <= b.born_ns { j } else { i };
+                    let younger = if a.seen.born_ns <= b.seen.born_ns { j } else { i };
                     let dv = (a.filter.velocity() - b.filter.velocity()).norm();
                     duplicate[younger] = true;
                     alike[younger] = dv <= p.same_track_v_m_s;
@@ -540,7 +543,7 @@ impl Tracker {
             ((p.death_s * 1e9) as u64, (p.tentative_death_s * 1e9) as u64);
         let ended = &mut self.ended;
         self.tracks.retain(|t| {
-            let unseen = t_ns.saturating_sub(t.last_seen_ns);
+            let unseen = t_ns.saturating_sub(t.seen.last_ns);
             if t.id == 0 {
                 unseen <= tentative_ns
             } else if unseen > death_ns {
@@ -548,10 +551,7 @@ impl Tracker {
                 tracing::debug!("track {} ends at {:.2},{:.2}: unseen", t.id, at.x, at.y);
                 ended.push(Ended {
                     id: t.id,
-                    born_ns: t.born_ns,
-                    last_seen_ns: t.last_seen_ns,
-                    seen_at: t.seen_at,
-                    seen_v: t.seen_v,
+                    seen: t.seen,
                 });
                 false
             } else {
@@ -570,10 +570,12 @@ impl Tracker {
             self.tracks.push(TrackState {
                 id: 0,
                 filter: Kalman::new(d.at, p.sigma_meas_m, p.birth_sigma_v_m_s),
-                born_ns: d.stamp_ns,
-                last_seen_ns: t_ns,
-                seen_at: d.at,
-                seen_v: Vector2::zeros(),
+                seen: Seen {
+                    born_ns: d.stamp_ns,
+                    last_ns: t_ns,
+                    at: d.at,
+                    v: Vector2::zeros(),
+                },
                 hits: 1,
                 together_ns: 0,
                 sensors: Vec::new(),
@@ -592,35 +594,35 @@ impl Tracker {
         let p = &self.params;
         let reid_ns = (p.reid_s * 1e9) as u64;
         self.ended
-            .retain(|e| t_ns.saturating_sub(e.last_seen_ns) <= reid_ns);
+            .retain(|e| t_ns.saturating_sub(e.seen.last_ns) <= reid_ns);
         let due: Vec<usize> = (0..self.tracks.len())
             .filter(|&i| self.tracks[i].id == 0 && self.tracks[i].hits >= p.confirm_hits)
             .collect();
         let shown_ns = (p.shown_unseen_s * 1e9) as u64;
         let mut hidden_gone: Vec<usize> = Vec::new();
         for i in due {
-            let (at, born_ns) = (self.tracks[i].filter.position(), self.tracks[i].born_ns);
+            let (at, born_ns) = (self.tracks[i].filter.position(), self.tracks[i].seen.born_ns);
             // How far from where a lost track's person can be, in gates (< 1: within): on
             // the way their last velocity carries them, or short of it (they slowed down).
-            let off = |last_seen_ns: u64, seen_at: Point2<f64>, seen_v: Vector2<f64>| {
-                let gap_s = t_ns.saturating_sub(last_seen_ns) as f64 * 1e-9;
+            let off = |seen: &Seen| {
+                let gap_s = t_ns.saturating_sub(seen.last_ns) as f64 * 1e-9;
                 let gate = p.reid_m + p.reid_m_per_s * gap_s;
-                let way = seen_v * gap_s;
-                let along = (at - seen_at).dot(&way) / way.norm_squared().max(1e-12);
-                let nearest = seen_at + way * along.clamp(0.0, 1.0);
+                let way = seen.v * gap_s;
+                let along = (at - seen.at).dot(&way) / way.norm_squared().max(1e-12);
+                let nearest = seen.at + way * along.clamp(0.0, 1.0);
                 (nearest - at).norm() / gate
             };
             let hidden = (0..self.tracks.len())
                 .filter(|&k| k != i && !hidden_gone.contains(&k))
                 .map(|k| &self.tracks[k])
-                .filter(|t| t.id != 0 && t_ns.saturating_sub(t.last_seen_ns) > shown_ns)
-                .filter(|t| born_ns >= t.last_seen_ns)
-                .map(|t| (off(t.last_seen_ns, t.seen_at, t.seen_v), t.id, t.born_ns));
+                .filter(|t| t.id != 0 && t_ns.saturating_sub(t.seen.last_ns) > shown_ns)
+                .filter(|t| born_ns >= t.seen.last_ns)
+                .map(|t| (off(&t.seen), t.id, t.seen.born_ns));
             let lost = self
                 .ended
                 .iter()
-                .filter(|e| born_ns >= e.last_seen_ns)
-                .map(|e| (off(e.last_seen_ns, e.seen_at, e.seen_v), e.id, e.born_ns));
+                .filter(|e| born_ns >= e.seen.last_ns)
+                .map(|e| (off(&e.seen), e.id, e.seen.born_ns));
             let back = hidden
                 .chain(lost)
                 .filter(|(off, _, _)| *off < 1.0)
@@ -638,7 +640,7 @@ impl Tracker {
                     }
                     let t = &mut self.tracks[i];
                     t.id = id;
-                    t.born_ns = born;
+                    t.seen.born_ns = born;
                 }
                 None => {
                     self.tracks[i].id = self.next_id;
@@ -662,7 +664,7 @@ impl Tracker {
             .iter()
             .filter(|t| t.id != 0)
             .filter(|t| {
-                t_ns.saturating_sub(t.last_seen_ns) as f64 * 1e-9 <= self.params.shown_unseen_s
+                t_ns.saturating_sub(t.seen.last_ns) as f64 * 1e-9 <= self.params.shown_unseen_s
             })
             .map(|t| {
                 let at = t.filter.position();
@@ -674,7 +676,7 @@ impl Tracker {
                     vx_m_s: v.x,
                     vy_m_s: v.y,
                     sigma_m: t.filter.sigma_m(),
-                    age_s: t_ns.saturating_sub(t.born_ns) as f64 * 1e-9,
+                    age_s: t_ns.saturating_sub(t.seen.born_ns) as f64 * 1e-9,
                     sensors: t.sensors.clone(),
                 }
             })
