@@ -82,6 +82,7 @@ fn site() -> FixedSite {
             anchor: ids[0].clone(),
             sensors: poses,
             building_from_site: None,
+            site_from_zone: None,
         },
     }
 }

@@ -42,6 +42,7 @@ impl StatusSource for Site {
             anchor: "a".into(),
             sensors: vec![],
             building_from_site: None,
+            site_from_zone: None,
         }
     }
     fn reregister(&self, _: &str) -> Result<String, Refused> {

@@ -216,6 +216,7 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
     std::thread::sleep(Duration::from_secs(23).saturating_sub(placed_at.elapsed()));
     let refined = wait_all_placed(&mut site, &ids, "every unit still placed");
     check_site("five joins averaged", 0.05, &refined, &whole, &dirs);
+    zones_report_the_site_frame(&mut site, &dirs);
 
     // East killed: lost within the lease, its poses kept, marked stale.
     let killed = Instant::now();
@@ -508,6 +509,57 @@ fn check_site(what: &str, limit_m: f64, site: &Poses, whole: &Poses, dirs: &[tem
                 q.id
             );
         }
+    }
+}
+
+/// Each zone's own `poses` says where the site daemon put its frame (`site_from_zone`): its
+/// units composed with it are where the site daemon has them (to the millimetre; asked again
+/// while a join moves a frame between the two questions).
+fn zones_report_the_site_frame(site: &mut Client, dirs: &[tempfile::TempDir]) {
+    for (zone, dir) in [("west", &dirs[1]), ("east", &dirs[2]), ("north", &dirs[4])] {
+        let mut own = Client::connect(&dir.path().join("s.sock"), PATIENCE);
+        let start = Instant::now();
+        let said = loop {
+            let (mine, theirs) = (own.poses(), site.poses());
+            let said = match mine.site_from_zone {
+                None => Err("no site_from_zone in the zone's poses".to_string()),
+                Some(f) => {
+                    let (sin, cos) = f.yaw_deg.to_radians().sin_cos();
+                    let off: Vec<String> = mine
+                        .sensors
+                        .iter()
+                        .filter(|p| p.registered)
+                        .filter_map(|p| {
+                            let (x, y, yaw) = xyyaw(p);
+                            let composed = (
+                                f.x_m + cos * x - sin * y,
+                                f.y_m + sin * x + cos * y,
+                                f.yaw_deg + yaw,
+                            );
+                            let (dt, dyaw) = match sensor(&theirs, &p.id) {
+                                Some(q) => apart(composed, xyyaw(q)),
+                                None => (f64::INFINITY, f64::INFINITY),
+                            };
+                            (dt >= 1e-3 || dyaw >= 0.01)
+                                .then(|| format!("{} {:.4} m, {dyaw:.4}° off", p.id, dt))
+                        })
+                        .collect();
+                    if off.is_empty() {
+                        Ok(format!("{f:?}"))
+                    } else {
+                        Err(format!("{} ({f:?})", off.join(", ")))
+                    }
+                }
+            };
+            match said {
+                Ok(said) => break said,
+                Err(why) if start.elapsed() > Duration::from_secs(10) => {
+                    panic!("zone {zone}: {why}")
+                }
+                Err(_) => std::thread::sleep(Duration::from_millis(200)),
+            }
+        };
+        println!("zone {zone}'s poses say where its frame stands in the site's: {said}");
     }
 }
 

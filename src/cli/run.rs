@@ -589,6 +589,7 @@ mod tests {
             anchor: "gate".into(),
             sensors: vec![gate, ust],
             building_from_site: None,
+            site_from_zone: None,
         }
     }
 
@@ -704,6 +705,7 @@ mod tests {
                 pose("b", 2.5, 10.0, PoseSource::ReRegistered),
             ],
             building_from_site: None,
+            site_from_zone: None,
         });
         let text = String::from_utf8(out.0.lock().unwrap().clone()).unwrap();
         let b = text

@@ -498,6 +498,7 @@ mod tests {
             anchor: "entrance".into(),
             sensors: vec![pa, SensorPose::unregistered("dock", "no static view yet")],
             building_from_site: None,
+            site_from_zone: None,
         };
         let table = render_table(&status, &poses);
         let lines: Vec<&str> = table.lines().collect();

@@ -134,6 +134,7 @@ mod tests {
             anchor: "a".into(),
             sensors: vec![a.clone(), SensorPose::unregistered("b", "no view")],
             building_from_site: None,
+            site_from_zone: None,
         };
         assert_eq!(
             status_line(&status, &poses),

@@ -229,6 +229,8 @@ pub struct Pipeline {
     /// Where the site frame lies in the building drawing's (from `poses.toml`), for `poses`,
     /// the page and the zones drawn in building coordinates (which watch it).
     building_from_site: tokio::sync::watch::Sender<Option<crate::drawing::BuildingFromSite>>,
+    /// A zone daemon's: where the site daemon last placed its frame, for `poses`.
+    site_from_zone: Mutex<Option<super::protocol::ZoneFrame>>,
     /// The building drawing (`[site] drawing`), and its `DRAWING` line for the page once the
     /// site is aligned to it.
     drawing: Mutex<PageDrawing>,
@@ -308,6 +310,7 @@ impl Pipeline {
             zenoh: Mutex::new(None),
             views: Mutex::new(None),
             building_from_site: tokio::sync::watch::Sender::new(None),
+            site_from_zone: Mutex::new(None),
             drawing: Mutex::new((None, None, Vec::new())),
         }
     }
@@ -317,6 +320,11 @@ impl Pipeline {
     pub(super) fn set_building_from_site(&self, b: Option<crate::drawing::BuildingFromSite>) {
         self.building_from_site.send_replace(b);
         self.update_drawing_line();
+    }
+
+    /// Where the site daemon placed this zone's frame (None: not placed), for `poses`.
+    pub(super) fn set_site_from_zone(&self, frame: Option<super::protocol::ZoneFrame>) {
+        *lock(&self.site_from_zone) = frame;
     }
 
     /// The site's alignment to the building drawing as it stands.
@@ -925,6 +933,7 @@ impl StatusSource for Pipeline {
             anchor: self.anchor.clone(),
             sensors,
             building_from_site: self.building_from_site.borrow().clone(),
+            site_from_zone: *lock(&self.site_from_zone),
         }
     }
 

@@ -332,6 +332,12 @@ pub struct Poses {
     /// absent when the site has none. The poses above stay in the site frame.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub building_from_site: Option<crate::drawing::BuildingFromSite>,
+    /// A zone daemon's: where its frame stands in the site frame of its site on Zenoh, as the
+    /// site daemon last said (since protocol 1.9); absent until the site daemon places the
+    /// zone. The poses above stay in the zone's frame: a sensor's site pose is
+    /// `site_from_zone · zone_from_sensor`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub site_from_zone: Option<ZoneFrame>,
 }
 
 /// Declares a struct in the pose vocabulary: `id`, `registered`, the pose and its sigmas (left
@@ -793,6 +799,7 @@ mod tests {
             anchor: "a".into(),
             sensors: vec![pose],
             building_from_site: None,
+            site_from_zone: None,
         })
         .to_line();
         assert_eq!(
@@ -820,6 +827,7 @@ mod tests {
             anchor: "a".into(),
             sensors: Vec::new(),
             building_from_site: None,
+            site_from_zone: None,
         };
         let line = Message::Poses(poses.clone()).to_line();
         assert!(!line.contains("building_from_site"), "{line}");
@@ -884,6 +892,7 @@ mod tests {
                 anchor: "a".into(),
                 sensors: vec![pose.clone()],
                 building_from_site: None,
+                site_from_zone: None,
             }),
             Message::Poses(Poses {
                 anchor: "a".into(),
@@ -897,6 +906,15 @@ mod tests {
                     method: "automatic+lines".into(),
                     reason: None,
                     ..Default::default()
+                }),
+                site_from_zone: Some(ZoneFrame {
+                    x_m: 40.5,
+                    y_m: -0.25,
+                    yaw_deg: 90.0,
+                    sigma_x_m: 0.01,
+                    sigma_y_m: 0.02,
+                    sigma_yaw_deg: 0.1,
+                    pairs: 6,
                 }),
             }),
             Message::Watch(Watch {

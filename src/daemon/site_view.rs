@@ -648,6 +648,7 @@ impl StatusSource for SiteView {
             anchor,
             sensors,
             building_from_site: None,
+            site_from_zone: None,
         }
     }
 
@@ -901,6 +902,7 @@ mod tests {
             anchor: anchor.into(),
             sensors,
             building_from_site: None,
+            site_from_zone: None,
         }
     }
 

@@ -431,7 +431,11 @@ pub async fn run(
             sample = frames.recv_async() => {
                 let Ok(sample) = sample else { break };
                 let said = match FramePayload::parse(&sample.payload().to_bytes()) {
-                    Ok(frame) => in_site_frame(&frame, &cfg.zone),
+                    Ok(frame) => {
+                        let mine = frame.zones.iter().find(|z| z.zone == cfg.zone);
+                        pipeline.set_site_from_zone(mine.and_then(|z| z.site_from_zone));
+                        in_site_frame(&frame, &cfg.zone)
+                    }
                     Err(e) => format!("the site daemon's frame is unreadable: {e}"),
                 };
                 // Said again when it changed, or after a silence the line has told of.
@@ -474,7 +478,11 @@ pub async fn run(
                 at.elapsed().as_secs_f64()
             ));
         }
-        let poses = pipeline.poses();
+        // What crosses is the zone's own frame: the site daemon knows where it put it.
+        let poses = Poses {
+            site_from_zone: None,
+            ..pipeline.poses()
+        };
         let placed = placed_key(&poses);
         let due = last
             .as_ref()
@@ -620,6 +628,7 @@ mod tests {
             anchor: "a".into(),
             sensors: vec![a.clone(), b.clone()],
             building_from_site: None,
+            site_from_zone: None,
         };
         let before = placed_key(&poses(&a));
         assert_eq!(before, placed_key(&poses(&a)));

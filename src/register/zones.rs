@@ -15,8 +15,8 @@
 use nalgebra::Matrix3;
 use rayon::prelude::*;
 
-use super::site::{Edge, SiteParams, consistent_edges, solve};
 use super::score::score;
+use super::site::{Edge, SiteParams, consistent_edges, solve};
 use super::{PairResult, RegisterParams, ScanModel, register_pair};
 use crate::geometry::{Pose2, pose_error, pose2, wrap_angle_rad};
 

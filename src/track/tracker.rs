@@ -501,7 +501,11 @@ impl Tracker {
                 }
                 let apart = (a.filter.position() - b.filter.position()).norm();
                 if apart <= p.same_track_m {
-                    let younger = if a.seen.born_ns <= b.seen.born_ns { j } else { i };
+                    let younger = if a.seen.born_ns <= b.seen.born_ns {
+                        j
+                    } else {
+                        i
+                    };
                     let dv = (a.filter.velocity() - b.filter.velocity()).norm();
                     duplicate[younger] = true;
                     alike[younger] = dv <= p.same_track_v_m_s;
@@ -601,7 +605,10 @@ impl Tracker {
         let shown_ns = (p.shown_unseen_s * 1e9) as u64;
         let mut hidden_gone: Vec<usize> = Vec::new();
         for i in due {
-            let (at, born_ns) = (self.tracks[i].filter.position(), self.tracks[i].seen.born_ns);
+            let (at, born_ns) = (
+                self.tracks[i].filter.position(),
+                self.tracks[i].seen.born_ns,
+            );
             // How far from where a lost track's person can be, in gates (< 1: within): on
             // the way their last velocity carries them, or short of it (they slowed down).
             let off = |seen: &Seen| {

@@ -575,6 +575,7 @@ mod tests {
                 anchor: "a".into(),
                 sensors: vec![],
                 building_from_site: self.aligned.clone(),
+                site_from_zone: None,
             }
         }
         fn reregister(&self, _: &str) -> Result<String, crate::daemon::socket::Refused> {

@@ -613,6 +613,7 @@ mod tests {
                 pose("c", false, 0.0, 0.0, 0.0),
             ],
             building_from_site: None,
+            site_from_zone: None,
         };
         let placed = placed_poses(&poses);
         let tf = transforms(&placed, timestamp(5));
@@ -647,6 +648,7 @@ mod tests {
             anchor: "a".into(),
             sensors: vec![pose("a", true, 0.0, 0.0, 0.0)],
             building_from_site: None,
+            site_from_zone: None,
         };
         assert!(feed.poses(&poses).is_some(), "the first are sent");
         assert!(feed.poses(&poses).is_none(), "unchanged: nothing");

@@ -69,6 +69,7 @@ impl MemorySite {
                     SensorPose::unregistered("dock", "no static view yet"),
                 ],
                 building_from_site: None,
+                site_from_zone: None,
             }),
             state_dir: state_dir.to_path_buf(),
             reregistered: Mutex::new(Vec::new()),

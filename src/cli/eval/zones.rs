@@ -63,7 +63,12 @@ pub(super) fn run(args: &Args, params: &RegisterParams) -> Result<()> {
         for (z, chunk) in models.chunks(per).enumerate() {
             let chunk = chunk.to_vec();
             let truth: Vec<Option<Pose2>> = chunk.iter().map(|(i, _)| truth_pose(i)).collect();
-            let site = register_site(&site_inputs(chunk.clone()), 0, params, &SiteParams::default());
+            let site = register_site(
+                &site_inputs(chunk.clone()),
+                0,
+                params,
+                &SiteParams::default(),
+            );
             let sensors: Vec<ZoneSensor> = site
                 .sensors
                 .iter()
