@@ -678,10 +678,9 @@ mod tests {
         }
     }
 
-    #[test]
-    fn a_zone_that_shares_no_view_stays_unplaced_and_says_why() {
+    /// The hall, with north's sensors moved into a room of their own, far off and closed.
+    fn north_apart() -> Vec<ZoneInput> {
         let (mut walls, mut sensors) = hall();
-        // North's sensors moved into a room of their own, far off and closed.
         walls.extend(polygon(&[
             (100.0, 0.0),
             (107.0, 0.0),
@@ -690,7 +689,12 @@ mod tests {
         ]));
         sensors[4].1 = pose2(101.0, 1.0, 0.3);
         sensors[5].1 = pose2(106.0, 4.0, -2.5);
-        let zones = zones_of(&walls, &sensors);
+        zones_of(&walls, &sensors)
+    }
+
+    #[test]
+    fn a_zone_that_shares_no_view_stays_unplaced_and_says_why() {
+        let zones = north_apart();
         let got = join_zones(&zones, 0, &ZoneParams::default());
         assert!(got.zones[1].site_from_zone.is_ok());
         let why = got.zones[2].site_from_zone.as_ref().unwrap_err();
@@ -741,16 +745,7 @@ mod tests {
     /// the check, north was placed where the pair put it.
     #[test]
     fn a_lone_look_alike_pair_the_whole_views_contradict_links_nothing() {
-        let (mut walls, mut sensors) = hall();
-        walls.extend(polygon(&[
-            (100.0, 0.0),
-            (107.0, 0.0),
-            (107.0, 5.0),
-            (100.0, 5.0),
-        ]));
-        sensors[4].1 = pose2(101.0, 1.0, 0.3);
-        sensors[5].1 = pose2(106.0, 4.0, -2.5);
-        let zones = zones_of(&walls, &sensors);
+        let zones = north_apart();
         let p = ZoneParams::default();
         let good = join_zones(&zones, 0, &p);
         let mut look_alike = good
