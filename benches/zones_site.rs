@@ -192,7 +192,7 @@ fn main() -> Result<(), Error> {
             .map(|t| pose2(t.x_m, t.y_m, t.yaw_deg.to_radians()))
     };
     let world_from_site = truth(&poses.anchor).ok_or("no truth for the anchor")?;
-    let errors_of = |poses: &Poses| -> Vec<(String, f64, f64)> {
+    let errors_of = |poses: &Poses| -> Vec<UnitError> {
         let mut errors = Vec::new();
         for s in poses.sensors.iter().filter(|s| s.registered && !s.stale) {
             let (Some(x), Some(y), Some(yaw), Some(t)) = (s.x_m, s.y_m, s.yaw_deg, truth(&s.id))
@@ -203,12 +203,16 @@ fn main() -> Result<(), Error> {
                 &pose2(x, y, yaw.to_radians()),
                 &(world_from_site.inverse() * t),
             );
-            errors.push((s.id.clone(), dt, dyaw.to_degrees()));
+            // Beyond 3σ of what the site daemon says of the unit: wrong, not just imprecise.
+            let sigma_m = s.sigma_x_m.unwrap_or(0.0).hypot(s.sigma_y_m.unwrap_or(0.0));
+            let beyond =
+                dt > 3.0 * sigma_m || dyaw.to_degrees() > 3.0 * s.sigma_yaw_deg.unwrap_or(0.0);
+            errors.push((s.id.clone(), dt, dyaw.to_degrees(), beyond));
         }
         errors
     };
     // A zone's units' errors, cm: "median / max".
-    let in_zone = |errors: &[(String, f64, f64)], zone: &str| {
+    let in_zone = |errors: &[UnitError], zone: &str| {
         let mut mine: Vec<f64> = errors
             .iter()
             .filter(|e| zone_of.get(&e.0).map(String::as_str) == Some(zone))
@@ -285,17 +289,19 @@ fn main() -> Result<(), Error> {
     Ok(())
 }
 
-/// The worst and median unit against the truth, and how many are off by a look-alike.
-fn summary(
-    errors: &mut [(String, f64, f64)],
-    zone_of: &std::collections::BTreeMap<String, String>,
-) {
+/// A unit's error against the truth: id, m, °, and whether beyond 3σ of its reported σ.
+type UnitError = (String, f64, f64, bool);
+
+/// The worst and median unit against the truth, how many are off by more than 10 cm or 1°,
+/// and how many of those by more than their σ says (a look-alike, or a σ too small).
+fn summary(errors: &mut [UnitError], zone_of: &std::collections::BTreeMap<String, String>) {
     errors.sort_by(|a, b| b.1.total_cmp(&a.1));
-    let wrong = errors.iter().filter(|e| e.1 > 0.1 || e.2 > 1.0).count();
+    let far = errors.iter().filter(|e| e.1 > 0.1 || e.2 > 1.0).count();
+    let wrong = errors.iter().filter(|e| e.3).count();
     if let Some(worst) = errors.first() {
         let mid = errors[errors.len() / 2].1;
         println!(
-            "{} units in the site frame: error vs truth median {:.1} cm, worst {:.1} cm / {:.2}° ({} in zone {}); {wrong} beyond 10 cm or 1°",
+            "{} units in the site frame: error vs truth median {:.1} cm, worst {:.1} cm / {:.2}° ({} in zone {}); {far} beyond 10 cm or 1°, {wrong} beyond 3σ",
             errors.len(),
             mid * 100.0,
             worst.1 * 100.0,
