@@ -37,6 +37,39 @@ impl PoseScore {
     }
 }
 
+/// How two sets of views agree with one set standing at a given pose in the other's frame:
+/// every pair of their sensors within reach of each other scored at the pose it implies (both
+/// directions), the points that land on the other's points and those that land in its free
+/// space summed over all of them. A look-alike that one pair of views matches rarely extends
+/// to the views around them: zone links and the edges that bind a site's groups are both
+/// checked by it.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct WholeView {
+    pub hits: f64,
+    pub violations: f64,
+}
+
+impl WholeView {
+    /// The share of the points that meet the other set's views which contradict them.
+    pub fn violation(&self) -> f64 {
+        self.violations / (self.hits + self.violations).max(1.0)
+    }
+
+    /// Adds the score `s` of `b`'s view at some pose in `a`'s, each direction by its points.
+    pub fn add(&mut self, s: &PoseScore, a: &ScanModel, b: &ScanModel) {
+        let (na, nb) = (a.score_sample.len() as f64, b.score_sample.len() as f64);
+        self.hits += s.b_in_a.overlap * nb + s.a_in_b.overlap * na;
+        self.violations += s.b_in_a.violation * nb + s.a_in_b.violation * na;
+    }
+
+    pub fn merged(self, other: Self) -> Self {
+        WholeView {
+            hits: self.hits + other.hits,
+            violations: self.violations + other.violations,
+        }
+    }
+}
+
 /// Scores `from`'s sample moved by `into_from_from` against `into`'s tables.
 fn score_dir(
     from: &ScanModel,

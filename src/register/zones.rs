@@ -15,7 +15,7 @@
 use nalgebra::Matrix3;
 use rayon::prelude::*;
 
-use super::score::score;
+use super::score::{WholeView, score};
 use super::site::{Edge, SiteParams, consistent_edges, solve};
 use super::{PairResult, RegisterParams, ScanModel, register_pair};
 use crate::geometry::{Pose2, pose_error, pose2, wrap_angle_rad};
@@ -46,9 +46,6 @@ pub struct ZoneParams {
     /// pairs among each zone's `outward` sensors that see most past their zone ([`outward`]).
     pub all_pairs_up_to: usize,
     pub outward: usize,
-    /// A link stands only where the two zones' whole views bear it out: at most this share
-    /// of the points where they meet may land in the other's free space ([`WholeView`]).
-    pub whole_view_violation: f64,
 }
 
 impl Default for ZoneParams {
@@ -58,7 +55,6 @@ impl Default for ZoneParams {
             site: SiteParams::default(),
             all_pairs_up_to: 400,
             outward: 6,
-            whole_view_violation: 0.15,
         }
     }
 }
@@ -267,23 +263,6 @@ fn zone_edge(zones: &[ZoneInput], c: &CrossPair) -> Edge {
     }
 }
 
-/// How two zones' whole views agree with one standing at a given pose in the other's frame:
-/// every pair of their sensors within reach of each other scored at the pose it implies
-/// (`score`, both directions), the points that land on the other's points and those that
-/// land in its free space summed over all of them.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct WholeView {
-    pub hits: f64,
-    pub violations: f64,
-}
-
-impl WholeView {
-    /// The share of the points that meet the other zone's view which contradict it.
-    pub fn violation(&self) -> f64 {
-        self.violations / (self.hits + self.violations).max(1.0)
-    }
-}
-
 /// [`WholeView`] of zones `za` and `zb` with `zb` at `a_from_b`. Sensor pairs farther apart
 /// than both their farthest returns cannot meet and are skipped.
 fn whole_view(
@@ -311,20 +290,11 @@ fn whole_view(
                 if s_from_t.translation.vector.norm() > reach_s + reach_t {
                     continue;
                 }
-                let sc = score(&s.model, &t.model, &s_from_t, p);
-                let (ns, nt) = (
-                    s.model.score_sample.len() as f64,
-                    t.model.score_sample.len() as f64,
-                );
-                sum.hits += sc.b_in_a.overlap * nt + sc.a_in_b.overlap * ns;
-                sum.violations += sc.b_in_a.violation * nt + sc.a_in_b.violation * ns;
+                sum.add(&score(&s.model, &t.model, &s_from_t, p), &s.model, &t.model);
             }
             sum
         })
-        .reduce(WholeView::default, |x, y| WholeView {
-            hits: x.hits + y.hits,
-            violations: x.violations + y.violations,
-        })
+        .reduce(WholeView::default, WholeView::merged)
 }
 
 /// The link between two zones from their registered cross pairs (`edges[k]` from `pairs[k]`):
@@ -437,7 +407,7 @@ fn link(
                 .collect();
             let bears_out = |e: &Edge| {
                 let whole = whole_view(zones, za, zb, &e.a_from_b, &p.register);
-                if whole.violation() <= p.whole_view_violation {
+                if whole.violation() <= sp.whole_view_violation {
                     Ok(())
                 } else {
                     Err(format!(
@@ -765,7 +735,10 @@ mod tests {
         assert!(got.zones[1].site_from_zone.is_ok(), "{:?}", got.zones[1]);
         // Without the whole views, the pair alone would have placed it: what the check is for.
         let off = ZoneParams {
-            whole_view_violation: 1.0,
+            site: SiteParams {
+                whole_view_violation: 1.0,
+                ..SiteParams::default()
+            },
             ..ZoneParams::default()
         };
         let unchecked = link(&zones, 0, pairs, &off);

@@ -3,9 +3,10 @@
 //! poses are relative to each other; the anchor's group is placed. Also the graph helpers the
 //! other stages share (spanning poses from a sensor).
 
-use super::{Edge, SiteParams, candidate_edge};
+use super::memo::ScoreMemo;
+use super::{Edge, SensorInput, SiteParams, candidate_edge};
 use crate::geometry::{Pose2, pose_error};
-use crate::register::PairResult;
+use crate::register::{PairResult, RegisterParams};
 use std::collections::HashMap;
 use std::collections::hash_map::Entry;
 
@@ -15,13 +16,18 @@ pub(super) struct Checked {
     pub origin: Vec<(usize, usize)>,
 }
 
-/// The registered pairs' answers kept by `consistent_edges` that lie on a cycle.
+/// The registered pairs' answers kept by `consistent_edges` and not refuted by their ends'
+/// neighbourhoods (`neighbourhoods`) that lie on a cycle.
+#[allow(clippy::too_many_arguments)] // the stage inputs, as `join_groups`
 pub(super) fn checked_edges(
     n: usize,
     anchor: usize,
     pairs: &[(usize, usize)],
     results: &[PairResult],
+    sensors: &[SensorInput],
+    p: &RegisterParams,
     sp: &SiteParams,
+    memo: &ScoreMemo,
 ) -> Checked {
     let mut registered = Vec::new();
     let mut registered_origin = Vec::new(); // pair index per edge
@@ -33,7 +39,14 @@ pub(super) fn checked_edges(
             registered_origin.push(k);
         }
     }
-    let kept = consistent_edges(n, anchor, &registered, sp);
+    let mut kept = consistent_edges(n, anchor, &registered, sp);
+    let consistent: Vec<Edge> = kept.iter().map(|&e| registered[e].clone()).collect();
+    let refuted = super::neighbourhoods::refuted(&consistent, sensors, p, sp, memo);
+    let mut k = 0;
+    kept.retain(|_| {
+        k += 1;
+        !refuted.contains(&(k - 1))
+    });
     let kept_edges: Vec<Edge> = kept.iter().map(|&e| registered[e].clone()).collect();
     let unchecked = bridges(n, &kept_edges);
     let (mut edges, mut origin) = (Vec::new(), Vec::new());

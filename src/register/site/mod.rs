@@ -13,6 +13,7 @@ mod descriptor;
 mod groups;
 mod join;
 mod memo;
+mod neighbourhoods;
 mod pairs;
 mod report;
 mod second_opinion;
@@ -136,6 +137,10 @@ pub struct SiteParams {
     /// partners, about 350 closed triangles, 1070 tried sensors posed beside a neighbour and
     /// 970 went further down a ranking. `usize::MAX` registers every pair.
     pub partners: usize,
+    /// An edge stands only where the views around its two ends bear it out: at most this
+    /// share of the points where they meet may land in the other side's free space
+    /// (`neighbourhoods`); zone links stand on the same share of their zones' whole views.
+    pub whole_view_violation: f64,
 }
 
 impl Default for SiteParams {
@@ -153,6 +158,7 @@ impl Default for SiteParams {
             conflict_dz_m: 0.0,
             confirming_pairs: 3,
             partners: 8,
+            whole_view_violation: 0.15,
         }
     }
 }
@@ -238,7 +244,7 @@ pub fn register_site(
         // pairs: the joins are the dear stage, and more pairs make bigger groups.
         if !cheap_done {
             let (pairs, results) = selection.registered();
-            let checked = groups::checked_edges(n, anchor, &pairs, &results, sp);
+            let checked = groups::checked_edges(n, anchor, &pairs, &results, sensors, p, sp, &memo);
             let (placed, groups) = groups::groups(n, anchor, &checked.edges);
             let is_placed: Vec<bool> = placed.iter().map(Option::is_some).collect();
             round = selection.widen(&frames(&placed, &groups), &is_placed);
@@ -335,7 +341,7 @@ fn place(
 ) -> Placing {
     let (pairs, results) = registered;
     let started = Instant::now();
-    let checked = groups::checked_edges(n, anchor, &pairs, &results, sp);
+    let checked = groups::checked_edges(n, anchor, &pairs, &results, sensors, p, sp, memo);
     let (mut placed, mut groups) = groups::groups(n, anchor, &checked.edges);
     let grouped = started.elapsed().as_secs_f64();
     for members in groups.iter().filter(|g| g.len() > 1) {
