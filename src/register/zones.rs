@@ -471,7 +471,7 @@ fn link(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::geometry::raycast::{Wall, polygon};
     use crate::register::site::tests::sensor_at;
@@ -650,6 +650,12 @@ mod tests {
 
     /// The hall, with north's sensors moved into a room of their own, far off and closed.
     fn north_apart() -> Vec<ZoneInput> {
+        let (walls, sensors) = two_rooms();
+        zones_of(&walls, &sensors)
+    }
+
+    /// The hall and a closed room far off, sharing no view; the last two sensors in the room.
+    pub(crate) fn two_rooms() -> (Vec<Wall>, Vec<(usize, Pose2)>) {
         let (mut walls, mut sensors) = hall();
         walls.extend(polygon(&[
             (100.0, 0.0),
@@ -659,7 +665,7 @@ mod tests {
         ]));
         sensors[4].1 = pose2(101.0, 1.0, 0.3);
         sensors[5].1 = pose2(106.0, 4.0, -2.5);
-        zones_of(&walls, &sensors)
+        (walls, sensors)
     }
 
     #[test]

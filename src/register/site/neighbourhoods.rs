@@ -183,41 +183,13 @@ impl Ctx<'_> {
 mod tests {
     use super::*;
     use crate::geometry::pose2;
-    use crate::geometry::raycast::polygon;
     use crate::register::site::tests::sensor_at;
 
     /// Four sensors in an L-shaped hall with pillars, two more in a closed room far off: the
     /// two rooms share no view.
     fn two_rooms() -> (Vec<SensorInput>, Vec<Pose2>) {
-        let mut walls = polygon(&[
-            (0.0, 0.0),
-            (24.0, 0.0),
-            (24.0, 8.0),
-            (14.0, 8.0),
-            (14.0, 18.0),
-            (0.0, 18.0),
-        ]);
-        walls.extend(polygon(&[(5.0, 5.0), (6.0, 5.0), (6.0, 6.5), (5.0, 6.5)]));
-        walls.extend(polygon(&[
-            (18.0, 3.0),
-            (19.5, 3.0),
-            (19.5, 4.0),
-            (18.0, 4.0),
-        ]));
-        walls.extend(polygon(&[
-            (100.0, 0.0),
-            (107.0, 0.0),
-            (107.0, 5.0),
-            (100.0, 5.0),
-        ]));
-        let truth = vec![
-            pose2(2.0, 2.0, 0.4),
-            pose2(10.0, 3.0, 1.9),
-            pose2(20.0, 6.5, -2.6),
-            pose2(15.0, 1.5, 2.2),
-            pose2(101.0, 1.0, 0.3),
-            pose2(106.0, 4.0, -2.5),
-        ];
+        let (walls, sensors) = crate::register::zones::tests::two_rooms();
+        let truth: Vec<Pose2> = sensors.iter().map(|(_, pose)| *pose).collect();
         let fov = 270f64.to_radians();
         let sensors = truth
             .iter()
