@@ -1,9 +1,9 @@
 //! Whether an edge's two ends agree beyond themselves: the views around one end (its
 //! neighbours through the other checked edges) and those around the other, placed by the
 //! edge, must not contradict each other. Cycles cannot tell a look-alike that repeats: on a
-//! 120-unit concourse whose bays look alike turned end to end, three units far apart matched
-//! each other turned 180° (each pair's best answer, no rival), the three edges closed a
-//! consistent triangle, and two stretches of ten units each joined the anchor's group 44–120 m
+//! 120-unit concourse whose bays look alike turned end to end, units far apart matched each
+//! other turned 180° (each pair's best answer, no rival), their edges closed consistent
+//! triangles, and two stretches of the concourse (14 units) joined the anchor's group 44–120 m
 //! off (`eval --only site --floor concourse --site-sensors 120 --motion-seconds 0 --seed 12`).
 //! At such an edge the neighbours on either side land across each other's walls.
 
