@@ -1,12 +1,12 @@
 //! The site solve (METHOD §4, seed 004): place every sensor in the anchor's frame from its pairs.
 //! The pipeline, one stage per file: `pairs` registers the pairs; `groups` keeps the edges
 //! cycles check and the views around their ends bear out (`neighbourhoods`) and binds sensors
-//! into groups; `join` places the groups one at a time against
-//! everything placed; `second_opinion` re-weighs every placement alone; `solve` is the joint
-//! weighted least squares; `check` drops placements that contradict another's free space;
-//! `report` says where each sensor stands or why it does not. This file owns the types and
-//! the order of the stages. `add` places one sensor added to a placed site, and `settle` says
-//! where it stands and how surely.
+//! into groups; `join` places the groups one at a time against everything placed;
+//! `second_opinion` re-weighs every placement alone; `solve` is the joint weighted least
+//! squares; `check` drops placements that contradict another's free space; `report` says where
+//! each sensor stands or why it does not. This file owns the types and the order of the
+//! stages. `add` places one sensor added to a placed site, and `settle` says where it stands
+//! and how surely.
 
 mod add;
 mod check;
