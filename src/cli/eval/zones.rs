@@ -208,12 +208,13 @@ fn against_one_daemon(
     if apart.is_empty() {
         return format!("one daemon: no unit placed by both ({unplaced} unplaced by it)");
     }
+    // Sorts `v` (its last is then the worst).
     let median_mm = |v: &mut Vec<f64>| {
         v.sort_by(f64::total_cmp);
         v.get(v.len() / 2).map_or(f64::NAN, |m| m * 1e3)
     };
     let mut m: Vec<f64> = apart.iter().map(|a| a.0).collect();
-    m.sort_by(f64::total_cmp);
+    let median_apart_mm = median_mm(&mut m);
     let worst_deg = apart.iter().map(|a| a.1).fold(0.0, f64::max).to_degrees();
     let within = apart
         .iter()
@@ -222,8 +223,8 @@ fn against_one_daemon(
     format!(
         "against one daemon ({} units placed by both; it left {unplaced} unplaced, took {whole_s:.0} s): median {:.1} mm, worst {:.1} mm / {worst_deg:.2}°; {within} within 1 cm / 0.1°; to the truth, median {:.1} mm by the zones, {:.1} mm by one daemon",
         apart.len(),
-        m[m.len() / 2] * 1e3,
-        m[m.len() - 1] * 1e3,
+        median_apart_mm,
+        m.last().map_or(f64::NAN, |w| w * 1e3),
         median_mm(&mut zones_off),
         median_mm(&mut one_off)
     )

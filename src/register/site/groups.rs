@@ -39,14 +39,15 @@ pub(super) fn checked_edges(
             registered_origin.push(k);
         }
     }
-    let mut kept = consistent_edges(n, anchor, &registered, sp);
-    let consistent: Vec<Edge> = kept.iter().map(|&e| registered[e].clone()).collect();
-    let refuted = super::neighbourhoods::refuted(&consistent, sensors, p, sp, memo);
-    let mut k = 0;
-    kept.retain(|_| {
-        k += 1;
-        !refuted.contains(&(k - 1))
-    });
+    let consistent = consistent_edges(n, anchor, &registered, sp);
+    let cycle_checked: Vec<Edge> = consistent.iter().map(|&e| registered[e].clone()).collect();
+    let refuted = super::neighbourhoods::refuted(&cycle_checked, sensors, p, sp, memo);
+    let kept: Vec<usize> = consistent
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| !refuted.contains(k))
+        .map(|(_, &e)| e)
+        .collect();
     let kept_edges: Vec<Edge> = kept.iter().map(|&e| registered[e].clone()).collect();
     let unchecked = bridges(n, &kept_edges);
     let (mut edges, mut origin) = (Vec::new(), Vec::new());
