@@ -23,12 +23,14 @@ mod people;
 pub mod plan;
 mod scene;
 mod sensor_model;
+mod sightlines;
 mod simulation;
 mod walkable;
 
 use std::fmt;
 
 pub use overlap::view_overlap;
+pub use sightlines::Sightlines;
 
 /// A straight piece of wall: its two end points, m.
 pub type WallPiece = ([f64; 2], [f64; 2]);

@@ -86,9 +86,13 @@ pub struct TrackParams {
     pub same_track_m: f64,
     pub same_track_s: f64,
     pub same_track_v_m_s: f64,
-    /// A track is confirmed (gets its id) at its 5th detection; a tentative one unseen for
-    /// 0.2 s is dropped, a confirmed one unseen for 1.5 s ends.
+    /// A track is confirmed (gets its id) at its 5th detection ...
     pub confirm_hits: u32,
+    /// ... when seen in at least this share of the steps since it was born: a person in view
+    /// is seen nearly every step, stray returns (a low unit grazing the floor far off) only
+    /// now and then. A tentative track unseen for 0.2 s is dropped, a confirmed one unseen
+    /// for 1.5 s ends.
+    pub confirm_rate: f64,
     pub tentative_death_s: f64,
     pub death_s: f64,
     /// A confirmed track is listed while seen within the last 0.5 s; unseen longer (hidden
@@ -143,6 +147,7 @@ impl Default for TrackParams {
             same_track_s: 0.5,
             same_track_v_m_s: 0.5,
             confirm_hits: 5,
+            confirm_rate: 0.5,
             tentative_death_s: 0.2,
             death_s: 1.5,
             shown_unseen_s: 0.5,

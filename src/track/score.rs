@@ -15,7 +15,10 @@ use crate::daemon::protocol::{Message, Side, Track, Tracks};
 use crate::features::persistent_view;
 use crate::geometry::{Mount, Pose2, pose2};
 use crate::scan::Scan;
-use crate::sim::{Plan, PlanError, SimEvent, Simulation};
+use crate::sim::{Plan, PlanError, Sightlines, SimEvent, Simulation};
+
+/// How far short of a person a sight line may end and still see them: a body's half-width.
+const BODY_M: f64 = 0.3;
 
 /// How a scene is run and scored.
 #[derive(Debug, Clone)]
@@ -71,6 +74,9 @@ pub struct SceneScore {
     pub mot: ClearMot,
     /// Σ people × time scored (min).
     pub person_minutes: f64,
+    /// Σ people × time within the sensors' reach but out of their sight behind the plan's
+    /// walls, shelves or pillars: not scored (min).
+    pub hidden_person_minutes: f64,
     /// Fused steps the tracker made, and the most confirmed tracks at once.
     pub steps: usize,
     pub most_tracks: usize,
@@ -295,9 +301,11 @@ fn tally(lines: &mut [LineScore], messages: &[Message], from_ns: u64, counted: b
 
 /// The floor the truth is scored on: inside the plan's closed walls (its bounding box when it
 /// has none), at least `inset_m` from them, not within `sensor_clear_m` of a sensor used (below
-/// its minimum range, or behind it against the wall), and within `range_m` of one. People
-/// outside the hall (arriving 1 m outside a door, or in a recess behind the scanners) and
-/// tracks there are not counted.
+/// its minimum range, or behind it against the wall), and within `range_m` and in the sight of
+/// one (past the plan's walls, shelves and pillars, though not past other people: hiding behind
+/// each other is the tracker's problem, hiding behind a shelf is the site's). People outside
+/// that floor (arriving 1 m outside a door, in a recess behind the scanners, in an aisle no
+/// scanner looks down) and tracks there are not counted.
 #[derive(Debug, Clone)]
 struct Floor {
     outlines: Vec<Vec<[f64; 2]>>,
@@ -307,6 +315,7 @@ struct Floor {
     sensors: Vec<[f64; 2]>,
     sensor_clear_m: f64,
     range_m: f64,
+    sight: Sightlines,
 }
 
 fn segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
@@ -321,7 +330,7 @@ fn segment_distance(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
 }
 
 impl Floor {
-    fn of(plan: &Plan, inset_m: f64, range_m: f64) -> Floor {
+    fn of(plan: &Plan, inset_m: f64, range_m: f64) -> Result<Floor, PlanError> {
         let mut min = [f64::INFINITY; 2];
         let mut max = [f64::NEG_INFINITY; 2];
         for w in &plan.walls {
@@ -334,7 +343,7 @@ impl Floor {
                 }
             }
         }
-        Floor {
+        Ok(Floor {
             outlines: plan
                 .walls
                 .iter()
@@ -347,10 +356,17 @@ impl Floor {
             sensors: plan.sensors.iter().map(|s| [s.x, s.y]).collect(),
             sensor_clear_m: 0.5,
             range_m,
-        }
+            sight: Sightlines::new(plan)?,
+        })
     }
 
+    /// On the floor and in a sensor's sight.
     fn contains(&self, x: f64, y: f64) -> bool {
+        self.within_reach(x, y) && self.sight.seen([x, y], self.range_m, BODY_M)
+    }
+
+    /// On the floor, whether or not a sensor has it in sight.
+    fn within_reach(&self, x: f64, y: f64) -> bool {
         let p = [x, y];
         let inside = if self.outlines.is_empty() {
             (self.min[0] + self.inset_m..=self.max[0] - self.inset_m).contains(&x)
@@ -384,7 +400,7 @@ pub fn score_plan(
     params: &TrackParams,
     o: &ScoreOptions,
 ) -> Result<SceneScore, PlanError> {
-    let floor = Floor::of(plan, 0.25, params.max_range_m);
+    let floor = Floor::of(plan, 0.25, params.max_range_m)?;
     let mut sim = Simulation::new(plan, o.seed)?;
     let infos = sim.sensors().to_vec();
     let start_ns = sim.start_ns();
@@ -549,8 +565,16 @@ pub fn score_plan(
                             .collect()
                     })
                     .unwrap_or_default();
-                score.person_minutes +=
-                    people.len() as f64 * crate::sim::PEOPLE_TRUTH_PERIOD_NS as f64 * 1e-9 / 60.0;
+                let minutes = |n: usize| {
+                    n as f64 * crate::sim::PEOPLE_TRUTH_PERIOD_NS as f64 * 1e-9 / 60.0
+                };
+                let reached = truth
+                    .people
+                    .iter()
+                    .filter(|p| floor.within_reach(p.x_m, p.y_m))
+                    .count();
+                score.person_minutes += minutes(people.len());
+                score.hidden_person_minutes += minutes(reached - people.len());
                 for (zone, z) in o.zones.iter().zip(score.zones.iter_mut()) {
                     let truth_in = people
                         .iter()

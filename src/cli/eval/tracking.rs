@@ -36,7 +36,7 @@ struct Row {
 
 fn header() {
     println!(
-        "{:<22} {:>7} {:>7} {:>9} {:>7} {:>7} {:>6} {:>10} {:>8} {:>6} {:>6} {:>7} {:>8} {:>9}",
+        "{:<22} {:>7} {:>7} {:>9} {:>7} {:>7} {:>6} {:>10} {:>8} {:>7} {:>6} {:>6} {:>7} {:>8} {:>9}",
         "scene",
         "sensors",
         "MOTA",
@@ -46,6 +46,7 @@ fn header() {
         "idsw",
         "idsw/5pm",
         "pers·min",
+        "hidden",
         "cross",
         "counted",
         "line err%",
@@ -62,7 +63,7 @@ fn print(r: &Row) {
         f64::NAN
     };
     println!(
-        "{:<22} {:>7} {:>7.3} {:>9.1} {:>7} {:>7} {:>6} {:>10.2} {:>8.1} {:>6} {:>7} {:>8.1}% {:>4.2}/{:<4.1} {:>6.1}",
+        "{:<22} {:>7} {:>7.3} {:>9.1} {:>7} {:>7} {:>6} {:>10.2} {:>8.1} {:>7.1} {:>6} {:>7} {:>8.1}% {:>4.2}/{:<4.1} {:>6.1}",
         r.label,
         r.sensors,
         m.mota(),
@@ -72,6 +73,7 @@ fn print(r: &Row) {
         m.id_switches,
         per5,
         r.score.person_minutes,
+        r.score.hidden_person_minutes,
         r.score.line_truth(),
         r.score.line_counted(),
         r.score.line_error_pct(),
@@ -269,7 +271,7 @@ pub fn run(plans_dir: &Path, seconds: f64, seed: u64) -> Result<()> {
     );
     registered_rows(&plans, &o)?;
     println!(
-        "(tracking tables took {:.0} s; 'idsw/5pm': id switches per 5 person-minutes; 'false': track-frames with no person within 0.5 m; 'cross' / 'counted': crossings of the counting lines after the first second, by the truth / by the tracks; 'line err%': miscounts each way over the true crossings (target within 2 % at 40–50 people); 'zone MAE': mean |tracks − truth| people in a zone per 0.1 s frame / mean true occupancy)",
+        "(tracking tables took {:.0} s; scored: the people some sensor used has in sight (past walls, shelves and pillars; not past other people); 'pers·min': person-minutes scored; 'hidden': person-minutes within the sensors' reach but behind the plan's walls, shelves or pillars from every one of them (not scored); 'idsw/5pm': id switches per 5 person-minutes; 'false': track-frames with no person within 0.5 m; 'cross' / 'counted': crossings of the counting lines after the first second, by the truth / by the tracks; 'line err%': miscounts each way over the true crossings (target within 2 % at 40–50 people); 'zone MAE': mean |tracks − truth| people in a zone per 0.1 s frame / mean true occupancy)",
         started.elapsed().as_secs_f64()
     );
     Ok(())
