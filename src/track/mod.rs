@@ -5,6 +5,7 @@
 //! - [`background`]: one sensor's background, learnt slowly from its scans.
 //! - [`filter`]: the constant-velocity Kalman filter of one track.
 //! - [`assign`]: global assignment of detections to tracks (Hungarian, gated).
+//! - [`occlusion`]: whether a sensor's scan has a spot in view or behind something nearer.
 //! - [`tracker`]: all of it together: scans of placed sensors in, confirmed [`Tracks`] out.
 //! - [`zones`]: occupancy of configured zones and crossings of counting lines, from tracks.
 //!
@@ -15,6 +16,7 @@ pub mod background;
 pub mod detect;
 pub mod filter;
 pub mod mot;
+pub mod occlusion;
 pub mod score;
 pub mod tracker;
 pub mod zones;
@@ -95,6 +97,9 @@ pub struct TrackParams {
     pub confirm_rate: f64,
     pub tentative_death_s: f64,
     pub death_s: f64,
+    /// A confirmed track hidden behind others from every sensor that reaches its spot is
+    /// neither dropped nor unlisted (it walks on as last seen) for up to 4 s unseen.
+    pub hidden_s: f64,
     /// A confirmed track is listed while seen within the last 0.5 s; unseen longer (hidden
     /// behind others) it is kept, to take its person back, but not listed.
     pub shown_unseen_s: f64,
@@ -150,6 +155,7 @@ impl Default for TrackParams {
             confirm_rate: 0.5,
             tentative_death_s: 0.2,
             death_s: 1.5,
+            hidden_s: 4.0,
             shown_unseen_s: 0.5,
             reid_s: 4.0,
             reid_m: 0.5,
