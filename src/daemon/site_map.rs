@@ -6,6 +6,7 @@
 
 use std::collections::BTreeMap;
 use std::path::Path;
+use std::sync::{Arc, Mutex, MutexGuard};
 
 use super::config::PublishConfig;
 use super::pipeline::PosedScan;
@@ -13,11 +14,13 @@ use super::pipeline_fuse::{Fuser, save_files, scan_frame};
 use super::protocol::Frame;
 use super::state::StateError;
 use super::zone_net::ViewPayload;
-use crate::geometry::{Pose2, Pose3};
+use crate::geometry::{Pose2, Pose3, ProjectParams};
 
-/// Every zone's latest scan of each unit, and the map fused from them.
+/// Every zone's latest scan of each unit, and the map fused from them. The fusing has a
+/// lock of its own, so that a large site's map is fused while its zones' scans come in.
 pub struct SiteMap {
-    fuser: Fuser,
+    fuser: Arc<Mutex<Fuser>>,
+    project: ProjectParams,
     latest: BTreeMap<String, PosedScan>,
     /// A unit's number in the map's cloud (its PLY `sensor`), in the order first heard.
     index: BTreeMap<String, u16>,
@@ -25,8 +28,10 @@ pub struct SiteMap {
 
 impl SiteMap {
     pub fn new(publish: &PublishConfig) -> SiteMap {
+        let fuser = Fuser::new(publish);
         SiteMap {
-            fuser: Fuser::new(publish),
+            project: *fuser.project_params(),
+            fuser: Arc::new(Mutex::new(fuser)),
             latest: BTreeMap::new(),
             index: BTreeMap::new(),
         }
@@ -52,7 +57,7 @@ impl SiteMap {
         };
         let frame = Frame {
             stamp_ns: posed.scan.stamp_ns,
-            scans: vec![scan_frame(&posed, self.fuser.project_params())],
+            scans: vec![scan_frame(&posed, &self.project)],
         };
         self.latest.insert(posed.id.clone(), posed);
         frame
@@ -63,10 +68,17 @@ impl SiteMap {
         self.latest.remove(sensor);
     }
 
-    /// Fuses the latest scans into the map (each unit's rays at most every half second).
-    pub fn fuse(&mut self) {
-        let scans: Vec<PosedScan> = self.latest.values().cloned().collect();
-        self.fuser.integrate(&scans);
+    /// The latest scans to fuse, and the fuser to fuse them with: fuse with
+    /// `fuser.lock().integrate(&scans)` once this map's own lock is let go (each unit's rays
+    /// go in at most every half second).
+    pub fn to_fuse(&self) -> (Arc<Mutex<Fuser>>, Vec<PosedScan>) {
+        (self.fuser.clone(), self.latest.values().cloned().collect())
+    }
+
+    /// Fuses the latest scans into the map, here and now.
+    pub fn fuse(&self) {
+        let (fuser, scans) = self.to_fuse();
+        lock(&fuser).integrate(&scans);
     }
 
     /// Units in the map.
@@ -76,7 +88,7 @@ impl SiteMap {
 
     /// The occupancy grid of every unit's rays.
     pub fn grid(&self) -> crate::fuse::OccupancyGrid {
-        self.fuser.grid()
+        lock(&self.fuser).grid()
     }
 
     /// Each unit's field of view from its latest scan: id, first and last beam angle (rad,
@@ -91,15 +103,15 @@ impl SiteMap {
     /// Writes the map files (`map.pgm`, `map.yaml`, `map.ply`, site frame) into `dir`, each
     /// atomically; the site daemon writes no `poses.toml` (the zones save their own).
     pub fn save(&self, dir: &Path, anchor_zone: &str) -> Result<Vec<String>, StateError> {
-        save_files(
-            dir,
-            anchor_zone,
-            &[],
-            None,
-            &self.fuser.grid(),
-            &self.fuser.points(),
-        )
+        let fuser = lock(&self.fuser);
+        save_files(dir, anchor_zone, &[], None, &fuser.grid(), &fuser.points())
     }
+}
+
+/// The fuser, even if a thread panicked while it fused (the map is then at worst a fuse
+/// behind).
+pub fn lock(fuser: &Mutex<Fuser>) -> MutexGuard<'_, Fuser> {
+    fuser.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 #[cfg(test)]

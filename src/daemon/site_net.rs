@@ -315,6 +315,7 @@ pub async fn run(
     let mut links = Links::default();
     let mut cross = CrossZone::default();
     let mut fused = Instant::now();
+    let mut fusing: Option<tokio::task::JoinHandle<()>> = None;
     tokio::pin!(stop);
     loop {
         tokio::select! {
@@ -358,9 +359,12 @@ pub async fn run(
             }
             _ = tick.tick() => {}
         }
-        if fused.elapsed() >= EVERY {
+        // Fusing a large site's map takes a while: off the loop that hears the zones, one at
+        // a time.
+        if fused.elapsed() >= EVERY && fusing.as_ref().is_none_or(|f| f.is_finished()) {
             fused = Instant::now();
-            view.fuse_map();
+            let view = view.clone();
+            fusing = Some(tokio::task::spawn_blocking(move || view.fuse_map()));
         }
         // A join finished: its frame is the site's.
         if joining.as_ref().is_some_and(|(j, _)| j.is_finished())

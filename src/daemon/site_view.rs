@@ -168,9 +168,13 @@ impl SiteView {
         }
     }
 
-    /// Fuses the latest scans into the map.
+    /// Fuses the latest scans into the map (a blocking call: the site daemon makes it off its
+    /// async loop).
     pub(super) fn fuse_map(&self) {
-        self.map().fuse();
+        // The scans taken under the map's lock, fused under the fuser's alone: a zone's scan
+        // heard meanwhile is not held up.
+        let (fuser, scans) = self.map().to_fuse();
+        super::site_map::lock(&fuser).integrate(&scans);
     }
 
     /// Writes the map files, when any zone sends its scans; what was written.
@@ -211,9 +215,10 @@ impl SiteView {
         self.publisher.announce(kind, None, message);
     }
 
-    /// A zone's liveliness token came or went.
+    /// A zone's liveliness token came or went. A lost zone's scans leave the map (what they
+    /// showed is no longer known); its poses stay, marked stale.
     pub(super) fn liveliness(&self, zone: &str, alive: bool) {
-        let changed = {
+        let (changed, gone) = {
             let mut s = self.lock();
             let z = s
                 .zones
@@ -225,14 +230,34 @@ impl SiteView {
                 z.since = Instant::now();
                 z.fresh = false;
             }
-            changed
+            let units: Vec<String> = match (&z.poses, changed && !alive) {
+                (Some(p), true) => p.sensors.iter().map(|u| u.id.clone()).collect(),
+                _ => Vec::new(),
+            };
+            // A unit id another zone still alive lists too is that zone's to show.
+            let gone: Vec<String> = units
+                .into_iter()
+                .filter(|id| {
+                    s.zones_with(id)
+                        .all(|other| other == zone || !s.zones.get(other).is_some_and(|z| z.alive))
+                })
+                .collect();
+            (changed, gone)
         };
+        if !gone.is_empty() {
+            let mut map = self.map();
+            for id in &gone {
+                map.forget(id);
+            }
+        }
         if changed && alive {
             self.announce(EventKind::Connected, format!("zone {zone} is alive"));
         } else if changed {
             self.announce(
                 EventKind::Disconnected,
-                format!("zone {zone} is lost: its poses stay as last heard, marked stale"),
+                format!(
+                    "zone {zone} is lost: its poses stay as last heard, marked stale; its scans leave the map"
+                ),
             );
         }
     }
@@ -1149,5 +1174,45 @@ mod tests {
             .unwrap();
         assert!(!dock.registered);
         assert!(dock.reason.unwrap().contains("disagree"));
+    }
+
+    #[test]
+    fn a_lost_zones_scans_leave_the_map_and_its_poses_stay() {
+        use crate::daemon::zone_net::{SCAN_SCHEMA, ViewPayload};
+        use crate::geometry::Mount;
+        use crate::geometry::raycast::{polygon, scan_270};
+        use crate::web::PageSource;
+        let (view, _events) = east_alive();
+        view.liveliness("west", true);
+        view.heard_poses("west", poses("gate", vec![placed("gate", 0.0, 0.0, 0.0)]));
+        view.heard_poses("east", poses("dock", vec![placed("dock", 0.0, 0.0, 0.0)]));
+        view.set_frame(BTreeMap::from([
+            ("west".to_string(), Ok((Pose2::identity(), [0.0; 3], 0))),
+            ("east".to_string(), Ok((pose2(20.0, 0.0, 0.0), [0.0; 3], 3))),
+        ]));
+        let room = polygon(&[(-5.0, -4.0), (5.0, -4.0), (5.0, 4.0), (-5.0, 4.0)]);
+        let s = scan_270(&room, &Pose2::identity(), 0.5, 1_000_000_000);
+        for (zone, unit) in [("west", "gate"), ("east", "dock")] {
+            let payload =
+                ViewPayload::of(SCAN_SCHEMA, "hall", zone, unit, &s, &Mount::default(), None);
+            view.heard_scan(zone, payload);
+        }
+        view.fuse_map();
+        let units = |view: &SiteView| {
+            let mut ids: Vec<String> = view.fields_of_view().into_iter().map(|f| f.0).collect();
+            ids.sort();
+            ids
+        };
+        assert_eq!(units(&view), ["dock", "gate"]);
+        view.liveliness("east", false);
+        assert_eq!(units(&view), ["gate"]);
+        view.fuse_map();
+        assert!(view.occupancy().is_some());
+        assert!(
+            view.poses()
+                .sensors
+                .iter()
+                .any(|s| s.id == "dock" && s.stale)
+        );
     }
 }
