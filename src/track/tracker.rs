@@ -6,9 +6,11 @@
 //! by three sensors is one detection), assigned to the tracks by the Hungarian method on a
 //! gated Mahalanobis cost ([`assign`]), and the tracks' Kalman filters
 //! ([`Kalman`]) updated; what no track takes starts a tentative track, confirmed after a few
-//! consistent detections; a track unseen for `death_s` ends. An id is never given to someone
-//! else: only to a new track where a lost track's person would be by now (`reid_s`), as that
-//! person come back.
+//! consistent detections (seen in half its steps at least); a track unseen for `death_s`
+//! ends, unless people stand between it and every sensor that reaches its spot
+//! ([`occlusion`](super::occlusion)): hidden, it walks on as last seen, listed, for up to
+//! `hidden_s`. An id is never given to someone else: only to a new track where a lost
+//! track's person would be by now (`reid_s`), as that person come back.
 
 use std::collections::{BTreeMap, VecDeque};
 
