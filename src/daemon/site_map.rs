@@ -76,7 +76,8 @@ impl SiteMap {
     }
 
     /// Fuses the latest scans into the map, here and now.
-    pub fn fuse(&self) {
+    #[cfg(test)]
+    fn fuse(&self) {
         let (fuser, scans) = self.to_fuse();
         lock(&fuser).integrate(&scans);
     }
