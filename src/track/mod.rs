@@ -80,8 +80,12 @@ pub struct TrackParams {
     pub shared_sigma_m: f64,
     /// A new track's speed uncertainty (m/s).
     pub birth_sigma_v_m_s: f64,
-    /// No track is born within 0.6 m of another.
+    /// No track is born within 0.45 m of another: less than the 0.5–0.7 m between people
+    /// walking abreast, whose middle one is otherwise never tracked ...
     pub birth_clear_m: f64,
+    /// ... or within 0.6 m when a low unit saw it: a leg left unpaired mid-stride lies up to
+    /// that far from its person's track.
+    pub leg_birth_clear_m: f64,
     /// Two confirmed tracks within 0.3 m are one person (the younger ends): at once when their
     /// velocities are within 0.5 m/s, else once they have kept that close for 0.5 s (people
     /// crossing are that close only for a moment).
@@ -147,7 +151,8 @@ impl Default for TrackParams {
             ambiguous_m: 0.15,
             shared_sigma_m: 0.3,
             birth_sigma_v_m_s: 1.0,
-            birth_clear_m: 0.6,
+            birth_clear_m: 0.45,
+            leg_birth_clear_m: 0.6,
             same_track_m: 0.3,
             same_track_s: 0.5,
             same_track_v_m_s: 0.5,

@@ -67,6 +67,8 @@ struct SensorState {
     /// Its latest scan's returns, to tell a person hidden behind others from one gone
     /// (`None` for sensors that send sightings, not scans).
     view: Option<View>,
+    /// It is mounted low enough to see legs.
+    legs: bool,
 }
 
 impl SensorState {
@@ -323,6 +325,7 @@ impl Tracker {
                 },
             ));
             let legs = s.mount.height_m.is_some_and(|h| h <= p.leg_height_m);
+            state.legs = legs;
             let mut blob_p = p.blob;
             if legs {
                 blob_p.max_width_m = p.leg_max_width_m;
@@ -528,7 +531,7 @@ impl Tracker {
             }
         }
         self.confirm(t_ns);
-        let (detections, _) = self.merged();
+        let (detections, names) = self.merged();
         // Two tracks on one person: the younger goes (the older keeps its id). Within
         // `same_track_m` and walking alike (a leg, a second track on one body) they are one at
         // once; walking differently (two people crossing or brushing past) only once they have
@@ -606,10 +609,21 @@ impl Tracker {
         });
         // Births: detections no track took, not on top of a track.
         for d in &detections {
+            let legs = d.sensors.iter().any(|&k| {
+                names
+                    .get(k)
+                    .and_then(|id| self.sensors.get(id))
+                    .is_some_and(|s| s.legs)
+            });
+            let clear_m = if legs {
+                p.leg_birth_clear_m
+            } else {
+                p.birth_clear_m
+            };
             let crowded = self
                 .tracks
                 .iter()
-                .any(|t| (t.filter.position() - d.at).norm() < p.birth_clear_m);
+                .any(|t| (t.filter.position() - d.at).norm() < clear_m);
             if crowded {
                 continue;
             }
@@ -900,6 +914,33 @@ mod tests {
             first <= 5 * S + 10 * TICK,
             "the person's track came only at {first} ns"
         );
+    }
+
+    /// Three people walking abreast, 0.5 m apart, the middle one first seen once the others
+    /// are tracked (hidden behind them until then): the middle one gets a track of their own.
+    #[test]
+    fn the_middle_one_of_three_walking_abreast_is_tracked() {
+        let mut tracker = Tracker::new(TrackParams::default());
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let at = |t_s: f64, y: f64| Point2::new(1.0 + 1.0 * t_s, y);
+        let mut middle_tracked = false;
+        for k in 0..(4 * S / TICK) {
+            let t_ns = k * TICK;
+            let t_s = t_ns as f64 * 1e-9;
+            let mut seen = vec![noisy(&mut rng, at(t_s, 2.0)), noisy(&mut rng, at(t_s, 3.0))];
+            if t_s >= 1.5 {
+                seen.push(noisy(&mut rng, at(t_s, 2.5)));
+            }
+            let Some(out) = tracker.push_detections("s0", t_ns, &seen) else {
+                continue;
+            };
+            if t_s >= 3.0 {
+                assert_eq!(out.tracks.len(), 3, "at {t_s:.2} s: {out:?}");
+                middle_tracked = id_near(&out, at(t_s, 2.5)).is_some_and(|(_, d)| d < 0.1);
+                assert!(middle_tracked, "at {t_s:.2} s: {out:?}");
+            }
+        }
+        assert!(middle_tracked);
     }
 
     #[test]
