@@ -23,7 +23,7 @@ use super::detect;
 use super::filter::Kalman;
 use super::occlusion::{Sight, View};
 use crate::daemon::protocol::{Track, Tracks};
-use crate::geometry::{Mount, Pose2, pose_error, project_scan};
+use crate::geometry::{Mount, Pose2, ScanPoint, pose_error, project_scan};
 use crate::scan::{Scan, ScanGeometry};
 
 /// A return this much short of a track's spot is in front of its person, not on them (m).
@@ -198,13 +198,10 @@ impl Tracker {
         mount: &Mount,
         params: &TrackParams,
     ) -> Vec<f32> {
-        let mut ranges = vec![f32::NAN; scan.ranges_m.len()];
-        for sp in project_scan(scan, geometry, mount, &params.project) {
-            if let Some(r) = ranges.get_mut(sp.beam) {
-                *r = sp.p.coords.norm() as f32;
-            }
-        }
-        ranges
+        ranges_of(
+            &project_scan(scan, geometry, mount, &params.project),
+            scan.ranges_m.len(),
+        )
     }
 
     /// The people sensor `id`'s latest scan saw, site frame, one per person it saw (not
@@ -287,7 +284,9 @@ impl Tracker {
     /// Detections of one scan, kept for the next step; the background learns from it.
     fn observe(&mut self, s: SensorScan<'_>) {
         let p = &self.params;
-        let ranges = Tracker::horizontal_ranges(s.scan, s.geometry, &s.mount, p);
+        // Projected once: the background learns from every scan, detections need the points.
+        let points = project_scan(s.scan, s.geometry, &s.mount, &p.project);
+        let ranges = ranges_of(&points, s.scan.ranges_m.len());
         let state = self.sensors.entry(s.id.to_string()).or_default();
         state.delivers(s.scan.stamp_ns);
         state.seen.clear();
@@ -313,7 +312,6 @@ impl Tracker {
         }
         state.pending.clear();
         if let Some(pose) = s.site_from_sensor {
-            let points = project_scan(s.scan, s.geometry, &s.mount, &p.project);
             let beams = s.scan.ranges_m.len().saturating_sub(1).max(1) as f64;
             let background_m = background.ranges_m();
             state.view = Some(View::of(
@@ -780,6 +778,17 @@ impl Tracker {
     pub fn live_tracks(&self) -> usize {
         self.tracks.len()
     }
+}
+
+/// Horizontal range per beam of a scan's `beams` from its projected points (NaN: no return).
+fn ranges_of(points: &[ScanPoint], beams: usize) -> Vec<f32> {
+    let mut ranges = vec![f32::NAN; beams];
+    for sp in points {
+        if let Some(r) = ranges.get_mut(sp.beam) {
+            *r = sp.p.coords.norm() as f32;
+        }
+    }
+    ranges
 }
 
 /// The other confirmed track a sighting track `i` took lies about as near
