@@ -24,7 +24,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use scanfuse::daemon::protocol::{Message, Poses, Status};
-use scanfuse::geometry::{pose_error, pose2};
+use scanfuse::geometry::{pose_error, pose2, within_sigma};
 
 type Error = Box<dyn std::error::Error>;
 
@@ -204,9 +204,12 @@ fn main() -> Result<(), Error> {
                 &(world_from_site.inverse() * t),
             );
             // Beyond 3σ of what the site daemon says of the unit: wrong, not just imprecise.
-            let sigma_m = s.sigma_x_m.unwrap_or(0.0).hypot(s.sigma_y_m.unwrap_or(0.0));
-            let beyond =
-                dt > 3.0 * sigma_m || dyaw.to_degrees() > 3.0 * s.sigma_yaw_deg.unwrap_or(0.0);
+            let beyond = !within_sigma(
+                (dt, dyaw),
+                [s.sigma_x_m.unwrap_or(0.0), s.sigma_y_m.unwrap_or(0.0)],
+                s.sigma_yaw_deg.unwrap_or(0.0).to_radians(),
+                3.0,
+            );
             errors.push((s.id.clone(), dt, dyaw.to_degrees(), beyond));
         }
         errors

@@ -33,6 +33,13 @@ pub fn pose_error(estimate: &Pose2, truth: &Pose2) -> (f64, f64) {
     (dt, dyaw)
 }
 
+/// Whether a pose error (m, rad, as [`pose_error`] gives it) lies within `k` σ of what was
+/// claimed for the pose: σ of x and y (m) and of the heading (rad). Beyond, the claim was
+/// wrong, not just imprecise (what the zones' eval and bench count).
+pub fn within_sigma(error: (f64, f64), sigma_xy_m: [f64; 2], sigma_yaw_rad: f64, k: f64) -> bool {
+    error.0 <= k * sigma_xy_m[0].hypot(sigma_xy_m[1]) && error.1 <= k * sigma_yaw_rad
+}
+
 /// A sensor pose in 3D as the site reports it: position, height, heading and pitch
 /// (pitch about the sensor's own y axis, positive up; no roll).
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -391,6 +391,15 @@ impl ScanModel {
         &self.features.points
     }
 
+    /// How far its farthest point lies from the sensor (m): two sensors farther apart than
+    /// the sum of theirs (plus scoring's margins) cannot see each other's walls.
+    pub fn reach_m(&self) -> f64 {
+        self.points()
+            .iter()
+            .map(|q| q.coords.norm())
+            .fold(0.0, f64::max)
+    }
+
     pub fn class(&self, i: usize) -> PointClass {
         self.features
             .classes

@@ -272,18 +272,11 @@ fn whole_view(
     a_from_b: &Pose2,
     p: &RegisterParams,
 ) -> WholeView {
-    let reach = |s: &ZoneSensor| {
-        s.model
-            .points()
-            .iter()
-            .map(|q| q.coords.norm())
-            .fold(0.0, f64::max)
-    };
     let (a, b) = (&zones[za].sensors, &zones[zb].sensors);
-    let reach_b: Vec<f64> = b.iter().map(reach).collect();
+    let reach_b: Vec<f64> = b.iter().map(|t| t.model.reach_m()).collect();
     a.par_iter()
         .map(|s| {
-            let reach_s = reach(s);
+            let reach_s = s.model.reach_m();
             let mut sum = WholeView::default();
             for (t, reach_t) in b.iter().zip(&reach_b) {
                 let s_from_t = s.zone_from_sensor.inverse() * a_from_b * t.zone_from_sensor;

@@ -69,6 +69,8 @@ struct SensorState {
     view: Option<View>,
     /// It is mounted low enough to see legs.
     legs: bool,
+    /// A low unit's latest leg blobs (sensor frame), given to the tracks at the step.
+    blobs: Vec<Vec<Point2<f64>>>,
 }
 
 impl SensorState {
@@ -243,6 +245,7 @@ impl Tracker {
             // Its sightings are in the site frame already: placed where the site is.
             state.pose = Some(Pose2::identity());
             state.pending.clear();
+            state.blobs.clear();
             state
                 .pending
                 .extend(people.iter().map(|&at| Sighting { at, stamp_ns: t_ns }));
@@ -290,6 +293,7 @@ impl Tracker {
         let state = self.sensors.entry(s.id.to_string()).or_default();
         state.delivers(s.scan.stamp_ns);
         state.seen.clear();
+        state.blobs.clear();
         // A sensor whose pose jumped was moved: what it learnt is from elsewhere.
         if let (Some(old), Some(new)) = (state.pose, s.site_from_sensor) {
             let (m, rad) = pose_error(&new, &old);
@@ -330,26 +334,8 @@ impl Tracker {
                 blob_p.min_points = p.leg_min_points;
             }
             let blobs = detect::blobs(&points, &ranges, background.ranges_m(), &blob_p);
-            // Round bodies, not the torso shapes the walker fit tries (`WalkerParams::
-            // body_areas_m2`): a 0.10 m² torso on level units cut MOTP by 1.3–1.6 cm but
-            // raised id switches 3–4 % (`eval --only tracking --track-seconds 240`, seeds 1–2).
-            let mut centres: Vec<Point2<f64>> = if legs {
-                let legs: Vec<Point2<f64>> = blobs
-                    .iter()
-                    .filter_map(|b| detect::centre(b, detect::Body::Round))
-                    .collect();
-                detect::pair_legs(&legs, p.leg_pair_m)
-            } else {
-                let parts = blobs.into_iter().flat_map(|b| {
-                    detect::split_wide(b, p.max_person_m, p.person_m, p.blob.min_points)
-                });
-                let centres: Vec<Point2<f64>> = parts
-                    .filter_map(|b| detect::centre(&b, detect::Body::Round))
-                    .collect();
-                // One body seen as two runs (an arm apart from the torso) is one person.
-                detect::pair_legs(&centres, p.same_person_m)
-            };
-            centres.retain(|c| c.coords.norm() <= p.max_range_m);
+            let centres = people_in(blobs.clone(), legs, p);
+            state.blobs = if legs { blobs } else { Vec::new() };
             state.seen.extend(centres.into_iter().map(|c| pose * c));
             let stamp_ns = s.scan.stamp_ns;
             state
@@ -434,11 +420,62 @@ impl Tracker {
             let Some(state) = self.sensors.get_mut(id) else {
                 continue;
             };
-            let sightings = std::mem::take(&mut state.pending);
+            let mut sightings = std::mem::take(&mut state.pending);
+            // A low unit's legs go to the confirmed tracks they lie nearest, not to whichever
+            // leg is closest: two people side by side have legs nearer each other's than their
+            // own mid-stride. What no track takes is paired as before, for births.
+            let mut by_legs = vec![false; self.tracks.len()];
+            if let (true, Some(pose), Some(stamp_ns)) = (state.legs, state.pose, state.last_ns)
+                && p.leg_track_m > 0.0
+                && !state.blobs.is_empty()
+            {
+                let legs: Vec<Point2<f64>> = state
+                    .blobs
+                    .iter()
+                    .filter_map(|b| detect::centre(b, detect::Body::Round))
+                    .collect();
+                let tracked: Vec<usize> = (0..self.tracks.len())
+                    .filter(|&i| self.tracks[i].id != 0)
+                    .collect();
+                let (mine, rest) = legs_to_tracks(
+                    &legs,
+                    &tracked
+                        .iter()
+                        .map(|&i| {
+                            let t = &self.tracks[i];
+                            (pose.inverse() * t.filter.position(), t.seen.born_ns)
+                        })
+                        .collect::<Vec<_>>(),
+                    &p,
+                );
+                if mine.iter().any(|m| !m.is_empty()) {
+                    sightings = detect::pair_legs(&rest, p.leg_pair_m)
+                        .into_iter()
+                        .filter(|c| c.coords.norm() <= p.max_range_m)
+                        .map(|c| Sighting {
+                            at: pose * c,
+                            stamp_ns,
+                        })
+                        .collect();
+                    let lag_s = t_ns.saturating_sub(stamp_ns) as f64 * 1e-9;
+                    for (&i, m) in tracked.iter().zip(&mine) {
+                        if m.is_empty() {
+                            continue;
+                        }
+                        let c = Point2::from(
+                            m.iter().map(|q| q.coords).sum::<Vector2<f64>>() / m.len() as f64,
+                        );
+                        if c.coords.norm() <= p.max_range_m {
+                            got[i].push((pose * c + self.tracks[i].filter.velocity() * lag_s, k));
+                            by_legs[i] = true;
+                        }
+                    }
+                }
+            }
             let mut taken = vec![false; sightings.len()];
             for confirmed in [true, false] {
                 let rows: Vec<usize> = (0..self.tracks.len())
-                    .filter(|&i| (self.tracks[i].id != 0) == confirmed)
+                    .filter(|&i| (self.tracks[i].id != 0) == confirmed && !by_legs[i])
                     .collect();
                 let cols: Vec<usize> = (0..sightings.len()).filter(|&j| !taken[j]).collect();
                 let tracks = &self.tracks;
@@ -791,6 +828,72 @@ fn ranges_of(points: &[ScanPoint], beams: usize) -> Vec<f32> {
     ranges
 }
 
+/// A low unit's legs given to the confirmed tracks (where each is predicted, and when it was
+/// born; all in the sensor's frame): each leg to the track it lies nearest within
+/// `leg_track_m`, two at most a track (one to one over two places per track). Two tracks
+/// within `birth_clear_m` of each other that took one leg each, the legs a pair apart, are one
+/// person's: the older takes both, or each would live on, on a leg. Returns each track's legs,
+/// and the legs no track took.
+fn legs_to_tracks(
+    legs: &[Point2<f64>],
+    tracks: &[(Point2<f64>, u64)],
+    p: &TrackParams,
+) -> (Vec<Vec<Point2<f64>>>, Vec<Point2<f64>>) {
+    let chosen = assign(legs.len(), 2 * tracks.len(), p.leg_track_m, |l, slot| {
+        Some((legs[l] - tracks[slot / 2].0).norm())
+    });
+    let mut mine: Vec<Vec<Point2<f64>>> = vec![Vec::new(); tracks.len()];
+    let mut rest = Vec::new();
+    for (leg, slot) in legs.iter().zip(&chosen) {
+        match slot {
+            Some(slot) => mine[slot / 2].push(*leg),
+            None => rest.push(*leg),
+        }
+    }
+    for a in 0..tracks.len() {
+        for b in 0..tracks.len() {
+            let ((at_a, born_a), (at_b, born_b)) = (tracks[a], tracks[b]);
+            if a != b
+                && mine[a].len() == 1
+                && mine[b].len() == 1
+                && born_a <= born_b
+                && (at_a - at_b).norm() < p.birth_clear_m
+                && (mine[a][0] - mine[b][0]).norm() <= p.leg_pair_m
+            {
+                let leg = mine[b].pop().expect("one leg");
+                mine[a].push(leg);
+            }
+        }
+    }
+    (mine, rest)
+}
+
+/// The people in one scan's blobs (sensor frame), one centre each: a low unit's legs paired,
+/// a level unit's blobs split where several stand side by side.
+fn people_in(blobs: Vec<Vec<Point2<f64>>>, legs: bool, p: &TrackParams) -> Vec<Point2<f64>> {
+    let mut centres: Vec<Point2<f64>> = if legs {
+        let legs: Vec<Point2<f64>> = blobs
+            .iter()
+            .filter_map(|b| detect::centre(b, detect::Body::Round))
+            .collect();
+        detect::pair_legs(&legs, p.leg_pair_m)
+    } else {
+        // Round bodies, not the torso shapes the walker fit tries (`WalkerParams::
+        // body_areas_m2`): a 0.10 m² torso on level units cut MOTP by 1.3–1.6 cm but
+        // raised id switches 3–4 % (`eval --only tracking --track-seconds 240`, seeds 1–2).
+        let parts = blobs
+            .into_iter()
+            .flat_map(|b| detect::split_wide(b, p.max_person_m, p.person_m, p.blob.min_points));
+        let centres: Vec<Point2<f64>> = parts
+            .filter_map(|b| detect::centre(&b, detect::Body::Round))
+            .collect();
+        // One body seen as two runs (an arm apart from the torso) is one person.
+        detect::pair_legs(&centres, p.same_person_m)
+    };
+    centres.retain(|c| c.coords.norm() <= p.max_range_m);
+    centres
+}
+
 /// The other confirmed track a sighting track `i` took lies about as near
 /// (`TrackParams::ambiguous_m`), the nearest if several: one body's worth of returns from two
 /// people.
@@ -1101,6 +1204,60 @@ mod tests {
             (x + half, y + half),
             (x - half, y + half),
         ])
+    }
+
+    /// Two people walking in step side by side, 0.5 m apart, seen from behind by a unit at
+    /// ankle height: mid-stride their inner legs are nearer each other (0.3 m) than to their
+    /// own other leg (up to 0.6 m), and legs paired closest first put one "person" between
+    /// them. Each track takes the legs nearest it, and neither switches.
+    fn abreast_on_legs() -> (Vec<u64>, Vec<u64>) {
+        let room = polygon(&[(-4.0, -4.0), (12.0, -4.0), (12.0, 4.0), (-4.0, 4.0)]);
+        let pose = pose2(-3.0, 0.25, 0.0);
+        let mount = Mount {
+            height_m: Some(0.3),
+            ..Mount::default()
+        };
+        let mut tracker = Tracker::new(TrackParams::default());
+        let centre = |t_s: f64, y: f64| Point2::new(1.0 + 1.2 * t_s, y);
+        let (mut a_ids, mut b_ids) = (Vec::new(), Vec::new());
+        for k in 0..(5 * S / TICK) {
+            let t_ns = k * TICK;
+            let t_s = t_ns as f64 * 1e-9;
+            // Left and right legs swing ±0.3 m in opposite phase, 1.8 strides a second.
+            let swing = 0.3 * (t_s * 1.8 * std::f64::consts::TAU).sin();
+            let mut seen = room.clone();
+            for y in [0.0, 0.5] {
+                let c = centre(t_s, y);
+                seen.extend(square(c.x + swing, c.y - 0.1, 0.06));
+                seen.extend(square(c.x - swing, c.y + 0.1, 0.06));
+            }
+            let s = scan(&seen, &pose, t_ns);
+            let Some(out) = tracker.push(SensorScan {
+                id: "low",
+                scan: &s,
+                geometry: None,
+                mount,
+                site_from_sensor: Some(pose),
+            }) else {
+                continue;
+            };
+            for (y, ids) in [(0.0, &mut a_ids), (0.5, &mut b_ids)] {
+                if let Some((id, d)) = id_near(&out, centre(t_s, y))
+                    && d < 0.25
+                    && ids.last() != Some(&id)
+                {
+                    ids.push(id);
+                }
+            }
+        }
+        (a_ids, b_ids)
+    }
+
+    #[test]
+    fn two_abreast_seen_by_their_legs_keep_their_ids() {
+        let (a, b) = abreast_on_legs();
+        assert_eq!((a.len(), b.len()), (1, 1), "ids near each: {a:?} and {b:?}");
+        assert_ne!(a, b);
     }
 
     #[test]

@@ -6,7 +6,7 @@
 //! also registered whole, as one daemon would, and the two compared unit by unit.
 
 use anyhow::{Context, Result};
-use scanfuse::geometry::{Pose2, pose_error};
+use scanfuse::geometry::{Pose2, pose_error, within_sigma};
 use scanfuse::register::site::{SiteParams, register_site};
 use scanfuse::register::zones::{ZoneInput, ZoneParams, ZoneSensor, ZonesResult, join_zones};
 use scanfuse::register::{RegisterParams, ScanModel};
@@ -100,7 +100,7 @@ pub(super) fn run(args: &Args, params: &RegisterParams) -> Result<()> {
         let joined = join_zones(&inputs, 0, &p);
         let join_s = t0.elapsed().as_secs_f64();
         let (mut worst_m, mut worst_deg, mut ok, mut here) = (0f64, 0f64, 0, 0);
-        let mut within_sigma = 0;
+        let mut by_sigma = 0;
         let mut notes: Vec<String> = Vec::new();
         for (z, zone) in joined.zones.iter().enumerate() {
             match &zone.site_from_zone {
@@ -113,9 +113,9 @@ pub(super) fn run(args: &Args, params: &RegisterParams) -> Result<()> {
                     let sigma_m = sigma[0].hypot(sigma[1]);
                     if m <= RIGHT_M && deg <= RIGHT_DEG {
                         ok += 1;
-                    } else if m <= 3.0 * sigma_m && rad <= 3.0 * sigma[2] {
+                    } else if within_sigma((m, rad), [sigma[0], sigma[1]], sigma[2], 3.0) {
                         ok += 1;
-                        within_sigma += 1;
+                        by_sigma += 1;
                     } else {
                         notes.push(format!(
                             "{} off {m:.2} m {deg:.1}° (σ {:.2} m {:.2}°)",
@@ -129,8 +129,8 @@ pub(super) fn run(args: &Args, params: &RegisterParams) -> Result<()> {
             }
         }
         println!(
-            "{seed:>5} {n:>6} {units_placed:>7} {here:>6} {:>7} {within_sigma:>7} {:>6} {:>9.1} {worst_deg:>8.2} {join_s:>7.1}  {}",
-            ok - within_sigma,
+            "{seed:>5} {n:>6} {units_placed:>7} {here:>6} {:>7} {by_sigma:>7} {:>6} {:>9.1} {worst_deg:>8.2} {join_s:>7.1}  {}",
+            ok - by_sigma,
             here - ok,
             worst_m * 100.0,
             notes.join(", ")
@@ -149,7 +149,7 @@ pub(super) fn run(args: &Args, params: &RegisterParams) -> Result<()> {
         all += inputs.len();
         placed += here;
         right += ok;
-        sigma_right += within_sigma;
+        sigma_right += by_sigma;
     }
     println!(
         "zones placed {placed} of {all}: within 10 cm / 1° {}, farther but within 3σ {sigma_right}, wrong {} (must be 0)",

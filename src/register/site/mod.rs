@@ -397,23 +397,20 @@ fn place(
     }
 }
 
-/// The edge a pair's candidate `ci` makes (candidate 0 is the pair's own answer), with the
-/// covariance linearised at that candidate.
 /// How far each sensor's points reach from it (m): two sensors farther apart than the sum of
 /// theirs plus `REACH_MARGIN_M` cannot hit or contradict each other's scans.
 pub(super) fn reach_m(sensors: &[SensorInput]) -> Vec<f64> {
     sensors
         .iter()
-        .map(|s| {
-            let pts = s.model.points();
-            pts.iter().map(|q| q.coords.norm()).fold(0.0, f64::max) + REACH_MARGIN_M
-        })
+        .map(|s| s.model.reach_m() + REACH_MARGIN_M)
         .collect()
 }
 
 /// Beyond the hit radius and free-space margins of scoring.
 const REACH_MARGIN_M: f64 = 1.0;
 
+/// The edge a pair's candidate `ci` makes (candidate 0 is the pair's own answer), with the
+/// covariance linearised at that candidate.
 pub(super) fn candidate_edge(pair: (usize, usize), r: &PairResult, ci: usize) -> Option<Edge> {
     let c = r.candidates.get(ci)?;
     Some(Edge {
