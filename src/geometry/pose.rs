@@ -121,4 +121,13 @@ mod tests {
             prop_assert!((forward.z - z - pitch.sin()).abs() < 1e-9);
         }
     }
+
+    #[test]
+    fn an_error_within_3_sigma_of_both_position_and_heading_is_within() {
+        // σ 3 cm × 4 cm (5 cm together) and 0.1°.
+        let (sigma, yaw) = ([0.03, 0.04], 0.1f64.to_radians());
+        assert!(within_sigma((0.14, 0.25f64.to_radians()), sigma, yaw, 3.0));
+        assert!(!within_sigma((0.16, 0.25f64.to_radians()), sigma, yaw, 3.0));
+        assert!(!within_sigma((0.14, 0.35f64.to_radians()), sigma, yaw, 3.0));
+    }
 }
