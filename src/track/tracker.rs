@@ -1,7 +1,8 @@
 //! The tracker: scans of placed sensors in, confirmed tracks out, by the scans' own clock.
 //!
-//! Per sensor: foreground against its [`Background`], blobs ([`detect`]), legs paired on low
-//! units, centres to the site frame. Once per `step_s` (as soon as every placed sensor due
+//! Per sensor: foreground against its [`Background`], blobs ([`detect`]), centres to the site
+//! frame; a low unit's legs go to the confirmed tracks they lie nearest at the step, and only
+//! the rest are paired into people. Once per `step_s` (as soon as every placed sensor due
 //! has delivered its scan) the latest detections of every sensor are merged (one person seen
 //! by three sensors is one detection), assigned to the tracks by the Hungarian method on a
 //! gated Mahalanobis cost ([`assign`]), and the tracks' Kalman filters
