@@ -70,8 +70,9 @@ struct SensorState {
     view: Option<View>,
     /// It is mounted low enough to see legs.
     legs: bool,
-    /// A low unit's latest leg blobs (sensor frame), given to the tracks at the step.
-    blobs: Vec<Vec<Point2<f64>>>,
+    /// A low unit's latest legs (their centres, sensor frame), given to the tracks at the
+    /// step.
+    legs_seen: Vec<Point2<f64>>,
 }
 
 impl SensorState {
@@ -246,7 +247,7 @@ impl Tracker {
             // Its sightings are in the site frame already: placed where the site is.
             state.pose = Some(Pose2::identity());
             state.pending.clear();
-            state.blobs.clear();
+            state.legs_seen.clear();
             state
                 .pending
                 .extend(people.iter().map(|&at| Sighting { at, stamp_ns: t_ns }));
@@ -294,7 +295,7 @@ impl Tracker {
         let state = self.sensors.entry(s.id.to_string()).or_default();
         state.delivers(s.scan.stamp_ns);
         state.seen.clear();
-        state.blobs.clear();
+        state.legs_seen.clear();
         // A sensor whose pose jumped was moved: what it learnt is from elsewhere.
         if let (Some(old), Some(new)) = (state.pose, s.site_from_sensor) {
             let (m, rad) = pose_error(&new, &old);
@@ -335,8 +336,15 @@ impl Tracker {
                 blob_p.min_points = p.leg_min_points;
             }
             let blobs = detect::blobs(&points, &ranges, background.ranges_m(), &blob_p);
-            let centres = people_in(blobs.clone(), legs, p);
-            state.blobs = if legs { blobs } else { Vec::new() };
+            let centres = if legs {
+                state.legs_seen = blobs
+                    .iter()
+                    .filter_map(|b| detect::centre(b, detect::Body::Round))
+                    .collect();
+                people_on_legs(&state.legs_seen, p)
+            } else {
+                people_in(blobs, p)
+            };
             state.seen.extend(centres.into_iter().map(|c| pose * c));
             let stamp_ns = s.scan.stamp_ns;
             state
@@ -426,20 +434,15 @@ impl Tracker {
             // leg is closest: two people side by side have legs nearer each other's than their
             // own mid-stride. What no track takes is paired as before, for births.
             let mut by_legs = vec![false; self.tracks.len()];
-            if let (true, Some(pose), Some(stamp_ns)) = (state.legs, state.pose, state.last_ns)
+            if let (Some(pose), Some(stamp_ns)) = (state.pose, state.last_ns)
                 && p.leg_track_m > 0.0
-                && !state.blobs.is_empty()
+                && !state.legs_seen.is_empty()
             {
-                let legs: Vec<Point2<f64>> = state
-                    .blobs
-                    .iter()
-                    .filter_map(|b| detect::centre(b, detect::Body::Round))
-                    .collect();
                 let tracked: Vec<usize> = (0..self.tracks.len())
                     .filter(|&i| self.tracks[i].id != 0)
                     .collect();
                 let (mine, rest) = legs_to_tracks(
-                    &legs,
+                    &state.legs_seen,
                     &tracked
                         .iter()
                         .map(|&i| {
@@ -450,9 +453,8 @@ impl Tracker {
                     &p,
                 );
                 if mine.iter().any(|m| !m.is_empty()) {
-                    sightings = detect::pair_legs(&rest, p.leg_pair_m)
+                    sightings = people_on_legs(&rest, &p)
                         .into_iter()
-                        .filter(|c| c.coords.norm() <= p.max_range_m)
                         .map(|c| Sighting {
                             at: pose * c,
                             stamp_ns,
@@ -869,28 +871,27 @@ fn legs_to_tracks(
     (mine, rest)
 }
 
-/// The people in one scan's blobs (sensor frame), one centre each: a low unit's legs paired,
-/// a level unit's blobs split where several stand side by side.
-fn people_in(blobs: Vec<Vec<Point2<f64>>>, legs: bool, p: &TrackParams) -> Vec<Point2<f64>> {
-    let mut centres: Vec<Point2<f64>> = if legs {
-        let legs: Vec<Point2<f64>> = blobs
-            .iter()
-            .filter_map(|b| detect::centre(b, detect::Body::Round))
-            .collect();
-        detect::pair_legs(&legs, p.leg_pair_m)
-    } else {
-        // Round bodies, not the torso shapes the walker fit tries (`WalkerParams::
-        // body_areas_m2`): a 0.10 m² torso on level units cut MOTP by 1.3–1.6 cm but
-        // raised id switches 3–4 % (`eval --only tracking --track-seconds 240`, seeds 1–2).
-        let parts = blobs
-            .into_iter()
-            .flat_map(|b| detect::split_wide(b, p.max_person_m, p.person_m, p.blob.min_points));
-        let centres: Vec<Point2<f64>> = parts
-            .filter_map(|b| detect::centre(&b, detect::Body::Round))
-            .collect();
-        // One body seen as two runs (an arm apart from the torso) is one person.
-        detect::pair_legs(&centres, p.same_person_m)
-    };
+/// The people a low unit's legs (their centres, sensor frame) make: paired closest first,
+/// within range.
+fn people_on_legs(legs: &[Point2<f64>], p: &TrackParams) -> Vec<Point2<f64>> {
+    let mut centres = detect::pair_legs(legs, p.leg_pair_m);
+    centres.retain(|c| c.coords.norm() <= p.max_range_m);
+    centres
+}
+
+/// The people in a level unit's blobs (sensor frame), one centre each: blobs split where
+/// several stand side by side, within range.
+fn people_in(blobs: Vec<Vec<Point2<f64>>>, p: &TrackParams) -> Vec<Point2<f64>> {
+    // Round bodies, not the torso shapes the walker fit tries (`WalkerParams::
+    // body_areas_m2`): a 0.10 m² torso on level units cut MOTP by 1.3–1.6 cm but raised id
+    // switches 3–4 % (`eval --only tracking --track-seconds 240`, seeds 1–2).
+    let centres: Vec<Point2<f64>> = blobs
+        .into_iter()
+        .flat_map(|b| detect::split_wide(b, p.max_person_m, p.person_m, p.blob.min_points))
+        .filter_map(|b| detect::centre(&b, detect::Body::Round))
+        .collect();
+    // One body seen as two runs (an arm apart from the torso) is one person.
+    let mut centres = detect::pair_legs(&centres, p.same_person_m);
     centres.retain(|c| c.coords.norm() <= p.max_range_m);
     centres
 }
