@@ -13,7 +13,9 @@
 //! west its scans too (`scans_hz`): the site daemon tracks the hall's people across zones (one
 //! person seen by units of two zones is one track, one id), streams west's scans in the site
 //! frame to `map` watchers and saves the fused map. East's bytes a second are printed with its
-//! detections and, back after the kill without them, without.
+//! detections and, back after the kill without them, without. Every zone replays the hall
+//! anchored to one wall-clock time (`--replay-since`), so the zones are in step, as live units
+//! are, also east once restarted.
 #![cfg(feature = "zenoh")]
 
 mod daemon_run_common;
@@ -22,8 +24,8 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use daemon_run_common::{
-    Client, HALL, Proc, check_map_files, fixture, replay_sensors, start_daemon, wait_for,
-    write_config,
+    Client, HALL, Proc, check_map_files, fixture, replay_sensors, start_daemon, start_daemon_with,
+    wait_for, write_config,
 };
 use scanfuse::daemon::protocol::{Message, Poses, SensorPose};
 
@@ -44,13 +46,15 @@ fn site_config(dir: &Path, endpoint: &str, page: u16) -> std::path::PathBuf {
 }
 
 /// A zone daemon holding `units` of the hall, its first the zone's anchor; `more` lines in
-/// its `[zenoh]` (the opt-in streams).
+/// its `[zenoh]` (the opt-in streams). Its replay is anchored to the wall clock at `since`
+/// (`--replay-since`), as every zone's: restarted, it replays in step with the others.
 fn zone(
     dir: &Path,
     zone: &str,
     units: &[(&'static str, &'static str)],
     endpoint: &str,
     more: &str,
+    since: &str,
 ) -> Proc {
     let sensors = replay_sensors(&fixture("hall.mcap"), units);
     let config = write_config(
@@ -59,7 +63,7 @@ fn zone(
         &sensors,
         &format!("\n[zenoh]\nzone = \"{zone}\"\nconnect = [\"{endpoint}\"]\n{more}\n"),
     );
-    start_daemon(&config, dir)
+    start_daemon_with(&config, dir, &["--replay-since", since])
 }
 
 fn sensor<'a>(poses: &'a Poses, id: &str) -> Option<&'a SensorPose> {
@@ -132,14 +136,22 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
         dirs[0].path(),
     );
     // West sends what its tracker sees and its scans twice a second; east and north what
-    // their trackers see. Started together, their replays of the hall run nearly in step, as
-    // live units would (restarted, east would replay it out of step with west).
+    // their trackers see. Anchored to one wall-clock time, their replays of the hall run in
+    // step, as live units would, whenever each was started (east again, below).
+    let since = format!(
+        "{:.3}",
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .unwrap()
+            .as_secs_f64()
+    );
     let _west = zone(
         dirs[1].path(),
         "west",
         &west_units,
         &endpoint,
         "detections = true\nscans_hz = 2",
+        &since,
     );
     let mut east = zone(
         dirs[2].path(),
@@ -147,6 +159,7 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
         &east_units,
         &endpoint,
         "detections = true",
+        &since,
     );
     let _north = zone(
         dirs[4].path(),
@@ -154,6 +167,7 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
         &north_units,
         &endpoint,
         "detections = true",
+        &since,
     );
 
     let mut site = Client::connect(&dirs[0].path().join("s.sock"), PATIENCE);
@@ -241,7 +255,7 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
 
     // Started again, it rejoins; nothing else was restarted.
     // Back, it sends neither stream: its bytes a second without them.
-    let _east = zone(dirs[2].path(), "east", &east_units, &endpoint, "");
+    let _east = zone(dirs[2].path(), "east", &east_units, &endpoint, "", &since);
     wait_all_placed(&mut site, &ids, "east back and placed");
     std::thread::sleep(Duration::from_secs(10));
     let east_status = site.status().zones.into_iter().find(|z| z.zone == "east");
@@ -394,10 +408,11 @@ fn people_across_zones(socket: &Path) {
         Default::default();
     let (mut across, mut counted) = (false, None);
     while !across || counted.is_none() {
-        // Longer than the rest: on a loaded machine the zones' replays of the 2 s hall start
-        // out of step, and then only someone standing where two zones see merges (57 s, once).
+        // A hang guard. Before the zones' replays were anchored to one time they could start
+        // out of step on a loaded machine, and then only someone standing still where two
+        // zones see merged (57 s, once); in step, it takes under a second.
         assert!(
-            start.elapsed() < 2 * PATIENCE,
+            start.elapsed() < PATIENCE,
             "no track seen by east and west ({across}) or no one counted in zone hall ({counted:?}): {lines} TRACKS lines, {tracked} tracks, by id {by:?}"
         );
         let t = match watcher.read() {

@@ -34,6 +34,29 @@ pub struct Args {
     /// come out as at ×1, since every timer follows the scans' own clock.
     #[arg(long, value_name = "N", default_value_t = 1.0)]
     replay_speed: f64,
+    /// Anchor `replay:` sensors to the wall clock: their recordings (looping) started playing
+    /// at TIME (RFC 3339, e.g. 2026-11-29T07:00:00Z, or Unix seconds), so a daemon started or
+    /// restarted later joins the replay where it stands by now, and scans are stamped with the
+    /// time they would have been taken. Give every daemon replaying one site the same TIME and
+    /// their replays run in step, as live units do.
+    #[arg(long, value_name = "TIME", value_parser = parse_since)]
+    replay_since: Option<std::time::SystemTime>,
+}
+
+/// `--replay-since`: RFC 3339 or Unix seconds.
+fn parse_since(text: &str) -> Result<std::time::SystemTime, String> {
+    if let Ok(s) = text.trim().parse::<f64>() {
+        return if s.is_finite() && s >= 0.0 {
+            Ok(std::time::UNIX_EPOCH + Duration::from_secs_f64(s))
+        } else {
+            Err(format!("{text:?} is not a time: give Unix seconds ≥ 0"))
+        };
+    }
+    humantime::parse_rfc3339_weak(text.trim()).map_err(|e| {
+        format!(
+            "{text:?} is not a time ({e}): give RFC 3339 (2026-11-29T07:00:00Z) or Unix seconds"
+        )
+    })
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -54,6 +77,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         duration: args.duration,
         tap: Some(tap),
         replay_speed: args.replay_speed,
+        replay_since: args.replay_since,
         ..RunOptions::default()
     };
     let mut out = std::io::stdout();
@@ -473,6 +497,21 @@ mod tests {
             kind,
             sensor: sensor.map(str::to_string),
             message: message.into(),
+        }
+    }
+
+    #[test]
+    fn replay_since_takes_rfc3339_or_unix_seconds_and_says_what_it_wants() {
+        let t = std::time::UNIX_EPOCH + Duration::from_secs(1_795_849_200);
+        assert_eq!(parse_since("2026-11-28T07:00:00Z"), Ok(t));
+        assert_eq!(parse_since("1795849200"), Ok(t));
+        assert_eq!(
+            parse_since("1795849200.5"),
+            Ok(t + Duration::from_millis(500))
+        );
+        for bad in ["yesterday", "-5", "2026-13-01T00:00:00Z"] {
+            let e = parse_since(bad).unwrap_err();
+            assert!(e.contains("RFC 3339") || e.contains("Unix seconds"), "{e}");
         }
     }
 

@@ -54,6 +54,10 @@ pub struct SensorSpec {
     /// A replayed sensor's scans carry their recorded time on the unit's clock: stamp =
     /// this + sensor ms (see [`restamp`]). `None`: the host's receive time, as live.
     pub stamp_base_ns: Option<u64>,
+    /// With `stamp_base_ns`: the replay stands in for a live unit (`scanfuse run`), so a
+    /// first scan takes the 24-bit wrap that puts it nearest the host's clock (a replay
+    /// anchored to the wall clock may be hours into its loop).
+    pub stamp_as_live: bool,
 }
 
 impl SensorSpec {
@@ -73,6 +77,7 @@ impl SensorSpec {
             },
             survey: s.survey,
             stamp_base_ns: None,
+            stamp_as_live: false,
         }
     }
 
@@ -262,13 +267,14 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 }
 
 /// The stamp of a replayed scan whose unit clock read `sensor_ms`: `base_ns` plus that
-/// reading, taking the 24-bit wrap that puts it nearest the sensor's previous stamp (a
-/// reconnect restarts the driver's unwrapping, not the recording's clock).
-pub fn restamp(base_ns: u64, previous_ns: Option<u64>, sensor_ms: u64) -> u64 {
+/// reading, taking the 24-bit wrap that puts it nearest `near_ns` (the sensor's previous
+/// stamp: a reconnect restarts the driver's unwrapping, not the recording's clock; or, for a
+/// first scan standing in for a live unit, the host's clock); none without it.
+pub fn restamp(base_ns: u64, near_ns: Option<u64>, sensor_ms: u64) -> u64 {
     const WRAP_NS: i128 = crate::sensor::clock::WRAP_MS as i128 * 1_000_000;
     let raw_ns = (sensor_ms % crate::sensor::clock::WRAP_MS) as i128 * 1_000_000;
     let base = base_ns as i128;
-    let wraps = match previous_ns {
+    let wraps = match near_ns {
         Some(p) => ((p as i128 - base - raw_ns) as f64 / WRAP_NS as f64).round() as i128,
         None => 0,
     };
@@ -638,8 +644,9 @@ impl Pipeline {
                     if let (Some(base_ns), Some(sensor_ms)) =
                         (slot.spec.stamp_base_ns, scan.scan.sensor_stamp_ms)
                     {
-                        let previous = slot.last_scan.as_ref().map(|s| s.stamp_ns);
-                        scan.scan.stamp_ns = restamp(base_ns, previous, sensor_ms);
+                        let near = slot.last_scan.as_ref().map(|s| s.stamp_ns);
+                        let near = near.or(slot.spec.stamp_as_live.then(now_ns));
+                        scan.scan.stamp_ns = restamp(base_ns, near, sensor_ms);
                     }
                     self.stream_ns
                         .fetch_max(scan.scan.stamp_ns, Ordering::Relaxed);
@@ -1334,6 +1341,14 @@ mod tests {
         assert_eq!(
             restamp(base, Some(base + 2_000_000_000), 1_990),
             base + 1_990_000_000
+        );
+        // A first scan three days into a replay anchored to the wall clock, stamped as live:
+        // the wrap nearest the host's clock, not the first.
+        let three_days = 3 * 86_400_000_000_000u64 + 123_000_000;
+        let raw_ms = (three_days / 1_000_000) % WRAP_MS;
+        assert_eq!(
+            restamp(base, Some(base + three_days + 40_000_000), raw_ms),
+            base + three_days
         );
     }
 }

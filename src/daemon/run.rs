@@ -57,6 +57,11 @@ pub struct RunOptions {
     /// pipeline takes the scans. Either way nothing is dropped on the way to registration.
     pub replay_speed: f64,
     pub replay_loop: bool,
+    /// `scanfuse run --replay-since`: the wall-clock time `replay:` sensors' stream started
+    /// (looping): a daemon started or restarted later joins it where it stands, so that
+    /// several daemons replaying one site stay in step. `None`: it starts with the daemon.
+    /// Only with `replay_loop` and without `replay_recorded_time`.
+    pub replay_since: Option<std::time::SystemTime>,
     /// `scanfuse replay`: stamp replayed scans with their recorded time, and hold the replay
     /// back while the pipeline catches up, so that no scan is dropped. Otherwise (`scanfuse
     /// run` on `replay:` sensors) they stand in for live units: stamped as if now, and never
@@ -100,6 +105,7 @@ impl Default for RunOptions {
             serve_web: true,
             replay_speed: 1.0,
             replay_loop: true,
+            replay_since: None,
             replay_recorded_time: false,
             stop_when_replay_ends: false,
             tap: None,
@@ -218,6 +224,25 @@ impl Emulators {
         let lead = options
             .replay_recorded_time
             .then(|| Duration::from_secs_f64(lead_s));
+        let since = options
+            .replay_since
+            .filter(|_| options.replay_loop && !options.replay_recorded_time);
+        if let Some(since) = since {
+            // Seconds since the anchor, negative before it.
+            let since_s = match std::time::SystemTime::now().duration_since(since) {
+                Ok(d) => d.as_secs_f64(),
+                Err(e) => -e.duration().as_secs_f64(),
+            };
+            let since_ns = since
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_nanos() as u64);
+            return Some(ReplayClock {
+                gate: ReplayGate::anchored(count, speed, since_s),
+                origin_ns,
+                pass_ns,
+                base_ns: since_ns,
+            });
+        }
         Some(ReplayClock {
             gate: ReplayGate::new(count, speed.is_finite().then_some(speed), lead),
             origin_ns,
@@ -317,6 +342,7 @@ async fn start_sensor(
                 ..EmulatorConfig::default()
             };
             spec.stamp_base_ns = emulators.clock.as_ref().map(|c| c.base_ns);
+            spec.stamp_as_live = !options.replay_recorded_time;
             replayed = true;
             let uri = emulators.start(&sensor.id, file, rid, config).await?;
             if let Some((emulator, _)) = emulators.running.get(&sensor.id)

@@ -7,6 +7,10 @@
 //! the sensor the pipeline has taken in least of: a slow pipeline holds the replay back instead
 //! of dropping scans, and the sensors stay in step, so whatever the speed the pipeline sees
 //! every scan, stamped with its recorded time, in nearly the order it was recorded.
+//!
+//! A gate anchored to the wall clock ([`ReplayGate::anchored`]) instead starts at once, at the
+//! offset the wall clock gives: daemons started (or restarted) at different times, each with
+//! its own gate on the same anchor, play their recordings in step, as live units would be.
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -35,8 +39,10 @@ struct Progress {
 struct State {
     sensors: BTreeMap<String, Progress>,
     first_join: Option<Instant>,
-    /// Wall time at stream offset 0.
+    /// Wall time at stream offset `start_offset_ns`.
     start: Option<Instant>,
+    /// The stream offset at `start`: 0, unless anchored to the wall clock after its anchor.
+    start_offset_ns: u64,
 }
 
 #[derive(Debug)]
@@ -45,6 +51,8 @@ struct Inner {
     speed: Option<f64>,
     lead_ns: u64,
     expected: usize,
+    /// Started by the wall clock, not by its units joining ([`ReplayGate::anchored`]).
+    anchored: bool,
     state: Mutex<State>,
     changed: Notify,
 }
@@ -65,19 +73,55 @@ impl ReplayGate {
     /// `lead` the pipeline never holds it, as live units do not wait (then give a speed).
     pub fn new(expected: usize, speed: Option<f64>, lead: Option<Duration>) -> Self {
         let speed = speed.filter(|s| s.is_finite() && *s > 0.0);
+        let lead_ns = lead.map_or(u64::MAX, |l| l.as_nanos().clamp(1, u64::MAX as u128) as u64);
+        Self::with(expected, speed, lead_ns, None)
+    }
+
+    /// A gate on the wall clock: stream offset 0 was `since_s` seconds ago (is in `-since_s`
+    /// seconds, if negative), and the stream runs at `speed` from there, never held back by
+    /// the pipeline (as live units are not). Its units start where the stream stands when
+    /// they join, not at their recordings' first scans.
+    pub fn anchored(expected: usize, speed: f64, since_s: f64) -> Self {
+        let speed = if speed.is_finite() && speed > 0.0 {
+            speed
+        } else {
+            1.0
+        };
+        let now = Instant::now();
+        let start = if since_s >= 0.0 {
+            (now, (since_s * speed * 1e9).min(u64::MAX as f64) as u64)
+        } else {
+            (now + Duration::from_secs_f64((-since_s).min(1e9)), 0)
+        };
+        Self::with(expected, Some(speed), u64::MAX, Some(start))
+    }
+
+    fn with(
+        expected: usize,
+        speed: Option<f64>,
+        lead_ns: u64,
+        anchor: Option<(Instant, u64)>,
+    ) -> Self {
         ReplayGate {
             inner: Arc::new(Inner {
                 speed,
-                lead_ns: lead.map_or(u64::MAX, |l| l.as_nanos().clamp(1, u64::MAX as u128) as u64),
+                lead_ns,
                 expected: expected.max(1),
+                anchored: anchor.is_some(),
                 state: Mutex::new(State {
                     sensors: BTreeMap::new(),
                     first_join: None,
-                    start: None,
+                    start: anchor.map(|(at, _)| at),
+                    start_offset_ns: anchor.map_or(0, |(_, offset)| offset),
                 }),
                 changed: Notify::new(),
             }),
         }
+    }
+
+    /// Anchored to the wall clock ([`ReplayGate::anchored`]).
+    pub fn is_anchored(&self) -> bool {
+        self.inner.anchored
     }
 
     /// Sensor `id`'s client started its first stream; its first scan is at `first_ns`.
@@ -148,7 +192,7 @@ impl ReplayGate {
         Some(match self.inner.speed {
             Some(speed) => {
                 let paced = (now.duration_since(start).as_secs_f64() * speed * 1e9) as u64;
-                paced.min(held)
+                s.start_offset_ns.saturating_add(paced).min(held)
             }
             None => held,
         })
@@ -177,7 +221,12 @@ impl ReplayGate {
                         // when a sensor could be left behind.
                         let paced = match (self.inner.speed, s.start) {
                             (Some(speed), Some(start)) => Some(
-                                start + Duration::from_secs_f64(offset_ns as f64 / 1e9 / speed),
+                                start
+                                    + Duration::from_secs_f64(
+                                        offset_ns.saturating_sub(s.start_offset_ns) as f64
+                                            / 1e9
+                                            / speed,
+                                    ),
                             ),
                             _ => None,
                         };
@@ -232,6 +281,30 @@ mod tests {
         let before = Instant::now();
         gate.wait_until(3_000_000_000).await;
         assert_eq!(Instant::now() - before, Duration::from_millis(250));
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_gate_on_the_wall_clock_stands_where_its_anchor_puts_it() {
+        // Anchored 20 s ago at ×2: 40 s in at once, with no unit joined, and never held.
+        let gate = ReplayGate::anchored(2, 2.0, 20.0);
+        assert!(gate.is_anchored());
+        assert_eq!(gate.now_ns(), 40_000_000_000);
+        gate.join("a", 0);
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        assert_eq!(gate.now_ns(), 41_000_000_000, "×2 for half a second");
+        let before = Instant::now();
+        gate.wait_until(30_000_000_000).await;
+        assert_eq!(Instant::now(), before, "long due");
+        gate.wait_until(42_000_000_000).await;
+        assert_eq!(Instant::now() - before, Duration::from_millis(500));
+        // Anchored 3 s ahead: nothing plays until then.
+        let later = ReplayGate::anchored(1, 1.0, -3.0);
+        tokio::time::sleep(Duration::from_secs(2)).await;
+        assert_eq!(later.now_ns(), 0);
+        let before = Instant::now();
+        later.wait_until(1_000_000_000).await;
+        assert_eq!(Instant::now() - before, Duration::from_secs(2));
+        assert!(!ReplayGate::new(1, Some(1.0), None).is_anchored());
     }
 
     #[tokio::test(start_paused = true)]

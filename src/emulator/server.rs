@@ -387,7 +387,10 @@ impl Emulator {
                 *joined = true;
                 drop(joined);
                 gate.join(id, *shift_ns);
-                return 0;
+                // A gate on the wall clock is under way: join it where it stands.
+                if !gate.is_anchored() {
+                    return 0;
+                }
             }
         } else {
             let mut start = lock(&shared.play_start);

@@ -112,11 +112,17 @@ pub fn write_config(
 
 /// `scanfuse run --config FILE`, logs to `dir/daemon.log`.
 pub fn start_daemon(config: &Path, dir: &Path) -> Proc {
+    start_daemon_with(config, dir, &[])
+}
+
+/// `scanfuse run --config FILE ARGS…`, logs to `dir/daemon.log`.
+pub fn start_daemon_with(config: &Path, dir: &Path, args: &[&str]) -> Proc {
     let log = std::fs::File::create(dir.join("daemon.log")).expect("log file");
     Proc(
         Command::new(bin())
             .args(["run", "--config"])
             .arg(config)
+            .args(args)
             .stdout(Stdio::null())
             .stderr(log)
             .spawn()
