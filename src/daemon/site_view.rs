@@ -463,6 +463,35 @@ impl SiteView {
         self.set_frame(frame);
     }
 
+    /// Takes a full join's result (one that looked for pairs afresh, after some zone's own
+    /// poses changed). A placed zone whose own poses have not changed since (`unchanged`) and
+    /// that this join could not place stays where it stands, and that is said: the join may
+    /// have missed its views (a zone slow to answer under load), and nothing about that zone
+    /// says its place no longer holds. A zone whose own poses changed takes the join's word.
+    pub(super) fn join_afresh(
+        &self,
+        mut frame: BTreeMap<String, Placed>,
+        unchanged: &std::collections::BTreeSet<String>,
+    ) {
+        let standing = self.lock().frame.clone();
+        for (zone, placed) in frame.iter_mut() {
+            let (Err(why), Some(Ok(old))) = (&*placed, standing.get(zone)) else {
+                continue;
+            };
+            if !unchanged.contains(zone) {
+                continue;
+            }
+            self.announce(
+                EventKind::Registering,
+                format!(
+                    "zone {zone}: this join could not place it ({why}); its own poses have not changed, so it stays where it stands"
+                ),
+            );
+            *placed = Ok(*old);
+        }
+        self.set_frame(frame);
+    }
+
     /// Takes a join's result. A zone the join did not see (lost meanwhile) keeps where it
     /// stood, as its poses do. Says what changed: a zone placed, moved by more than 1 cm or
     /// 0.1°, or newly unplaced and why.
@@ -1053,6 +1082,26 @@ mod tests {
         // A join afresh (a zone's own poses changed) may move it anywhere.
         view.set_frame(one(at(180.0, 0.0)));
         assert_eq!(east(&view), at(180.0, 0.0));
+    }
+
+    /// A join afresh that cannot place a placed zone leaves it where it stands when the
+    /// zone's own poses have not changed (its views were missed), not when they have.
+    #[test]
+    fn a_join_afresh_unplaces_only_a_zone_whose_own_poses_changed() {
+        let view = SiteView::new("hall", "west", Publisher::new(16));
+        let at = |x: f64| -> Placed { Ok((pose2(x, 0.0, 0.0), [0.01, 0.01, 0.001], 2)) };
+        let zone = |v: &SiteView, z: &str| v.lock().frame[z].clone();
+        let both = |e: Placed, n: Placed| {
+            BTreeMap::from([("east".to_string(), e), ("north".to_string(), n)])
+        };
+        view.set_frame(both(at(20.0), at(-5.0)));
+        let no = || -> Placed { Err("no chain of them reaches zone west".into()) };
+        let unchanged = std::collections::BTreeSet::from(["east".to_string()]);
+        view.join_afresh(both(no(), no()), &unchanged);
+        assert_eq!(zone(&view, "east"), at(20.0), "its views were missed");
+        assert_eq!(zone(&view, "north"), no(), "its own poses changed");
+        view.join_afresh(both(at(20.5), at(-5.0)), &unchanged);
+        assert_eq!(zone(&view, "east"), at(20.5), "placed anew: moved");
     }
 
     #[test]
