@@ -33,10 +33,12 @@ use scanfuse::daemon::protocol::{Message, Poses, SensorPose};
 const PATIENCE: Duration = Duration::from_secs(90);
 
 /// The site daemon's config: the router on `endpoint`, its page on 127.0.0.1:`page`, a
-/// counting zone `hall` over the whole site frame.
+/// counting zone `hall` over the whole site frame, and tough (north's only unit) surveyed in
+/// the site frame where it truly stands (σ 3 mm, 0.05°): a second anchor.
 fn site_config(dir: &Path, endpoint: &str, page: u16) -> std::path::PathBuf {
+    let (x, y, yaw) = truth_from("gate")["tough"];
     let text = format!(
-        "[site]\nname = \"test\"\nrole = \"site\"\nanchor = \"west\"\nstate_dir = \"{}\"\nsocket = \"{}\"\n\n[web]\nlisten = \"127.0.0.1:{page}\"\n\n[zenoh]\nlisten = [\"{endpoint}\"]\n\n[[zone]]\nid = \"hall\"\npolygon = [[-60, -60], [60, -60], [60, 60], [-60, 60]]\n",
+        "[site]\nname = \"test\"\nrole = \"site\"\nanchor = \"west\"\nstate_dir = \"{}\"\nsocket = \"{}\"\n\n[web]\nlisten = \"127.0.0.1:{page}\"\n\n[zenoh]\nlisten = [\"{endpoint}\"]\n\n[[zone]]\nid = \"hall\"\npolygon = [[-60, -60], [60, -60], [60, 60], [-60, 60]]\n\n[[survey]]\nsensor = \"tough\"\nx_m = {x}\ny_m = {y}\nyaw_deg = {yaw}\nsigma_xy_m = 0.003\nsigma_yaw_deg = 0.05\n",
         dir.join("state").display(),
         dir.join("s.sock").display()
     );
@@ -189,6 +191,17 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
         "the three zones in the site frame {:?} after start",
         started.elapsed()
     );
+    // Surveyed, tough stands where the survey says, to its σ, not where the links alone
+    // would put it (5–13 mm off before it was surveyed).
+    let (t, yaw) = apart(
+        xyyaw(sensor(&joined, "tough").unwrap()),
+        truth_from("gate")["tough"],
+    );
+    println!(
+        "tough, surveyed: {:.1} mm, {yaw:.3}° from its truth",
+        t * 1e3
+    );
+    assert!(t < 0.004 && yaw < 0.06, "{t:.4} m, {yaw:.3}°");
     let mut reference = Client::connect(&dirs[3].path().join("s.sock"), PATIENCE);
     let whole = wait_for(PATIENCE, "the one daemon to place all five", || {
         all_placed(&mut reference, &ids)

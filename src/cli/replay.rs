@@ -178,6 +178,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         track: config::TrackConfig::default(),
         // A replay is one machine's site, never a zone of one on the network.
         zenoh: None,
+        surveys: Vec::new(),
     };
     if let Some(addr) = args.web
         && !addr.ip().is_loopback()

@@ -47,6 +47,16 @@ pub struct Config {
     /// `[zenoh]`: this daemon as one zone of a site spread over several machines; `None`
     /// runs the site alone.
     pub zenoh: Option<ZenohConfig>,
+    /// `[[survey]]`, the site daemon's: units of its zones surveyed in the site frame (the
+    /// anchor zone's), each a second anchor that holds its zone (`register::zones`).
+    pub surveys: Vec<UnitSurvey>,
+}
+
+/// One `[[survey]]`: a zone's unit measured in the site frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct UnitSurvey {
+    pub sensor: String,
+    pub survey: Survey,
 }
 
 /// `[zenoh]`: the zone this daemon holds of a site that spans several machines, and how it
@@ -628,6 +638,19 @@ struct RawConfig {
     track: Option<Spanned<RawTrack>>,
     #[serde(default)]
     zenoh: Option<Spanned<RawZenoh>>,
+    #[serde(default)]
+    survey: Vec<Spanned<RawUnitSurvey>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawUnitSurvey {
+    sensor: Spanned<String>,
+    x_m: f64,
+    y_m: f64,
+    yaw_deg: f64,
+    sigma_xy_m: f64,
+    sigma_yaw_deg: f64,
 }
 
 #[derive(Deserialize)]
@@ -1138,6 +1161,41 @@ impl Config {
                 line,
             });
         }
+        let mut surveys: Vec<UnitSurvey> = Vec::new();
+        for sv in &raw.survey {
+            let r = sv.get_ref();
+            if role != Role::Site {
+                return Err(loc.at(
+                    sv.span(),
+                    "survey",
+                    "[[survey]] is the site daemon's (role = \"site\"): a unit of a zone measured in the site frame. A zone daemon surveys its own units with survey = { … } in their [[sensor]]",
+                ));
+            }
+            let sensor = r.sensor.get_ref().trim().to_string();
+            if sensor.is_empty() {
+                return Err(loc.at(
+                    r.sensor.span(),
+                    "survey.sensor",
+                    "names no unit: give the id of a unit of one of the zones",
+                ));
+            }
+            if surveys.iter().any(|u| u.sensor == sensor) {
+                return Err(loc.at(
+                    r.sensor.span(),
+                    "survey.sensor",
+                    format!("{sensor:?} is surveyed twice: keep one [[survey]] per unit"),
+                ));
+            }
+            let survey = check_survey(&RawSurvey {
+                x_m: r.x_m,
+                y_m: r.y_m,
+                yaw_deg: r.yaw_deg,
+                sigma_xy_m: r.sigma_xy_m,
+                sigma_yaw_deg: r.sigma_yaw_deg,
+            })
+            .map_err(|(k, m)| loc.at(sv.span(), &format!("survey.{k}"), m))?;
+            surveys.push(UnitSurvey { sensor, survey });
+        }
         let anchor = site.anchor.get_ref().clone();
         if role == Role::Site {
             if anchor == SITE_KEY || !key_safe(&anchor) {
@@ -1252,6 +1310,7 @@ impl Config {
             foxglove,
             track,
             zenoh,
+            surveys,
         })
     }
 
@@ -1284,6 +1343,14 @@ impl Config {
             out.push_str(&self.page_line());
             if let Some(z) = &self.zenoh {
                 out.push_str(&format!("  {}\n", z.describe(&self.site.name)));
+            }
+            if !self.surveys.is_empty() {
+                let ids: Vec<&str> = self.surveys.iter().map(|u| u.sensor.as_str()).collect();
+                out.push_str(&format!(
+                    "  {} unit(s) surveyed in the site frame, each holding its zone: {}\n",
+                    ids.len(),
+                    ids.join(", ")
+                ));
             }
             if self.track.enabled {
                 out.push_str(&format!(
@@ -2600,6 +2667,7 @@ map_cell_m = 0.1
                 .contains("hosting the router on tcp/0.0.0.0:7447")
         );
         let sensor = "\n[[sensor]]\nid = \"a\"\nconnect = \"tcp://10.0.0.1:10940\"\n";
+        let survey = "\n[[survey]]\nsensor = \"dock\"\nx_m = 30.5\ny_m = -2\nyaw_deg = 0.5\nsigma_xy_m = 0.02\nsigma_yaw_deg = 0.2\n";
         for (text, key, says) in [
             (site.to_string(), "site.role", "add [zenoh]"),
             (
@@ -2647,11 +2715,35 @@ map_cell_m = 0.1
                 "zenoh.zone",
                 "name this daemon's zone",
             ),
+            (
+                format!("{GOOD}\n{survey}"),
+                "survey",
+                "survey = { … } in their [[sensor]]",
+            ),
+            (
+                format!("{site}{zenoh}{survey}{survey}"),
+                "survey.sensor",
+                "surveyed twice",
+            ),
+            (
+                format!("{site}{zenoh}{}", survey.replace("0.02", "0")),
+                "survey.sigma_xy_m",
+                "greater than 0",
+            ),
         ] {
             let (_, k, msg) = invalid(&text);
             assert_eq!(k, key, "{text}: {msg}");
             assert!(msg.contains(says), "{text}: {msg}");
         }
+        let c = parse(&format!("{site}{zenoh}{survey}")).unwrap();
+        assert_eq!(c.surveys.len(), 1);
+        assert_eq!(c.surveys[0].sensor, "dock");
+        assert!((c.surveys[0].survey.yaw_rad - 0.5f64.to_radians()).abs() < 1e-12);
+        assert!(
+            c.summary().contains("1 unit(s) surveyed in the site frame"),
+            "{}",
+            c.summary()
+        );
     }
 
     #[test]

@@ -934,10 +934,12 @@ impl Registrar {
                     model: ScanModel::from_scan(&view, geometry, &t.mount, &self.params)
                         .with_motion(&walking, &view, geometry, &t.mount, &self.params),
                     mount: t.mount,
-                    prior: t.survey.map(|s| Prior {
-                        anchor_from_sensor: pose2(s.x_m, s.y_m, s.yaw_rad),
-                        sigma_xy_m: s.sigma_xy_m,
-                        sigma_yaw_rad: s.sigma_yaw_rad,
+                    prior: t.survey.map(|s| {
+                        Prior::new(
+                            pose2(s.x_m, s.y_m, s.yaw_rad),
+                            s.sigma_xy_m,
+                            s.sigma_yaw_rad,
+                        )
                     }),
                 })
             })

@@ -110,7 +110,8 @@ pub async fn run_site_daemon(
     let publisher = Publisher::new(config.publish.watch_backlog);
     let view = Arc::new(
         SiteView::new(&config.site.name, &config.site.anchor, publisher.clone())
-            .with_map(&config.publish, &config.site.state_dir),
+            .with_map(&config.publish, &config.site.state_dir)
+            .with_surveys(&config.surveys),
     );
     if let Some(tx) = events {
         let mut rx = publisher.subscribe_events();
@@ -604,9 +605,9 @@ async fn join(
             heard.push(h);
         }
     }
-    let anchor = view.anchor.clone();
+    let (anchor, surveys) = (view.anchor.clone(), view.surveys.clone());
     tokio::task::spawn_blocking(move || {
-        let joined = join_frame(&anchor, heard, earlier, again);
+        let joined = join_frame(&anchor, heard, earlier, again, &surveys);
         release_freed_heap();
         joined
     })

@@ -16,6 +16,7 @@ use super::site_map::SiteMap;
 use super::socket::{Publisher, Refused, StatusSource};
 use super::zone_net::{Placed as PlacedKey, ViewPayload, placed_key};
 use crate::geometry::{Pose2, pose2};
+use crate::register::site::Prior;
 use crate::register::zones::{CrossPair, ZoneInput, ZoneParams, ZoneSensor, join_zones_with};
 use crate::register::{PairResult, RegisterParams, ScanModel};
 
@@ -113,6 +114,8 @@ pub struct SiteView {
     /// The fused map of the zones' scans, and where `save` writes it.
     map: Mutex<SiteMap>,
     state_dir: Option<std::path::PathBuf>,
+    /// `[[survey]]`: units surveyed in the site frame, by id (see [`join_frame`]).
+    pub(super) surveys: BTreeMap<String, Prior>,
 }
 
 impl SiteView {
@@ -128,7 +131,24 @@ impl SiteView {
             publisher,
             map: Mutex::new(SiteMap::new(&PublishConfig::default())),
             state_dir: None,
+            surveys: BTreeMap::new(),
         }
+    }
+
+    /// With the units `[[survey]]` measured in the site frame.
+    pub fn with_surveys(self, surveys: &[super::config::UnitSurvey]) -> SiteView {
+        let surveys = surveys
+            .iter()
+            .map(|u| {
+                let s = &u.survey;
+                let at = pose2(s.x_m, s.y_m, s.yaw_rad);
+                (
+                    u.sensor.clone(),
+                    Prior::new(at, s.sigma_xy_m, s.sigma_yaw_rad),
+                )
+            })
+            .collect();
+        SiteView { surveys, ..self }
     }
 
     /// Its map fused on `publish`'s grid, saved into `state_dir`.
@@ -839,6 +859,7 @@ pub(super) fn join_frame(
     heard: Vec<Heard>,
     earlier: Vec<KeptPair>,
     again: bool,
+    surveys: &BTreeMap<String, Prior>,
 ) -> Option<(BTreeMap<String, Placed>, Vec<KeptPair>)> {
     if !heard.iter().any(|h| h.zone == anchor) {
         return None;
@@ -861,6 +882,7 @@ pub(super) fn join_frame(
                         ScanModel::from_scan(&v.view, v.geometry.as_ref(), &v.mount, &params);
                     Some(ZoneSensor {
                         model,
+                        surveyed: surveys.get(&sensor).copied(),
                         id: sensor,
                         zone_from_sensor,
                         sigma,
@@ -967,12 +989,22 @@ mod tests {
             placed: Vec::new(),
             views: Vec::new(),
         };
-        assert!(join_frame("west", vec![heard("east")], Vec::new(), false).is_none());
+        assert!(
+            join_frame(
+                "west",
+                vec![heard("east")],
+                Vec::new(),
+                false,
+                &BTreeMap::new()
+            )
+            .is_none()
+        );
         let (frame, _) = join_frame(
             "west",
             vec![heard("west"), heard("east")],
             Vec::new(),
             false,
+            &BTreeMap::new(),
         )
         .unwrap();
         let east = frame["east"].as_ref().unwrap_err();

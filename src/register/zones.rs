@@ -16,7 +16,7 @@ use nalgebra::Matrix3;
 use rayon::prelude::*;
 
 use super::score::{WholeView, score};
-use super::site::{Edge, SiteParams, consistent_edges, solve};
+use super::site::{Edge, Prior, SiteParams, consistent_edges, solve};
 use super::{PairResult, RegisterParams, ScanModel, register_pair};
 use crate::geometry::{Pose2, pose_error, pose2, wrap_angle_rad};
 
@@ -28,6 +28,10 @@ pub struct ZoneSensor {
     /// Its pose in its zone's frame, and σ (x m, y m, yaw rad) there.
     pub zone_from_sensor: Pose2,
     pub sigma: [f64; 3],
+    /// Its pose surveyed in the site frame (the anchor zone's), if an installer measured it:
+    /// a second anchor, that holds its zone where the survey puts the unit (with the
+    /// survey's σ and the unit's in its zone). The anchor zone's surveys are not used.
+    pub surveyed: Option<Prior>,
 }
 
 /// One zone: its id and its placed sensors.
@@ -362,6 +366,28 @@ fn agreeing(
     }
 }
 
+/// Each surveyed unit's survey as a prior on its zone: the unit where the zone puts it, with
+/// the survey's σ and the unit's own in its zone added (the larger of its x and y).
+fn zone_priors(zones: &[ZoneInput]) -> Vec<(usize, Prior)> {
+    let mut priors = Vec::new();
+    for (z, zone) in zones.iter().enumerate() {
+        for s in &zone.sensors {
+            let Some(survey) = s.surveyed else { continue };
+            let within = s.sigma[0].max(s.sigma[1]);
+            priors.push((
+                z,
+                Prior {
+                    sigma_xy_m: survey.sigma_xy_m.hypot(within),
+                    sigma_yaw_rad: survey.sigma_yaw_rad.hypot(s.sigma[2]),
+                    node_from_sensor: s.zone_from_sensor,
+                    ..survey
+                },
+            ));
+        }
+    }
+    priors
+}
+
 /// Links the zones from their registered cross pairs and solves where each stands.
 fn link(
     zones: &[ZoneInput],
@@ -431,7 +457,8 @@ fn link(
     for &k in &kept {
         pairs[from_pair[k]].used = true;
     }
-    let solved = solve(n, anchor, &used, &[], sp);
+    let priors = zone_priors(zones);
+    let solved = solve(n, anchor, &used, &priors, sp);
     let tried = |z: usize| pairs.iter().filter(|c| c.za == z || c.zb == z).count();
     let zones_out = (0..n)
         .map(|z| {
@@ -521,9 +548,62 @@ pub(crate) mod tests {
                 id,
                 zone_from_sensor,
                 sigma: [0.01, 0.01, 0.002],
+                surveyed: None,
             });
         }
         zones
+    }
+
+    /// A unit surveyed in the site frame holds its zone: tight, it pulls the zone most of the
+    /// way to where the survey puts the unit (here 10 cm from where the pairs put it); loose,
+    /// it hardly moves it; and a zone no pair links is placed by its survey alone, with its σ.
+    #[test]
+    fn a_surveyed_unit_holds_its_zone_by_its_sigma() {
+        let (walls, sensors) = hall();
+        let p = ZoneParams::default();
+        let site_from_west = sensors[0].1;
+        // North's second unit (s5), surveyed 10 cm off its truth along the site's y.
+        let truth_s5 = site_from_west.inverse() * sensors[5].1;
+        let off = pose2(0.0, 0.10, 0.0) * truth_s5;
+        let north_with = |sigma_m: f64| {
+            let mut zones = zones_of(&walls, &sensors);
+            zones[2].sensors[1].surveyed = Some(Prior::new(off, sigma_m, 0.2f64.to_radians()));
+            let got = join_zones(&zones, 0, &p);
+            let (pose, sigma) = got.zones[2].site_from_zone.clone().expect("north placed");
+            ((pose * zones[2].sensors[1].zone_from_sensor), sigma)
+        };
+        let moved = |at: &Pose2| pose_error(at, &truth_s5).0;
+        // 1 mm, plus the unit's own 1 cm in its zone, against the links' few cm: most of
+        // the way to the survey.
+        let (tight, _) = north_with(0.001);
+        assert!(
+            moved(&tight) > 0.05 && moved(&tight) < 0.101,
+            "a tight survey: s5 {:.3} m from its truth",
+            moved(&tight)
+        );
+        let (loose, _) = north_with(10.0);
+        assert!(moved(&loose) < 0.03, "{:.3} m", moved(&loose));
+        // North's units see nothing of another zone's: only their survey places them.
+        let mut zones = zones_of(&walls, &sensors);
+        for s in &mut zones[2].sensors {
+            s.model = crate::register::site::tests::sensor_at(
+                &[],
+                Pose2::identity(),
+                270f64.to_radians(),
+                &s.id,
+            )
+            .model;
+        }
+        zones[2].sensors[1].surveyed = Some(Prior::new(truth_s5, 0.02, 0.005));
+        let got = join_zones(&zones, 0, &p);
+        let (pose, sigma) = got.zones[2]
+            .site_from_zone
+            .clone()
+            .unwrap_or_else(|why| panic!("north unplaced: {why}"));
+        let at = pose * zones[2].sensors[1].zone_from_sensor;
+        assert!(moved(&at) < 1e-6, "{:.3} m", moved(&at));
+        assert_eq!(got.zones[2].pairs, 0);
+        assert!(sigma[0] > 0.01 && sigma[0] < 0.2, "{sigma:?}");
     }
 
     #[test]

@@ -56,6 +56,10 @@ pub struct Args {
     /// Zones a concourse is split into along its length (`--only zones`).
     #[arg(long, default_value_t = 10)]
     pub zones: usize,
+    /// With `--only zones`: survey the last zone's first unit at its true pose in the site
+    /// frame (σ 2 cm, 0.2°), a second anchor at the far end of the chain of zones.
+    #[arg(long)]
+    pub zone_survey: bool,
     /// Sensors per site (at least 2; at most 500 with --floor).
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u16).range(2..))]
     pub site_sensors: u16,

@@ -7,7 +7,7 @@
 
 use anyhow::{Context, Result};
 use scanfuse::geometry::{Pose2, pose_error, within_sigma};
-use scanfuse::register::site::{SiteParams, register_site};
+use scanfuse::register::site::{Prior, SiteParams, register_site};
 use scanfuse::register::zones::{ZoneInput, ZoneParams, ZoneSensor, ZonesResult, join_zones};
 use scanfuse::register::{RegisterParams, ScanModel};
 use scanfuse::scan::SensorInfo;
@@ -27,7 +27,12 @@ pub(super) fn run(args: &Args, params: &RegisterParams) -> Result<()> {
     let n = usize::from(args.site_sensors);
     let zones = args.zones.max(1);
     println!(
-        "\n== Concourses of {n} scanners in {zones} zones, each zone registered alone and the zones joined (register::zones): every zone within {:.0} cm / {RIGHT_DEG}° of the truth, or within 3σ? ==",
+        "\n== Concourses of {n} scanners in {zones} zones, each zone registered alone and the zones joined (register::zones){}: every zone within {:.0} cm / {RIGHT_DEG}° of the truth, or within 3σ? ==",
+        if args.zone_survey {
+            ", the last zone's first unit surveyed (2 cm, 0.2°)"
+        } else {
+            ""
+        },
         RIGHT_M * 100.0
     );
     println!(
@@ -82,6 +87,7 @@ pub(super) fn run(args: &Args, params: &RegisterParams) -> Result<()> {
                         model,
                         zone_from_sensor: p.pose.planar(),
                         sigma: [p.sigma_x_m, p.sigma_y_m, p.sigma_yaw_rad],
+                        surveyed: None,
                     })
                 })
                 .collect();
@@ -91,6 +97,9 @@ pub(super) fn run(args: &Args, params: &RegisterParams) -> Result<()> {
                 id: format!("z{z:02}"),
                 sensors,
             });
+        }
+        if args.zone_survey {
+            survey_last_unit(&mut inputs, &models, truths[0]);
         }
         let t0 = Instant::now();
         let p = ZoneParams {
@@ -157,6 +166,24 @@ pub(super) fn run(args: &Args, params: &RegisterParams) -> Result<()> {
         placed - right
     );
     Ok(())
+}
+
+/// `--zone-survey`: the last zone's first unit surveyed where it truly stands in the site
+/// frame (`truth_from_site`: the site's frame in the truth's), σ 2 cm and 0.2°.
+fn survey_last_unit(
+    inputs: &mut [ZoneInput],
+    models: &[(SensorInfo, ScanModel)],
+    truth_from_site: Pose2,
+) {
+    let Some(unit) = inputs.last_mut().and_then(|z| z.sensors.first_mut()) else {
+        return;
+    };
+    let truth = models
+        .iter()
+        .find(|(info, _)| info.id == unit.id)
+        .and_then(|(info, _)| truth_pose(info));
+    unit.surveyed =
+        truth.map(|t| Prior::new(truth_from_site.inverse() * t, 0.02, 0.2f64.to_radians()));
 }
 
 /// The units the zones placed in the site frame against one daemon's: every unit registered

@@ -29,7 +29,8 @@ pub(super) fn solve_without_conflicts(
     // to expose it, but its scan lands where a third sensor saw nothing. Drop the weaker side's
     // edges and solve again until no placement contradicts another (`contradicts`: certain
     // contradictions only).
-    let mut solution = super::solve(n, anchor, &edges, sensors, sp);
+    let priors = super::priors_of(sensors);
+    let mut solution = super::solve(n, anchor, &edges, &priors, sp);
     let mut contradicted = vec![None::<usize>; n];
     let certain = certain_only(p, sp);
     let reach = super::reach_m(sensors);
@@ -90,7 +91,7 @@ pub(super) fn solve_without_conflicts(
             k += 1;
             keep[k - 1]
         });
-        solution = super::solve(n, anchor, &edges, sensors, sp);
+        solution = super::solve(n, anchor, &edges, &priors, sp);
     }
     Solved {
         solution,

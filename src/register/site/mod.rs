@@ -68,6 +68,36 @@ pub struct Prior {
     pub anchor_from_sensor: Pose2,
     pub sigma_xy_m: f64,
     pub sigma_yaw_rad: f64,
+    /// Where the surveyed sensor stands in the frame of the node the prior holds: identity
+    /// when the node is the sensor itself; its pose in its zone when the node is a zone
+    /// (`register::zones`: a unit of a zone surveyed in the site frame).
+    pub node_from_sensor: Pose2,
+}
+
+impl Prior {
+    /// A sensor surveyed at `anchor_from_sensor`, σ `sigma_xy_m` and `sigma_yaw_rad`.
+    pub fn new(anchor_from_sensor: Pose2, sigma_xy_m: f64, sigma_yaw_rad: f64) -> Prior {
+        Prior {
+            anchor_from_sensor,
+            sigma_xy_m,
+            sigma_yaw_rad,
+            node_from_sensor: Pose2::identity(),
+        }
+    }
+
+    /// Where the node stands if the survey holds.
+    pub fn anchor_from_node(&self) -> Pose2 {
+        self.anchor_from_sensor * self.node_from_sensor.inverse()
+    }
+}
+
+/// The surveyed sensors' priors, each on its own node.
+pub fn priors_of(sensors: &[SensorInput]) -> Vec<(usize, Prior)> {
+    sensors
+        .iter()
+        .enumerate()
+        .filter_map(|(i, s)| Some((i, s.prior?)))
+        .collect()
 }
 
 /// A measured relative pose between two sensors.

@@ -3,7 +3,7 @@
 //! squares over them (anchor fixed, surveys as priors) with each pose's σ.
 
 use super::groups::Checked;
-use super::{Edge, Prior, SensorInput, SiteParams, candidate_edge};
+use super::{Edge, Prior, SiteParams, candidate_edge};
 use crate::geometry::{Pose2, pose_error, pose2, wrap_angle_rad, yaw_rad};
 use crate::register::{PairResult, RegisterParams};
 use nalgebra::{DMatrix, DVector, Matrix3};
@@ -108,21 +108,17 @@ pub fn solve(
     n: usize,
     anchor: usize,
     edges: &[Edge],
-    sensors: &[SensorInput],
+    priors: &[(usize, Prior)],
     sp: &SiteParams,
 ) -> Vec<Option<(Pose2, [f64; 3])>> {
     let mut poses = super::spanning_poses(n, anchor, edges);
-    // Surveyed sensors the anchor's edges do not reach start at their survey (the surest
-    // first), and the sensors their edges reach start from there.
-    let mut surveyed: Vec<(usize, Prior)> = sensors
-        .iter()
-        .enumerate()
-        .filter_map(|(i, s)| Some((i, s.prior?)))
-        .collect();
+    // Surveyed nodes the anchor's edges do not reach start at their survey (the surest
+    // first), and the nodes their edges reach start from there.
+    let mut surveyed: Vec<(usize, Prior)> = priors.to_vec();
     surveyed.sort_by(|x, y| x.1.sigma_xy_m.total_cmp(&y.1.sigma_xy_m));
     for (i, prior) in surveyed {
         if poses.get(i).is_some_and(|p| p.is_none()) {
-            poses[i] = Some(prior.anchor_from_sensor);
+            poses[i] = Some(prior.anchor_from_node());
             super::groups::grow_poses(&mut poses, edges);
         }
     }
@@ -195,9 +191,8 @@ pub fn solve(
                 &poses,
             );
         }
-        for (i, s) in sensors.iter().enumerate() {
-            let Some(prior) = s.prior else { continue };
-            if i == anchor || poses[i].is_none() {
+        for &(i, prior) in priors {
+            if i == anchor || poses.get(i).is_none_or(|p| p.is_none()) {
                 continue;
             }
             let w = Matrix3::from_diagonal(&nalgebra::Vector3::new(
@@ -205,15 +200,17 @@ pub fn solve(
                 prior.sigma_xy_m.powi(-2),
                 prior.sigma_yaw_rad.powi(-2),
             ));
-            let z = prior.anchor_from_sensor;
+            let (z, node_from_sensor) = (prior.anchor_from_sensor, prior.node_from_sensor);
             // A survey's σ is about the sensor's own position and heading, so its residual is
-            // too (an edge's left perturbation would rotate about the anchor instead).
+            // too (an edge's left perturbation would rotate about the anchor instead); on a
+            // zone, the surveyed unit's, where the zone puts it.
             let survey_residual = |x: &[Pose2]| {
-                let d = x[0].translation.vector - z.translation.vector;
+                let at = x[0] * node_from_sensor;
+                let d = at.translation.vector - z.translation.vector;
                 [
                     d.x,
                     d.y,
-                    wrap_angle_rad(x[0].rotation.angle() - z.rotation.angle()),
+                    wrap_angle_rad(at.rotation.angle() - z.rotation.angle()),
                 ]
             };
             add(&[i], &survey_residual, &w, &poses);

@@ -47,7 +47,7 @@ fn one_wrong_edge_is_dropped_and_the_rest_solve_to_truth() {
     assert!(kept.iter().all(|&k| (edges[k].a, edges[k].b) != (1, 3)));
     let kept_edges: Vec<Edge> = kept.iter().map(|&k| edges[k].clone()).collect();
     let sensors: Vec<SensorInput> = Vec::new();
-    let solution = solve(5, 0, &kept_edges, &sensors, &sp);
+    let solution = solve(5, 0, &kept_edges, &priors_of(&sensors), &sp);
     for (i, t) in truth.iter().enumerate() {
         let Some((pose, sigma)) = solution[i] else {
             panic!("sensor {i} unplaced")
@@ -119,23 +119,12 @@ fn surveyed_priors_place_an_unreached_sensor_and_weigh_against_edges() {
         input(0, None),
         input(
             1,
-            Some(Prior {
-                anchor_from_sensor: pose2(0.2, 0.0, 0.0) * truth[1],
-                sigma_xy_m: 0.01,
-                sigma_yaw_rad: 0.01,
-            }),
+            Some(Prior::new(pose2(0.2, 0.0, 0.0) * truth[1], 0.01, 0.01)),
         ),
-        input(
-            2,
-            Some(Prior {
-                anchor_from_sensor: truth[2],
-                sigma_xy_m: 0.05,
-                sigma_yaw_rad: 0.02,
-            }),
-        ),
+        input(2, Some(Prior::new(truth[2], 0.05, 0.02))),
     ];
     let edges = vec![edge(0, 1, &truth, Pose2::identity())];
-    let solution = solve(3, 0, &edges, &sensors, &SiteParams::default());
+    let solution = solve(3, 0, &edges, &priors_of(&sensors), &SiteParams::default());
     let (one, _) = solution[1].expect("sensor 1 placed");
     let (dx, dy) = (
         one.translation.x - truth[1].translation.x,
@@ -242,11 +231,7 @@ fn a_surveyed_sensor_out_of_reach_places_the_sensors_registered_to_it() {
         .enumerate()
         .map(|(i, t)| sensor_at(&walls, *t, fov, &format!("s{i}")))
         .collect();
-    sensors[2].prior = Some(Prior {
-        anchor_from_sensor: truth[0].inverse() * truth[2],
-        sigma_xy_m: 0.02,
-        sigma_yaw_rad: 0.01,
-    });
+    sensors[2].prior = Some(Prior::new(truth[0].inverse() * truth[2], 0.02, 0.01));
     let site = register_site(
         &sensors,
         0,
