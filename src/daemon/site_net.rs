@@ -377,6 +377,7 @@ pub async fn run(
             } else {
                 view.join_afresh(frame, &j.unchanged);
             }
+            view.say_unused_surveys();
             links = Links {
                 pairs,
                 joins: links.joins + 1,

@@ -77,6 +77,8 @@ struct Zones {
     frame: BTreeMap<String, Placed>,
     /// Sensor ids two zones share, as already said.
     clashes: std::collections::BTreeSet<String>,
+    /// `[[survey]]` units the joins cannot use, as already said (and why).
+    unused_surveys: BTreeMap<String, String>,
 }
 
 impl Zones {
@@ -481,6 +483,38 @@ impl SiteView {
             }
         }
         self.set_frame(frame);
+    }
+
+    /// Says once of each `[[survey]]` unit that the joins cannot use why: one of the anchor
+    /// zone (its frame is the site's: there is nothing to hold), or one no zone lists.
+    pub(super) fn say_unused_surveys(&self) {
+        let mut said = Vec::new();
+        {
+            let mut s = self.lock();
+            for id in self.surveys.keys() {
+                let zones: Vec<String> = s.zones_with(id).map(str::to_string).collect();
+                let why = if zones.contains(&self.anchor) {
+                    format!(
+                        "[[survey]] of {id} is not used: {id} is a unit of the anchor zone {}, whose frame is the site's; survey units of the other zones",
+                        self.anchor
+                    )
+                } else if zones.is_empty() {
+                    format!(
+                        "[[survey]] of {id} is not used yet: no zone lists a unit {id} (check the id against the zones' units)"
+                    )
+                } else {
+                    s.unused_surveys.remove(id);
+                    continue;
+                };
+                if s.unused_surveys.get(id) != Some(&why) {
+                    s.unused_surveys.insert(id.clone(), why.clone());
+                    said.push(why);
+                }
+            }
+        }
+        for why in said {
+            self.announce(EventKind::Error, why);
+        }
     }
 
     /// Takes a full join's result (one that looked for pairs afresh, after some zone's own
@@ -1016,6 +1050,50 @@ mod tests {
             reason.contains("waiting for the anchor zone west"),
             "{reason}"
         );
+    }
+
+    /// A `[[survey]]` the joins cannot use is named once, with why; when it becomes usable
+    /// nothing more is said.
+    #[test]
+    fn a_survey_of_an_anchor_zone_unit_or_of_no_unit_is_named_once() {
+        use crate::daemon::config::{Survey, UnitSurvey};
+        let publisher = Publisher::new(16);
+        let mut events = publisher.subscribe_events();
+        let at = Survey {
+            x_m: 1.0,
+            y_m: 2.0,
+            yaw_rad: 0.1,
+            sigma_xy_m: 0.02,
+            sigma_yaw_rad: 0.01,
+        };
+        let survey = |id: &str| UnitSurvey {
+            sensor: id.into(),
+            survey: at,
+        };
+        let view = SiteView::new("hall", "west", publisher)
+            .with_surveys(&[survey("gate"), survey("dock")]);
+        assert_eq!(
+            view.surveys["dock"],
+            Prior::new(pose2(1.0, 2.0, 0.1), 0.02, 0.01)
+        );
+        view.heard_poses("west", poses("gate", vec![placed("gate", 0.0, 0.0, 0.0)]));
+        for _ in 0..2 {
+            view.say_unused_surveys();
+        }
+        let mut said = vec![events.try_recv().unwrap(), events.try_recv().unwrap()];
+        said.sort();
+        assert!(
+            said[0].contains("[[survey]] of dock is not used yet: no zone lists"),
+            "{said:?}"
+        );
+        assert!(
+            said[1].contains("gate is a unit of the anchor zone west"),
+            "{said:?}"
+        );
+        assert!(events.try_recv().is_err(), "named more than once");
+        view.heard_poses("east", poses("dock", vec![placed("dock", 0.0, 0.0, 0.0)]));
+        view.say_unused_surveys();
+        assert!(events.try_recv().is_err(), "dock's survey is used now");
     }
 
     #[test]
