@@ -8,8 +8,9 @@
 //! The latency is the tracker core's only: the socket, JSON and the 25 ms the tracker waits
 //! for a step's scans are not in it.
 //!
-//! Run: `cargo bench --bench track_speed` (optionally `-- <seconds> <people>`; default 10 s,
-//! 100 people).
+//! Run: `cargo bench --bench track_speed` (optionally `-- <seconds> <people> [low]`; default
+//! 10 s, 100 people). `low` mounts every unit at 0.3 m: they see legs, and each leg goes to
+//! the track it lies nearest (`tracker::legs_to_tracks`, an assignment per unit and step).
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -50,6 +51,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .collect();
     let seconds: f64 = args.first().map(|s| s.parse()).transpose()?.unwrap_or(10.0);
     let people: u32 = args.get(1).map(|s| s.parse()).transpose()?.unwrap_or(100);
+    let low = args.get(2).is_some_and(|a| a == "low");
 
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures/plans-crowd/hall40.toml");
     let mut plan: Plan = variant(&Plan::load(&path)?, None, Some(people));
@@ -69,7 +71,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .flatten()
         .collect();
     plan.sensors.extend(extra);
-    plan.name = format!("{}+2 ×{people}", plan.name);
+    if low {
+        for s in &mut plan.sensors {
+            s.height_m = 0.3;
+            s.pitch_deg = 0.0;
+        }
+    }
+    plan.name = format!(
+        "{}+2 ×{people}{}",
+        plan.name,
+        if low { ", units at 0.3 m (legs)" } else { "" }
+    );
 
     // The scans, simulated up front.
     let sim_started = Instant::now();
