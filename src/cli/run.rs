@@ -68,6 +68,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ))
         .into());
     }
+    if args.replay_since.is_some()
+        && !config
+            .sensors
+            .iter()
+            .any(|s| matches!(s.connect, Connect::Replay { .. }))
+    {
+        eprintln!(
+            "--replay-since: {} has no replay: sensor; it anchors nothing",
+            args.config.display()
+        );
+    }
     if config.site.role == scanfuse::daemon::config::Role::Site {
         return run_site(config, args.duration);
     }
