@@ -115,7 +115,8 @@ pub struct TrackParams {
     /// A confirmed track is listed while seen within the last 0.5 s; unseen longer (hidden
     /// behind others) it is kept, to take its person back, but not listed.
     pub shown_unseen_s: f64,
-    /// A track lost (ended unseen, or hidden past `shown_unseen_s`) gives its id to a new
+    /// A track lost (ended unseen, ended on another track's person, or hidden past
+    /// `shown_unseen_s`) gives its id to a new
     /// track confirmed within 4 s (`reid_s`) where its last velocity carries it, within
     /// 0.5 m (`reid_m`) + 0.5 m (`reid_m_per_s`) for every second unseen: a person hidden
     /// behind others keeps their id.
