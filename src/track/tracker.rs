@@ -1121,13 +1121,13 @@ mod tests {
         }
     }
 
-    /// Two people who walk as one body for two seconds (every sensor sees one centre: the
-    /// younger track ends as the older's second track on one person) keep their ids once they
-    /// part: the one whose track ended takes its id back.
+    /// Two people who walk as one body for a second and a half (every sensor sees one centre:
+    /// the younger track ends as the older's second track on one person) keep their ids once
+    /// they part: the one whose track ended takes its id back.
     #[test]
     fn two_walking_as_one_body_a_while_keep_their_ids_when_they_part() {
         let paths = |t_s: f64| {
-            // 0.6 m apart, 0.15 m from 2 s to 4 s, 0.6 m again from 4.5 s.
+            // 0.6 m apart, closing to 0.15 m over 2–2.5 s, parting again over 4–4.5 s.
             let gap = if (2.5..=4.0).contains(&t_s) {
                 0.15
             } else if !(2.0..=4.5).contains(&t_s) {
