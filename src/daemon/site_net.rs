@@ -375,7 +375,7 @@ pub async fn run(
             if j.again {
                 view.refine_frame(frame);
             } else {
-                view.join_afresh(frame, &j.unchanged);
+                view.join_afresh(frame, &j.holding);
             }
             view.say_unused_surveys();
             links = Links {
@@ -405,14 +405,16 @@ pub async fn run(
             }
             // Refining registers again only the pairs that linked; a full join looks for more.
             let again = refine && !changed && !retry && !links.pairs.is_empty();
-            // The zones whose own poses are as at the last join.
-            let unchanged = joined
+            // The zones whose frame still holds since the last join, and why.
+            let holding = joined
                 .as_ref()
                 .map(|(_, before)| {
                     now_key
                         .iter()
-                        .filter(|zone| before.contains(*zone))
-                        .map(|(zone, _)| zone.clone())
+                        .filter_map(|(zone, now)| {
+                            let (_, then) = before.iter().find(|(z, _)| z == zone)?;
+                            Some((zone.clone(), frame_holds(then, now)?))
+                        })
                         .collect()
                 })
                 .unwrap_or_default();
@@ -427,7 +429,7 @@ pub async fn run(
             joining = Some(Joining {
                 task,
                 again,
-                unchanged,
+                holding,
             });
         }
         let zones = view.zone_statuses();
@@ -565,9 +567,34 @@ struct Joining {
     task: tokio::task::JoinHandle<Option<Joined>>,
     /// A refining join (the same pairs registered again on later views).
     again: bool,
-    /// The zones whose own poses are as at the join before: a full join does not unplace
-    /// them for want of evidence ([`SiteView::join_afresh`]).
-    unchanged: std::collections::BTreeSet<String>,
+    /// The zones whose frame holds since the join before, and why ([`frame_holds`]): a full
+    /// join does not unplace them for want of evidence ([`SiteView::join_afresh`]).
+    holding: BTreeMap<String, String>,
+}
+
+/// Why a zone's frame (its anchor unit's) still stands where it did, from its placed units
+/// then and now (to the cm and 0.1°): nothing changed, or some unit besides the anchor kept
+/// its pose in it. Its anchor has then not moved (a moved anchor moves every other unit's
+/// pose), so its place in the site holds too. `None` when every other unit's pose changed
+/// (the anchor moved, or the zone registered afresh).
+fn frame_holds(then: &PlacedKey, now: &PlacedKey) -> Option<String> {
+    if then == now {
+        return Some("its own poses have not changed".to_string());
+    }
+    let kept: Vec<&str> = now
+        .iter()
+        .filter(|(_, registered, at)| *registered && *at != [0; 3])
+        .filter(|unit| then.contains(unit))
+        .map(|(id, _, _)| id.as_str())
+        .collect();
+    (!kept.is_empty()).then(|| {
+        format!(
+            "{} kept {} pose{} in it, so its anchor has not moved",
+            kept.join(", "),
+            if kept.len() == 1 { "its" } else { "their" },
+            if kept.len() == 1 { "" } else { "s" }
+        )
+    })
 }
 
 /// Asks every alive zone for its views and joins the zones, averaging each link with the
@@ -656,6 +683,43 @@ async fn query_views(session: &zenoh::Session, site: &str, zone: &str) -> Vec<Vi
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A zone's frame holds while some unit besides its anchor keeps its pose: a unit moved
+    /// and re-registered leaves it, a moved anchor (every other pose changed) does not.
+    #[test]
+    fn a_zone_frame_holds_while_a_unit_besides_its_anchor_keeps_its_pose() {
+        let unit = |id: &str, at: [i64; 3]| (id.to_string(), true, at);
+        let then = vec![
+            unit("a", [0; 3]),
+            unit("b", [400, 0, 9000]),
+            unit("c", [0, 300, 0]),
+        ];
+        assert_eq!(
+            frame_holds(&then, &then).as_deref(),
+            Some("its own poses have not changed")
+        );
+        let c_moved = vec![then[0].clone(), then[1].clone(), unit("c", [20, 310, 50])];
+        assert_eq!(
+            frame_holds(&then, &c_moved).as_deref(),
+            Some("b kept its pose in it, so its anchor has not moved")
+        );
+        let a_moved = vec![
+            then[0].clone(),
+            unit("b", [390, 5, 8950]),
+            unit("c", [5, 290, -50]),
+        ];
+        assert_eq!(frame_holds(&then, &a_moved), None);
+        // A unit unplaced then and now kept nothing.
+        let unplaced = |id: &str| (id.to_string(), false, [i64::MIN; 3]);
+        let few = vec![then[0].clone(), unplaced("b")];
+        assert_eq!(
+            frame_holds(
+                &few,
+                &[then[0].clone(), unplaced("b"), then[2].clone()].to_vec()
+            ),
+            None
+        );
+    }
 
     #[test]
     fn a_frame_of_another_schema_is_refused() {

@@ -518,27 +518,28 @@ impl SiteView {
     }
 
     /// Takes a full join's result (one that looked for pairs afresh, after some zone's own
-    /// poses changed). A placed zone whose own poses have not changed since (`unchanged`) and
-    /// that this join could not place stays where it stands, and that is said: the join may
-    /// have missed its views (a zone slow to answer under load), and nothing about that zone
-    /// says its place no longer holds. A zone whose own poses changed takes the join's word.
+    /// poses changed). A placed zone whose frame holds (`holding`, with why: its poses have
+    /// not changed, or a unit besides its anchor kept its pose) and that this join could not
+    /// place stays where it stands, and that is said: the join may have missed its views (a
+    /// zone slow to answer under load, or a moved unit that was its only link), and nothing
+    /// says its place no longer holds. Any other zone takes the join's word.
     pub(super) fn join_afresh(
         &self,
         mut frame: BTreeMap<String, Placed>,
-        unchanged: &std::collections::BTreeSet<String>,
+        holding: &BTreeMap<String, String>,
     ) {
         let standing = self.lock().frame.clone();
         for (zone, placed) in frame.iter_mut() {
             let (Err(why), Some(Ok(old))) = (&*placed, standing.get(zone)) else {
                 continue;
             };
-            if !unchanged.contains(zone) {
+            let Some(holds) = holding.get(zone) else {
                 continue;
-            }
+            };
             self.announce(
                 EventKind::Registering,
                 format!(
-                    "zone {zone}: this join could not place it ({why}); its own poses have not changed, so it stays where it stands"
+                    "zone {zone}: this join could not place it ({why}); {holds}, so it stays where it stands"
                 ),
             );
             *placed = Ok(*old);
@@ -1195,9 +1196,9 @@ mod tests {
     }
 
     /// A join afresh that cannot place a placed zone leaves it where it stands when the
-    /// zone's own poses have not changed (its views were missed), not when they have.
+    /// zone's frame holds (its views were missed), not when it may have moved.
     #[test]
-    fn a_join_afresh_unplaces_only_a_zone_whose_own_poses_changed() {
+    fn a_join_afresh_unplaces_only_a_zone_whose_frame_may_have_moved() {
         let view = SiteView::new("hall", "west", Publisher::new(16));
         let at = |x: f64| -> Placed { Ok((pose2(x, 0.0, 0.0), [0.01, 0.01, 0.001], 2)) };
         let zone = |v: &SiteView, z: &str| v.lock().frame[z].clone();
@@ -1206,11 +1207,12 @@ mod tests {
         };
         view.set_frame(both(at(20.0), at(-5.0)));
         let no = || -> Placed { Err("no chain of them reaches zone west".into()) };
-        let unchanged = std::collections::BTreeSet::from(["east".to_string()]);
-        view.join_afresh(both(no(), no()), &unchanged);
+        let holding =
+            BTreeMap::from([("east".to_string(), "its own poses have not changed".into())]);
+        view.join_afresh(both(no(), no()), &holding);
         assert_eq!(zone(&view, "east"), at(20.0), "its views were missed");
         assert_eq!(zone(&view, "north"), no(), "its own poses changed");
-        view.join_afresh(both(at(20.5), at(-5.0)), &unchanged);
+        view.join_afresh(both(at(20.5), at(-5.0)), &holding);
         assert_eq!(zone(&view, "east"), at(20.5), "placed anew: moved");
     }
 
