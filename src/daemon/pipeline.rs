@@ -1009,7 +1009,7 @@ impl StatusSource for Pipeline {
         };
         if sensor == self.anchor {
             return Err(Refused(format!(
-                "{sensor:?} is the anchor: its frame is the site frame, so it stands at 0, 0, 0° by definition; place the others"
+                "{sensor:?} is the anchor: the site frame is where it stood when first placed (knocked, it is placed again against the others); survey the others"
             )));
         }
         let (mount, config_survey) = (slot.spec.mount, slot.spec.survey);

@@ -491,6 +491,14 @@ impl Registrar {
         let motion_s = self.motion_s;
         let params = &self.params;
         self.stream_ns = self.stream_ns.max(item.scan.stamp_ns);
+        // The anchor is tested for a move too once another unit is placed: knocked, it is
+        // placed again against the others, whose poses stand (the site frame stays where it
+        // stood). Alone, it is the site frame wherever it points.
+        let watched = item.sensor != self.anchor
+            || self
+                .tracks
+                .iter()
+                .any(|(id, t)| *id != item.sensor && t.need == Need::Nothing && t.pose.is_some());
         let t = self.tracks.get_mut(&item.sensor)?;
         if item.geometry.is_some() {
             t.geometry = item.geometry;
@@ -498,7 +506,7 @@ impl Registrar {
         let stamp_ns = item.scan.stamp_ns;
         let mut moved = None;
         if t.need == Need::Nothing
-            && item.sensor != self.anchor
+            && watched
             && let Some(fraction) = t
                 .background
                 .as_ref()
@@ -950,7 +958,18 @@ impl Registrar {
         if let Some(added) = self.add_newcomer(&inputs, anchor, now) {
             return vec![added];
         }
-        let site = register_site(&inputs, anchor, &self.params, &self.site_params);
+        // A knocked anchor is placed in the frame where it stood, which a placed unit holds
+        // now: the site is solved from that unit and carried into the site frame by its pose.
+        let (root, site_from_root) = self
+            .stand_in(&inputs, anchor)
+            .map_or((anchor, None), |(i, pose)| (i, Some(pose)));
+        let site = register_site(&inputs, root, &self.params, &self.site_params);
+        let in_site = |p: Pose3| match site_from_root {
+            Some(r) => {
+                Pose3::from_planar(&(r.planar() * p.planar()), p.z_m, p.pitch_rad + r.pitch_rad)
+            }
+            None => p,
+        };
         let hints: BTreeMap<String, String> = if self.motion_s > 0.0 {
             (0..site.sensors.len())
                 .filter_map(|i| Some((site.sensors.get(i)?.id.clone(), walk_hint(&site, i)?)))
@@ -979,7 +998,7 @@ impl Registrar {
                 });
             let pose = match placement_pose {
                 Ok(placed) => Ok(PoseEntry {
-                    site_from_sensor: placed.pose,
+                    site_from_sensor: in_site(placed.pose),
                     sigma_x_m: Some(placed.sigma_x_m),
                     sigma_y_m: Some(placed.sigma_y_m),
                     sigma_yaw_rad: Some(placed.sigma_yaw_rad),
@@ -1023,6 +1042,25 @@ impl Registrar {
             });
         }
         outcomes
+    }
+}
+
+impl Registrar {
+    /// When the anchor needs a pose again after it had one (it was knocked, and neither its
+    /// local refinement nor adding it placed it), the site frame is where it stood: a placed
+    /// input (the first) stands in for it, with its site pose.
+    fn stand_in(&self, inputs: &[SensorInput], anchor: usize) -> Option<(usize, Pose3)> {
+        let a = self.tracks.get(&inputs.get(anchor)?.id)?;
+        if a.need == Need::Nothing || a.pose.is_none() {
+            return None;
+        }
+        inputs.iter().enumerate().find_map(|(i, input)| {
+            let t = self.tracks.get(&input.id)?;
+            (i != anchor && t.need == Need::Nothing)
+                .then_some(t.pose)
+                .flatten()
+                .map(|pose| (i, pose))
+        })
     }
 }
 

@@ -572,11 +572,12 @@ struct Joining {
     holding: BTreeMap<String, String>,
 }
 
-/// Why a zone's frame (its anchor unit's) still stands where it did, from its placed units
-/// then and now (to the cm and 0.1°): nothing changed, or some unit besides the anchor kept
-/// its pose in it. Its anchor has then not moved (a moved anchor moves every other unit's
-/// pose), so its place in the site holds too. `None` when every other unit's pose changed
-/// (the anchor moved, or the zone registered afresh).
+/// Why a zone's frame still stands where it did, from its placed units then and now (to the
+/// cm and 0.1°): nothing changed, or some unit off the frame's origin kept its pose in it.
+/// The frame is where the zone's anchor stood when first placed, and its placed units hold
+/// it (a knocked unit, the anchor too, is placed again against the others), so while one
+/// of them stays put its place in the site holds too. `None` when every one changed (the
+/// zone registered afresh, from wherever its anchor points now).
 fn frame_holds(then: &PlacedKey, now: &PlacedKey) -> Option<String> {
     if then == now {
         return Some("its own poses have not changed".to_string());
@@ -589,7 +590,7 @@ fn frame_holds(then: &PlacedKey, now: &PlacedKey) -> Option<String> {
         .collect();
     (!kept.is_empty()).then(|| {
         format!(
-            "{} kept {} pose{} in it, so its anchor has not moved",
+            "{} kept {} pose{} in it, so its frame has not moved",
             kept.join(", "),
             if kept.len() == 1 { "its" } else { "their" },
             if kept.len() == 1 { "" } else { "s" }
@@ -684,8 +685,8 @@ async fn query_views(session: &zenoh::Session, site: &str, zone: &str) -> Vec<Vi
 mod tests {
     use super::*;
 
-    /// A zone's frame holds while some unit besides its anchor keeps its pose: a unit moved
-    /// and re-registered leaves it, a moved anchor (every other pose changed) does not.
+    /// A zone's frame holds while some unit off its origin keeps its pose: a knocked unit
+    /// placed again leaves it; every unit placed anew (registered afresh) does not.
     #[test]
     fn a_zone_frame_holds_while_a_unit_besides_its_anchor_keeps_its_pose() {
         let unit = |id: &str, at: [i64; 3]| (id.to_string(), true, at);
@@ -701,7 +702,7 @@ mod tests {
         let c_moved = vec![then[0].clone(), then[1].clone(), unit("c", [20, 310, 50])];
         assert_eq!(
             frame_holds(&then, &c_moved).as_deref(),
-            Some("b kept its pose in it, so its anchor has not moved")
+            Some("b kept its pose in it, so its frame has not moved")
         );
         let a_moved = vec![
             then[0].clone(),

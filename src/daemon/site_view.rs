@@ -519,7 +519,7 @@ impl SiteView {
 
     /// Takes a full join's result (one that looked for pairs afresh, after some zone's own
     /// poses changed). A placed zone whose frame holds (`holding`, with why: its poses have
-    /// not changed, or a unit besides its anchor kept its pose) and that this join could not
+    /// not changed, or some unit kept its pose in it) and that this join could not
     /// place stays where it stands, and that is said: the join may have missed its views (a
     /// zone slow to answer under load, or a moved unit that was its only link), and nothing
     /// says its place no longer holds. Any other zone takes the join's word.

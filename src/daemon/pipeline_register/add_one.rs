@@ -15,11 +15,12 @@ type Newcomer = (usize, Vec<Option<Pose2>>, Vec<[f64; 3]>);
 
 impl Registrar {
     /// The one input to add to a placed site, when this registration is that: every other
-    /// input placed (the anchor among them), and it pending, neither the anchor nor surveyed
-    /// (the site solve weighs a survey). A moved sensor whose local refinement was refused is
-    /// one too: the others' poses stand, and registering the whole site again for it took
-    /// 15.6 s at 100 sensors (`cargo bench --bench moved_site`). The site frame is the
-    /// anchor's: the placed sensors' site poses are what [`add_sensor`] places against.
+    /// input placed (the anchor among them), and it pending, not surveyed (the site solve
+    /// weighs a survey), and not the anchor unless it was placed before (knocked: the site
+    /// frame stays where it stood, held by the others). A moved sensor whose local
+    /// refinement was refused is one too: the others' poses stand, and registering the whole
+    /// site again for it took 15.6 s at 100 sensors (`cargo bench --bench moved_site`). The
+    /// placed sensors' site poses are what [`add_sensor`] places against.
     fn newcomer(&self, inputs: &[SensorInput]) -> Option<Newcomer> {
         let mut newcomer = None;
         let (mut placed, mut sigma) = (Vec::new(), Vec::new());
@@ -32,7 +33,10 @@ impl Registrar {
                         refine_from: None, ..
                     },
                     _,
-                ) if newcomer.is_none() && input.id != self.anchor && t.survey.is_none() => {
+                ) if newcomer.is_none()
+                    && (input.id != self.anchor || t.pose.is_some())
+                    && t.survey.is_none() =>
+                {
                     newcomer = Some(i);
                     None
                 }
@@ -210,8 +214,9 @@ yaw_deg = -20
         }
     }
 
-    /// Only one pending sensor among placed ones is added: not a second, not the anchor, not
-    /// a surveyed one; a moved one whose local refinement was refused is.
+    /// Only one pending sensor among placed ones is added: not a second, not the anchor before
+    /// it was placed, not a surveyed one; a moved one whose local refinement was refused is,
+    /// the anchor too.
     #[test]
     fn only_a_lone_unsurveyed_newcomer_on_a_placed_site_is_added() {
         let model = crate::register::ScanModel::new(&[], 0.01, &Default::default());
@@ -267,6 +272,123 @@ yaw_deg = -20
         let mut moved = registrar(&["c"]);
         moved.tracks.get_mut("c").expect("c").local_refused = Some("too far".into());
         assert_eq!(chosen(&moved), Some(2), "moved, local refinement refused");
+        // The anchor knocked (pending with the pose it had) is added; with another unit
+        // pending too, the site solve stands in the first placed unit for it.
+        let knocked = |also: &[&str]| {
+            let mut r = registrar(also);
+            let a = r.tracks.get_mut("a").expect("a");
+            a.need = Need::Pose {
+                since_ns: 0,
+                source: crate::daemon::protocol::PoseSource::ReRegistered,
+                refine_from: None,
+            };
+            r
+        };
+        assert_eq!(chosen(&knocked(&[])), Some(0), "the anchor knocked");
+        assert_eq!(chosen(&knocked(&["c"])), None, "two pending");
+        let b = Some((1, Pose3::from_planar(&Pose2::identity(), 0.0, 0.0)));
+        assert_eq!(knocked(&["c"]).stand_in(&inputs, 0), b);
+        assert_eq!(
+            registrar(&["c"]).stand_in(&inputs, 0),
+            None,
+            "the anchor stands"
+        );
+        assert_eq!(registrar(&["a"]).stand_in(&inputs, 0), None, "never placed");
+    }
+
+    /// Where a unit at `p` (plan frame) stands once knocked by `dx`, `dy`, `dyaw_deg`.
+    fn knocked(p: &Pose2, (dx, dy, dyaw_deg): (f64, f64, f64)) -> Pose2 {
+        let (x, y) = (p.translation.x + dx, p.translation.y + dy);
+        pose2(x, y, p.rotation.angle() + dyaw_deg.to_radians())
+    }
+
+    /// The lab with its anchor, `bench`, knocked at 3 s by `knock` (and `north` by
+    /// `north_knock` at the same moment, if given): found moved and placed again against the
+    /// others, whose poses stand, in the frame where it stood (not at 0, 0, 0°, where its
+    /// new view would put the site). Returns how bench was placed, and how far off.
+    fn knock_the_anchor(
+        knock: (f64, f64, f64),
+        north_knock: Option<(f64, f64, f64)>,
+    ) -> (Method, f64, f64) {
+        let lab = include_str!("../../../fixtures/plans/lab.toml");
+        let mv = |id: &str, (dx, dy, dyaw): (f64, f64, f64)| {
+            format!(
+                "[[move]]\nsensor = \"{id}\"\nat_s = 3.0\ndx = {dx:?}\ndy = {dy:?}\ndyaw_deg = {dyaw:?}\n"
+            )
+        };
+        let moves = mv("bench", knock) + &north_knock.map(|k| mv("north", k)).unwrap_or_default();
+        let plan = Plan::from_toml(&format!("{lab}\n{moves}"), "lab").expect("plan");
+        let ids = ["bench", "entrance", "north", "east"];
+        // In the plan's frame (the knocks are in it): the entrance's, carried by its truth.
+        let world: Vec<Pose2> = {
+            let sim = crate::sim::Simulation::new(&plan, 3).expect("simulates");
+            let t = sim.sensors().iter().find(|s| s.id == "entrance");
+            let e = t.and_then(|s| s.truth).expect("truth");
+            let world_from_entrance = pose2(e.x_m, e.y_m, e.yaw_deg.to_radians());
+            truth(&plan, &ids)
+                .into_iter()
+                .map(|p| world_from_entrance * p)
+                .collect()
+        };
+        // The site frame: where bench stood.
+        let site: Vec<Pose2> = world.iter().map(|p| world[0].inverse() * p).collect();
+        let sensors: Vec<(&str, Option<Pose2>)> = ids
+            .iter()
+            .zip(&site)
+            .map(|(&id, &p)| (id, Some(p)))
+            .collect();
+        let (r, seen) = simulate(&plan, &sensors, 7.0);
+        let placed = |id: &str, now: Pose2| {
+            let Some((t_s, o)) = seen.outcomes.iter().rev().find(|(_, o)| o.id == id) else {
+                panic!("no outcome for {id}: {:?}", seen.outcomes);
+            };
+            let entry = o.pose.as_ref().expect("placed again");
+            let (dt, dyaw) = pose_error(&entry.site_from_sensor.planar(), &now);
+            println!(
+                "{id} knocked: placed again ({:?}) at {t_s:.1} s, {:.1} cm / {:.2}° from the truth",
+                o.method,
+                dt * 100.0,
+                dyaw.to_degrees()
+            );
+            (o.method, dt, dyaw)
+        };
+        let now = |i: usize, k| world[0].inverse() * knocked(&world[i], k);
+        if let Some(k) = north_knock {
+            let (_, dt, dyaw) = placed("north", now(2, k));
+            assert!(
+                dt < 0.05 && dyaw < 0.5f64.to_radians(),
+                "north {dt} m, {dyaw} rad"
+            );
+        }
+        for (id, pose) in ids.iter().zip(&site).skip(1) {
+            if north_knock.is_some() && *id == "north" {
+                continue;
+            }
+            let stands = r.tracks[*id].pose.map(|p| pose_error(&p.planar(), pose));
+            assert!(
+                stands.is_some_and(|(dt, dyaw)| dt < 1e-9 && dyaw < 1e-9),
+                "{id} moved"
+            );
+        }
+        placed("bench", now(0, knock))
+    }
+
+    #[test]
+    fn a_knocked_anchor_is_placed_again_where_it_now_stands_in_the_frame_it_held() {
+        // Refined locally; beyond that, added against the others; with another unit knocked
+        // too, by the site solve from a placed unit standing in for it.
+        for (knock, north_knock, method) in [
+            ((0.3, -0.4, 10.0), None, Method::Local),
+            ((1.2, 0.9, -25.0), None, Method::Added),
+            ((1.2, 0.9, -25.0), Some((-1.0, 0.8, 20.0)), Method::Global),
+        ] {
+            let (how, dt, dyaw) = knock_the_anchor(knock, north_knock);
+            assert_eq!(how, method, "{knock:?}");
+            assert!(
+                dt < 0.05 && dyaw < 0.5f64.to_radians(),
+                "{knock:?}: {dt} m, {dyaw} rad"
+            );
+        }
     }
 
     #[test]
