@@ -34,6 +34,10 @@ use crate::sensor::{Counters, DriverEvent, ScanMode};
 
 /// Window of the scan-rate meter shown by `status`.
 const RATE_WINDOW_S: f64 = 2.0;
+/// A sensor's pose replaced by one this far off (m, °) is a sensor moved: the tracker
+/// forgets what it learnt of its view. A refinement (walkers, a refining join) is nearer.
+const FORGET_M: f64 = 0.1;
+const FORGET_DEG: f64 = 1.0;
 
 /// The rate `status` shows for a sensor in `state` whose meter reads `measured_hz`: only
 /// while it streams (a disconnected, failed or stopped sensor has no rate, whatever came just
@@ -739,6 +743,23 @@ impl Pipeline {
     /// Sets poses (from the worker or `poses.toml`); `None` with a reason unsets one.
     pub(super) fn set_pose(&self, id: &str, pose: Result<PoseEntry, String>) {
         let mut inner = lock(&self.inner);
+        // The tracker's background of a sensor is in the sensor's own frame: a pose that
+        // goes, or comes back elsewhere (found moved), leaves it wrong, and a knocked unit's
+        // new view would read as people for a minute and a half (`absorb_s`).
+        let elsewhere = match (&pose, inner.poses.get(id)) {
+            (Ok(new), Some(old)) => {
+                let (dt, dyaw) = crate::geometry::pose_error(
+                    &new.site_from_sensor.planar(),
+                    &old.site_from_sensor.planar(),
+                );
+                dt > FORGET_M || dyaw > FORGET_DEG.to_radians()
+            }
+            (Err(_), Some(_)) => !inner.resolving.contains(id),
+            _ => false,
+        };
+        if elsewhere && let Some(queue) = self.tracker.get() {
+            let _ = queue.push(TrackIn::Forget(id.to_string()));
+        }
         match pose {
             Ok(entry) => {
                 inner.resolving.remove(id);
@@ -951,9 +972,13 @@ impl StatusSource for Pipeline {
                 self.sensor_ids().join(", ")
             )));
         }
-        if sensor == self.anchor {
+        // The anchor is placed against the others, whose poses stand (it was bumped): the site
+        // frame stays where it stood. With no other unit placed there is nothing to place it
+        // against, and it is the site frame wherever it points.
+        let placed_other = lock(&self.inner).poses.keys().any(|id| id != sensor);
+        if sensor == self.anchor && !placed_other {
             return Err(Refused(format!(
-                "{sensor:?} is the anchor: its frame is the site frame, so it has nothing to register against; re-register the others"
+                "{sensor:?} is the anchor and no other unit is placed: there is nothing to register it against, and the site frame is its frame"
             )));
         }
         self.commands
@@ -1112,6 +1137,7 @@ impl StatusSource for Pipeline {
 mod tests {
     use super::*;
     use crate::daemon::queue::drop_oldest;
+    use crate::geometry::pose2;
     use crate::sensor::SensorScan;
     use crate::sensor::clock::WRAP_MS;
 
@@ -1173,6 +1199,96 @@ mod tests {
         assert_eq!(status.sensors[0].rate_hz, None);
         let line = super::super::protocol::Message::Status(status).to_line();
         assert!(!line.contains("rate_hz"), "{line}");
+    }
+
+    /// The tracker forgets a sensor's view when its pose goes or comes back elsewhere (found
+    /// moved, placed again), not when a refinement nudges it.
+    #[test]
+    fn the_tracker_forgets_a_sensor_whose_pose_went_or_moved_not_one_nudged() {
+        let p = pipeline();
+        let (queue, tracker) = drop_oldest::<TrackIn>(16);
+        p.feed_tracker(queue);
+        let at = |x: f64, yaw_deg: f64| -> Result<PoseEntry, String> {
+            Ok(PoseEntry {
+                site_from_sensor: Pose3::from_planar(
+                    &pose2(x, 0.0, yaw_deg.to_radians()),
+                    1.0,
+                    0.0,
+                ),
+                sigma_x_m: None,
+                sigma_y_m: None,
+                sigma_yaw_rad: None,
+                source: PoseSource::Registered,
+                loaded: false,
+                caveat: None,
+                evidence: None,
+                updated: SystemTime::now(),
+            })
+        };
+        let forgot = || {
+            tracker
+                .try_iter()
+                .filter(|t| matches!(t, TrackIn::Forget(id) if id == "a"))
+                .count()
+        };
+        p.set_pose("a", at(1.0, 0.0));
+        assert_eq!(forgot(), 0, "placed: nothing learnt to forget");
+        p.set_pose("a", at(1.03, 0.5));
+        assert_eq!(forgot(), 0, "nudged");
+        p.set_pose("a", at(1.03, 5.0));
+        assert_eq!(forgot(), 1, "turned");
+        p.set_pose("a", Err("moved: re-registering it".into()));
+        assert_eq!(forgot(), 1, "withdrawn");
+        p.set_pose("a", at(1.5, 5.0));
+        assert_eq!(forgot(), 0, "placed again: forgotten already");
+    }
+
+    /// The anchor is re-registered on request (placed against the others) once another
+    /// unit is placed; alone, there is nothing to place it against.
+    #[test]
+    fn the_anchor_is_re_registered_only_once_another_unit_is_placed() {
+        let config = Config::parse(
+            "[site]\nname = \"s\"\nanchor = \"a\"\n[[sensor]]\nid = \"a\"\nconnect = \"tcp://127.0.0.1:1\"\n[[sensor]]\nid = \"b\"\nconnect = \"tcp://127.0.0.1:2\"\n",
+            std::path::Path::new("/c/site.toml"),
+        )
+        .unwrap();
+        let (queue, _worker) = drop_oldest(16);
+        let (commands, worker) = crossbeam_channel::unbounded();
+        let p = Pipeline::new(&config, queue, commands, Publisher::new(4), None);
+        for s in &config.sensors {
+            p.add_sensor(
+                SensorSpec::from_config(s),
+                Arc::default(),
+                watch::channel(false).0,
+            );
+        }
+        let asked = || {
+            worker
+                .try_iter()
+                .filter(|c| matches!(c, Command::Reregister { id, .. } if id == "a"))
+                .count()
+        };
+        let refused = p.reregister("a").expect_err("alone");
+        assert!(
+            refused.0.contains("no other unit is placed"),
+            "{}",
+            refused.0
+        );
+        assert_eq!(asked(), 0);
+        let placed = PoseEntry {
+            site_from_sensor: Pose3::from_planar(&pose2(3.0, 1.0, 0.5), 1.0, 0.0),
+            sigma_x_m: None,
+            sigma_y_m: None,
+            sigma_yaw_rad: None,
+            source: PoseSource::Registered,
+            loaded: false,
+            caveat: None,
+            evidence: None,
+            updated: SystemTime::now(),
+        };
+        p.set_pose("b", Ok(placed));
+        p.reregister("a").expect("b is placed");
+        assert_eq!(asked(), 1);
     }
 
     #[test]

@@ -1156,6 +1156,12 @@ pub fn run_worker(
                     moved.fraction * 100.0
                 ),
             );
+            // Its old pose no longer holds: its scans leave the map and the tracks until it
+            // is placed again.
+            pipeline.set_pose(
+                &moved.id,
+                Err("moved: re-registering it from its scans since the change".into()),
+            );
         }
         if registrar.due(registrar.stream_ns()) {
             register_and_publish(&pipeline, registrar);

@@ -55,6 +55,10 @@ pub enum TrackIn {
     Scan(PosedScan),
     /// What a sensor of another daemon (a zone's, at the site daemon) saw, site frame.
     Sighted(Sightings),
+    /// A sensor's pose was withdrawn or replaced (found moved, placed again): what the
+    /// tracker learnt of its view (its background) no longer holds, and its next posed scan
+    /// starts it afresh.
+    Forget(String),
 }
 
 /// The running tracker: stop it with [`TrackerTask::stop`]; dropped, it stops too (within
@@ -115,6 +119,10 @@ impl TrackerTask {
                         }
                         TrackIn::Sighted(s) => {
                             tracker.push_detections(&s.sensor, s.t_ns, &s.points())
+                        }
+                        TrackIn::Forget(id) => {
+                            tracker.forget_sensor(&id);
+                            None
                         }
                     };
                     if let Some(tracks) = step {
