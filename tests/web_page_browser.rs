@@ -40,17 +40,16 @@ fn the_page_shows_every_sensor_where_poses_has_it_and_a_drag_surveys_one() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .expect("a free port");
     let hall = fixture("hall.mcap");
     let sensors = replay_sensors(&hall, &HALL);
     let config = write_config(
         dir.path(),
         "gate",
         &sensors,
-        &format!("\n[web]\nlisten = \"127.0.0.1:{port}\"\n"),
+        // Port 0, the page's URL read from `status`: a port picked free here and released
+        // was once taken, before the page bound it, by one of the daemon's own replay
+        // emulators (the browser got SCIP: ERR_INVALID_HTTP_RESPONSE).
+        "\n[web]\nlisten = \"127.0.0.1:0\"\n",
     );
     let (drawing, gate) = with_drawing(&python, &hall, &config, dir.path());
     let _daemon = start_daemon(&config, dir.path());
@@ -83,10 +82,17 @@ fn the_page_shows_every_sensor_where_poses_has_it_and_a_drag_surveys_one() {
                 .filter(|saved| saved.contains("[building_from_site]"))
         },
     );
+    let status = client.status();
+    let url = status
+        .web
+        .as_deref()
+        .and_then(|w| w.strip_prefix("page at "))
+        .unwrap_or_else(|| panic!("no page: status' web is {:?}", status.web))
+        .to_string();
     let screenshot = common::repo().join("target/web-page.png");
     let out = Command::new(python)
         .arg(common::repo().join("tests/python/web_page.py"))
-        .args(["--url", &format!("http://127.0.0.1:{port}/")])
+        .args(["--url", &url])
         .arg("--socket")
         .arg(&sock)
         .arg("--screenshot")

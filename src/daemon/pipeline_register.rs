@@ -923,6 +923,24 @@ impl Registrar {
         outcomes
     }
 
+    /// When the anchor needs a pose while units placed from the scans (or loaded) hold the
+    /// site frame (it was knocked, and neither its local refinement nor adding it placed it;
+    /// or it lost its pose before a restart that loaded theirs), the frame is where it stood:
+    /// one of them stands in for it, with its site pose. Units placed by hand do not hold
+    /// the frame: their surveys are in it.
+    fn stand_in(&self, inputs: &[SensorInput], anchor: usize) -> Option<(usize, Pose3)> {
+        if self.tracks.get(&inputs.get(anchor)?.id)?.need == Need::Nothing {
+            return None;
+        }
+        inputs.iter().enumerate().find_map(|(i, input)| {
+            let t = self.tracks.get(&input.id)?;
+            (i != anchor && t.need == Need::Nothing && t.survey.is_none())
+                .then_some(t.pose)
+                .flatten()
+                .map(|pose| (i, pose))
+        })
+    }
+
     /// The site registration of every ready sensor (or, when one sensor appeared on a placed
     /// site, its placement against its neighbours); outcomes for the pending ones.
     fn register_globally(&mut self, now_ns: u64, now: SystemTime) -> Vec<Outcome> {
@@ -1042,25 +1060,6 @@ impl Registrar {
             });
         }
         outcomes
-    }
-}
-
-impl Registrar {
-    /// When the anchor needs a pose again after it had one (it was knocked, and neither its
-    /// local refinement nor adding it placed it), the site frame is where it stood: a placed
-    /// input (the first) stands in for it, with its site pose.
-    fn stand_in(&self, inputs: &[SensorInput], anchor: usize) -> Option<(usize, Pose3)> {
-        let a = self.tracks.get(&inputs.get(anchor)?.id)?;
-        if a.need == Need::Nothing || a.pose.is_none() {
-            return None;
-        }
-        inputs.iter().enumerate().find_map(|(i, input)| {
-            let t = self.tracks.get(&input.id)?;
-            (i != anchor && t.need == Need::Nothing)
-                .then_some(t.pose)
-                .flatten()
-                .map(|pose| (i, pose))
-        })
     }
 }
 

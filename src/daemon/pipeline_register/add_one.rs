@@ -15,13 +15,15 @@ type Newcomer = (usize, Vec<Option<Pose2>>, Vec<[f64; 3]>);
 
 impl Registrar {
     /// The one input to add to a placed site, when this registration is that: every other
-    /// input placed (the anchor among them), and it pending, not surveyed (the site solve
-    /// weighs a survey), and not the anchor unless it was placed before (knocked: the site
-    /// frame stays where it stood, held by the others). A moved sensor whose local
+    /// input placed, and it pending and not surveyed (the site solve weighs a survey). The
+    /// anchor too, when units placed from the scans hold the site frame ([`Self::stand_in`]:
+    /// it was knocked, or lost its pose before a restart). A moved sensor whose local
     /// refinement was refused is one too: the others' poses stand, and registering the whole
     /// site again for it took 15.6 s at 100 sensors (`cargo bench --bench moved_site`). The
     /// placed sensors' site poses are what [`add_sensor`] places against.
     fn newcomer(&self, inputs: &[SensorInput]) -> Option<Newcomer> {
+        let anchor = inputs.iter().position(|s| s.id == self.anchor)?;
+        let frame_held = self.stand_in(inputs, anchor).is_some();
         let mut newcomer = None;
         let (mut placed, mut sigma) = (Vec::new(), Vec::new());
         for (i, input) in inputs.iter().enumerate() {
@@ -33,10 +35,7 @@ impl Registrar {
                         refine_from: None, ..
                     },
                     _,
-                ) if newcomer.is_none()
-                    && (input.id != self.anchor || t.pose.is_some())
-                    && t.survey.is_none() =>
-                {
+                ) if newcomer.is_none() && t.survey.is_none() && (i != anchor || frame_held) => {
                     newcomer = Some(i);
                     None
                 }
@@ -214,9 +213,8 @@ yaw_deg = -20
         }
     }
 
-    /// Only one pending sensor among placed ones is added: not a second, not the anchor before
-    /// it was placed, not a surveyed one; a moved one whose local refinement was refused is,
-    /// the anchor too.
+    /// Only one pending sensor among placed ones is added: not a second, not a surveyed one; a
+    /// moved one whose local refinement was refused is, and so is the anchor.
     #[test]
     fn only_a_lone_unsurveyed_newcomer_on_a_placed_site_is_added() {
         let model = crate::register::ScanModel::new(&[], 0.01, &Default::default());
@@ -259,7 +257,25 @@ yaw_deg = -20
         };
         assert_eq!(chosen(&registrar(&["c"])), Some(2));
         assert_eq!(chosen(&registrar(&["b", "c"])), None, "two pending");
-        assert_eq!(chosen(&registrar(&["a"])), None, "the anchor pending");
+        assert_eq!(chosen(&registrar(&["a"])), Some(0), "the anchor pending");
+        // Units placed by hand do not hold the frame (their surveys are in it).
+        let mut by_hand = registrar(&["a"]);
+        for id in ["b", "c"] {
+            by_hand.tracks.get_mut(id).expect("placed").survey =
+                Some(crate::daemon::config::Survey {
+                    x_m: 1.0,
+                    y_m: 2.0,
+                    yaw_rad: 0.3,
+                    sigma_xy_m: 0.05,
+                    sigma_yaw_rad: 0.02,
+                });
+        }
+        assert_eq!(chosen(&by_hand), None, "the others placed by hand");
+        assert_eq!(
+            by_hand.stand_in(&inputs, 0),
+            None,
+            "the others placed by hand"
+        );
         let mut surveyed = registrar(&["c"]);
         surveyed.tracks.get_mut("c").expect("c").survey = Some(crate::daemon::config::Survey {
             x_m: 1.0,
@@ -293,7 +309,11 @@ yaw_deg = -20
             None,
             "the anchor stands"
         );
-        assert_eq!(registrar(&["a"]).stand_in(&inputs, 0), None, "never placed");
+        assert_eq!(
+            registrar(&["a", "b", "c"]).stand_in(&inputs, 0),
+            None,
+            "none placed"
+        );
     }
 
     /// Where a unit at `p` (plan frame) stands once knocked by `dx`, `dy`, `dyaw_deg`.
