@@ -32,13 +32,14 @@ use scanfuse::daemon::protocol::{Message, Poses, SensorPose};
 /// How long any one expected thing may take before the test gives up (not a timing assert).
 const PATIENCE: Duration = Duration::from_secs(90);
 
-/// The site daemon's config: the router on `endpoint`, its page on 127.0.0.1:`page`, a
-/// counting zone `hall` over the whole site frame, and tough (north's only unit) surveyed in
+/// The site daemon's config: the router on `endpoint`, its page on 127.0.0.1 at a port of
+/// its choosing (read back from `status`: one picked free here and released could be taken
+/// by a replay emulator before the daemon binds it), a counting zone `hall` over the whole site frame, and tough (north's only unit) surveyed in
 /// the site frame where it truly stands (σ 3 mm, 0.05°): a second anchor.
-fn site_config(dir: &Path, endpoint: &str, page: u16) -> std::path::PathBuf {
+fn site_config(dir: &Path, endpoint: &str) -> std::path::PathBuf {
     let (x, y, yaw) = truth_from("gate")["tough"];
     let text = format!(
-        "[site]\nname = \"test\"\nrole = \"site\"\nanchor = \"west\"\nstate_dir = \"{}\"\nsocket = \"{}\"\n\n[web]\nlisten = \"127.0.0.1:{page}\"\n\n[zenoh]\nlisten = [\"{endpoint}\"]\n\n[[zone]]\nid = \"hall\"\npolygon = [[-60, -60], [60, -60], [60, 60], [-60, 60]]\n\n[[survey]]\nsensor = \"tough\"\nx_m = {x}\ny_m = {y}\nyaw_deg = {yaw}\nsigma_xy_m = 0.003\nsigma_yaw_deg = 0.05\n",
+        "[site]\nname = \"test\"\nrole = \"site\"\nanchor = \"west\"\nstate_dir = \"{}\"\nsocket = \"{}\"\n\n[web]\nlisten = \"127.0.0.1:0\"\n\n[zenoh]\nlisten = [\"{endpoint}\"]\n\n[[zone]]\nid = \"hall\"\npolygon = [[-60, -60], [60, -60], [60, 60], [-60, 60]]\n\n[[survey]]\nsensor = \"tough\"\nx_m = {x}\ny_m = {y}\nyaw_deg = {yaw}\nsigma_xy_m = 0.003\nsigma_yaw_deg = 0.05\n",
         dir.join("state").display(),
         dir.join("s.sock").display()
     );
@@ -107,11 +108,6 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
         .unwrap()
         .port();
     let endpoint = format!("tcp/127.0.0.1:{port}");
-    let page = std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
     // The site daemon's, west's, east's, the one daemon's and north's.
     let dirs: Vec<tempfile::TempDir> = (0..5).map(|_| tempfile::tempdir().unwrap()).collect();
     let ids = ["gate", "dock", "mezz", "tough", "tilt"];
@@ -123,6 +119,10 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
     let east_units = [HALL[1]];
     let north_units = [HALL[3]];
 
+    // The site daemon first, to bind the router's port before any replay emulator starts
+    // (they listen on ports the system chooses, the one picked above among them).
+    let started = Instant::now();
+    let mut site_daemon = start_daemon(&site_config(dirs[0].path(), &endpoint), dirs[0].path());
     // One daemon holding all five: the frame the site must reproduce.
     let whole = write_config(
         dirs[3].path(),
@@ -131,12 +131,6 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
         "",
     );
     let _whole = start_daemon(&whole, dirs[3].path());
-
-    let started = Instant::now();
-    let mut site_daemon = start_daemon(
-        &site_config(dirs[0].path(), &endpoint, page),
-        dirs[0].path(),
-    );
     // West sends what its tracker sees and its scans twice a second; east and north what
     // their trackers see. Anchored to one wall-clock time, their replays of the hall run in
     // step, as live units would, whenever each was started (east again, below).
@@ -235,7 +229,8 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
         &dirs[0].path().join("state"),
     );
     people_across_zones(&dirs[0].path().join("s.sock"));
-    site_page(page, &ids);
+    let page = site.status().web.expect("the site daemon serves its page");
+    site_page(&page, &ids);
     let east_status = status.zones.iter().find(|z| z.zone == "east").unwrap();
     let frame = east_status.site_from_zone.expect("east is placed");
     assert!(frame.pairs >= 1 && frame.sigma_x_m > 0.0, "{frame:?}");
@@ -293,10 +288,7 @@ fn zones_join_into_the_frame_one_daemon_would_give_and_survive_losing_one() {
     println!("west, the site daemon gone: {silent}");
     // The site daemon restarted rebuilds the site from the zones.
     let restarted = Instant::now();
-    let _site_daemon = start_daemon(
-        &site_config(dirs[0].path(), &endpoint, page),
-        dirs[0].path(),
-    );
+    let _site_daemon = start_daemon(&site_config(dirs[0].path(), &endpoint), dirs[0].path());
     let mut site = Client::connect(&dirs[0].path().join("s.sock"), PATIENCE);
     let again = wait_all_placed(
         &mut site,
@@ -356,11 +348,16 @@ fn site_map(socket: &Path, state: &Path) {
 
 /// The site daemon's page, over its WebSocket (tokio-tungstenite, another codebase's
 /// client): every unit of every zone with its zone, west's scans, and the map they make.
-fn site_page(port: u16, ids: &[&str]) {
+fn site_page(web: &str, ids: &[&str]) {
+    // "page at http://127.0.0.1:PORT/"
+    let url = web
+        .strip_prefix("page at http://")
+        .map(|at| format!("ws://{at}ws"))
+        .unwrap_or_else(|| panic!("status' web: {web:?}"));
     use futures_util::StreamExt;
     let runtime = tokio::runtime::Runtime::new().unwrap();
     runtime.block_on(async {
-        let (mut socket, _) = tokio_tungstenite::connect_async(format!("ws://127.0.0.1:{port}/ws"))
+        let (mut socket, _) = tokio_tungstenite::connect_async(url)
             .await
             .expect("the site daemon's page opens");
         let (mut zoned, mut map, mut frame) = (false, false, false);
