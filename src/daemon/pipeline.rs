@@ -1137,7 +1137,6 @@ impl StatusSource for Pipeline {
 mod tests {
     use super::*;
     use crate::daemon::queue::drop_oldest;
-    use crate::geometry::pose2;
     use crate::sensor::SensorScan;
     use crate::sensor::clock::WRAP_MS;
 
@@ -1154,6 +1153,32 @@ mod tests {
         let spec = SensorSpec::from_config(&config.sensors[0]);
         pipeline.add_sensor(spec, Arc::default(), watch::channel(false).0);
         pipeline
+    }
+
+    /// Sensors a (the anchor) and b, not yet added; the worker's command end.
+    fn pipeline_ab() -> (Config, Pipeline, crossbeam_channel::Receiver<Command>) {
+        let config = Config::parse(
+            "[site]\nname = \"s\"\nanchor = \"a\"\n[[sensor]]\nid = \"a\"\nconnect = \"tcp://127.0.0.1:1\"\n[[sensor]]\nid = \"b\"\nconnect = \"tcp://127.0.0.1:2\"\n",
+            std::path::Path::new("/c/site.toml"),
+        )
+        .unwrap();
+        // The scan queue's worker end is dropped: scans pushed are simply not registered.
+        let (queue, _worker) = drop_oldest(16);
+        let (commands, worker) = crossbeam_channel::unbounded();
+        let p = Pipeline::new(&config, queue, commands, Publisher::new(4), None);
+        (config, p, worker)
+    }
+
+    /// A pose at x, 1 m, `yaw_deg` (placed by hand: the source does not matter here).
+    fn placed_at(x_m: f64, yaw_deg: f64) -> PoseEntry {
+        let survey = Survey {
+            x_m,
+            y_m: 1.0,
+            yaw_rad: yaw_deg.to_radians(),
+            sigma_xy_m: 0.05,
+            sigma_yaw_rad: 0.03,
+        };
+        surveyed(&survey, &Mount::default(), SystemTime::now())
     }
 
     fn scan_at(stamp_ns: u64) -> DriverEvent {
@@ -1208,23 +1233,7 @@ mod tests {
         let p = pipeline();
         let (queue, tracker) = drop_oldest::<TrackIn>(16);
         p.feed_tracker(queue);
-        let at = |x: f64, yaw_deg: f64| -> Result<PoseEntry, String> {
-            Ok(PoseEntry {
-                site_from_sensor: Pose3::from_planar(
-                    &pose2(x, 0.0, yaw_deg.to_radians()),
-                    1.0,
-                    0.0,
-                ),
-                sigma_x_m: None,
-                sigma_y_m: None,
-                sigma_yaw_rad: None,
-                source: PoseSource::Registered,
-                loaded: false,
-                caveat: None,
-                evidence: None,
-                updated: SystemTime::now(),
-            })
-        };
+        let at = |x: f64, yaw_deg: f64| Ok(placed_at(x, yaw_deg));
         let forgot = || {
             tracker
                 .try_iter()
@@ -1247,14 +1256,7 @@ mod tests {
     /// unit is placed; alone, there is nothing to place it against.
     #[test]
     fn the_anchor_is_re_registered_only_once_another_unit_is_placed() {
-        let config = Config::parse(
-            "[site]\nname = \"s\"\nanchor = \"a\"\n[[sensor]]\nid = \"a\"\nconnect = \"tcp://127.0.0.1:1\"\n[[sensor]]\nid = \"b\"\nconnect = \"tcp://127.0.0.1:2\"\n",
-            std::path::Path::new("/c/site.toml"),
-        )
-        .unwrap();
-        let (queue, _worker) = drop_oldest(16);
-        let (commands, worker) = crossbeam_channel::unbounded();
-        let p = Pipeline::new(&config, queue, commands, Publisher::new(4), None);
+        let (config, p, worker) = pipeline_ab();
         for s in &config.sensors {
             p.add_sensor(
                 SensorSpec::from_config(s),
@@ -1275,18 +1277,7 @@ mod tests {
             refused.0
         );
         assert_eq!(asked(), 0);
-        let placed = PoseEntry {
-            site_from_sensor: Pose3::from_planar(&pose2(3.0, 1.0, 0.5), 1.0, 0.0),
-            sigma_x_m: None,
-            sigma_y_m: None,
-            sigma_yaw_rad: None,
-            source: PoseSource::Registered,
-            loaded: false,
-            caveat: None,
-            evidence: None,
-            updated: SystemTime::now(),
-        };
-        p.set_pose("b", Ok(placed));
+        p.set_pose("b", Ok(placed_at(3.0, 30.0)));
         p.reregister("a").expect("b is placed");
         assert_eq!(asked(), 1);
     }
@@ -1400,14 +1391,7 @@ mod tests {
 
     #[test]
     fn a_survey_by_hand_from_an_earlier_run_stands_before_the_saved_pose() {
-        let config = Config::parse(
-            "[site]\nname = \"s\"\nanchor = \"a\"\n[[sensor]]\nid = \"a\"\nconnect = \"tcp://127.0.0.1:1\"\n[[sensor]]\nid = \"b\"\nconnect = \"tcp://127.0.0.1:2\"\n",
-            std::path::Path::new("/c/site.toml"),
-        )
-        .unwrap();
-        let (queue, _worker) = drop_oldest(16);
-        let (commands, worker) = crossbeam_channel::unbounded();
-        let p = Pipeline::new(&config, queue, commands, Publisher::new(4), None);
+        let (config, p, worker) = pipeline_ab();
         // poses.toml had b elsewhere; surveys.toml has it placed by hand.
         let mount = Mount {
             height_m: None,
