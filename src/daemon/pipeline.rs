@@ -585,6 +585,10 @@ impl Pipeline {
             let _ = slot.stop.send(true);
         }
         inner.poses.remove(id);
+        // Its tracks go on with the others; what the tracker learnt of its view goes.
+        if let Some(queue) = self.tracker.get() {
+            let _ = queue.push(TrackIn::Forget(id.to_string()));
+        }
     }
 
     /// Stops a sensor's driver but keeps its state (a replay that reached its end).
@@ -1227,7 +1231,7 @@ mod tests {
     }
 
     /// The tracker forgets a sensor's view when its pose goes or comes back elsewhere (found
-    /// moved, placed again), not when a refinement nudges it.
+    /// moved, placed again) and when the sensor is removed, not when a refinement nudges it.
     #[test]
     fn the_tracker_forgets_a_sensor_whose_pose_went_or_moved_not_one_nudged() {
         let p = pipeline();
@@ -1250,6 +1254,8 @@ mod tests {
         assert_eq!(forgot(), 1, "withdrawn");
         p.set_pose("a", at(1.5, 5.0));
         assert_eq!(forgot(), 0, "placed again: forgotten already");
+        p.remove_sensor("a");
+        assert_eq!(forgot(), 1, "removed by a reload");
     }
 
     /// The anchor is re-registered on request (placed against the others) once another
