@@ -111,6 +111,8 @@ pub(super) fn run(args: &Args, params: &RegisterParams) -> Result<()> {
         let (mut worst_m, mut worst_deg, mut ok, mut here) = (0f64, 0f64, 0, 0);
         let mut by_sigma = 0;
         let mut notes: Vec<String> = Vec::new();
+        // Each zone's error (cm) down the chain from the anchor zone: where drift builds.
+        let mut per_zone: Vec<String> = Vec::new();
         for (z, zone) in joined.zones.iter().enumerate() {
             match &zone.site_from_zone {
                 Ok((pose, sigma)) => {
@@ -119,6 +121,7 @@ pub(super) fn run(args: &Args, params: &RegisterParams) -> Result<()> {
                     let deg = rad.to_degrees();
                     worst_m = worst_m.max(m);
                     worst_deg = worst_deg.max(deg);
+                    per_zone.push(format!("{} {:.1}", zone.id, m * 100.0));
                     let sigma_m = sigma[0].hypot(sigma[1]);
                     if m <= RIGHT_M && deg <= RIGHT_DEG {
                         ok += 1;
@@ -144,6 +147,7 @@ pub(super) fn run(args: &Args, params: &RegisterParams) -> Result<()> {
             worst_m * 100.0,
             notes.join(", ")
         );
+        println!("      each zone's error, cm: {}", per_zone.join(", "));
         for zone in joined.zones.iter().filter(|z| z.site_from_zone.is_err()) {
             if let Err(why) = &zone.site_from_zone {
                 println!("      {}: {why}", zone.id);
