@@ -1145,27 +1145,22 @@ mod tests {
     use crate::sensor::clock::WRAP_MS;
 
     fn pipeline() -> Pipeline {
-        let config = Config::parse(
-            "[site]\nname = \"s\"\nanchor = \"a\"\n[[sensor]]\nid = \"a\"\nconnect = \"tcp://127.0.0.1:1\"\n",
-            std::path::Path::new("/c/site.toml"),
-        )
-        .unwrap();
-        // The worker's ends are dropped: scans pushed to the queue are simply not registered.
-        let (queue, _worker) = drop_oldest(16);
-        let (commands, _) = crossbeam_channel::unbounded();
-        let pipeline = Pipeline::new(&config, queue, commands, Publisher::new(4), None);
+        let (config, pipeline, _) = pipeline_of(&["a"]);
         let spec = SensorSpec::from_config(&config.sensors[0]);
         pipeline.add_sensor(spec, Arc::default(), watch::channel(false).0);
         pipeline
     }
 
-    /// Sensors a (the anchor) and b, not yet added; the worker's command end.
-    fn pipeline_ab() -> (Config, Pipeline, crossbeam_channel::Receiver<Command>) {
-        let config = Config::parse(
-            "[site]\nname = \"s\"\nanchor = \"a\"\n[[sensor]]\nid = \"a\"\nconnect = \"tcp://127.0.0.1:1\"\n[[sensor]]\nid = \"b\"\nconnect = \"tcp://127.0.0.1:2\"\n",
-            std::path::Path::new("/c/site.toml"),
-        )
-        .unwrap();
+    /// A pipeline of `ids` (the first the anchor), not yet added; the worker's command end.
+    fn pipeline_of(ids: &[&str]) -> (Config, Pipeline, crossbeam_channel::Receiver<Command>) {
+        let mut text = format!("[site]\nname = \"s\"\nanchor = \"{}\"\n", ids[0]);
+        for (i, id) in ids.iter().enumerate() {
+            text.push_str(&format!(
+                "[[sensor]]\nid = \"{id}\"\nconnect = \"tcp://127.0.0.1:{}\"\n",
+                i + 1
+            ));
+        }
+        let config = Config::parse(&text, std::path::Path::new("/c/site.toml")).unwrap();
         // The scan queue's worker end is dropped: scans pushed are simply not registered.
         let (queue, _worker) = drop_oldest(16);
         let (commands, worker) = crossbeam_channel::unbounded();
@@ -1262,7 +1257,7 @@ mod tests {
     /// unit is placed; alone, there is nothing to place it against.
     #[test]
     fn the_anchor_is_re_registered_only_once_another_unit_is_placed() {
-        let (config, p, worker) = pipeline_ab();
+        let (config, p, worker) = pipeline_of(&["a", "b"]);
         for s in &config.sensors {
             p.add_sensor(
                 SensorSpec::from_config(s),
@@ -1397,7 +1392,7 @@ mod tests {
 
     #[test]
     fn a_survey_by_hand_from_an_earlier_run_stands_before_the_saved_pose() {
-        let (config, p, worker) = pipeline_ab();
+        let (config, p, worker) = pipeline_of(&["a", "b"]);
         // poses.toml had b elsewhere; surveys.toml has it placed by hand.
         let mount = Mount {
             height_m: None,
