@@ -149,7 +149,7 @@ pub fn run(args: Args) -> Result<()> {
     let mut register = to_output(&anchor_id, &prepared, &site, 0);
     if let Some(t) = alignment.building_from_site {
         for s in &mut register.sensors {
-            to_building(s, &t, alignment.line_fit());
+            to_building(s, &t, &alignment);
         }
     }
     if let Some(dir) = &args.save {
@@ -186,7 +186,7 @@ pub fn run(args: Args) -> Result<()> {
 fn to_building(
     s: &mut SensorPose,
     t: &drawing::align::Similarity,
-    refined: Option<&drawing::align::Refined>,
+    alignment: &drawing::align::Alignment,
 ) {
     let (Some(x), Some(y), Some(yaw)) = (s.x_m, s.y_m, s.yaw_deg) else {
         return;
@@ -195,8 +195,8 @@ fn to_building(
     s.x_m = Some(b.translation.x);
     s.y_m = Some(b.translation.y);
     s.yaw_deg = Some(scanfuse::geometry::wrap_angle_rad(b.rotation.angle()).to_degrees());
-    let (ax, ay) = refined.map_or((0.0, 0.0), |r| r.sigma_at(&nalgebra::Point2::new(x, y)));
-    let ayaw = refined.map_or(0.0, |r| r.sigma.2);
+    let (ax, ay) = alignment.sigma_at(&nalgebra::Point2::new(x, y));
+    let ayaw = alignment.sigma().map_or(0.0, |s| s.2);
     let (c, sn) = (t.yaw_rad.cos(), t.yaw_rad.sin());
     if let (Some(sx), Some(sy)) = (s.sigma_x_m, s.sigma_y_m) {
         let (sx, sy) = (sx * t.scale, sy * t.scale);

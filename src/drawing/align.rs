@@ -17,6 +17,7 @@ use super::{Drawing, WallSegment};
 use crate::features::{EdgeKind, EdgePoint, Features, PointClass, Segment};
 use crate::geometry::{Pose2, pose_error, pose2};
 use crate::register::model::{NearestGrid, PolarRanges};
+use crate::register::pair::pose_sigmas;
 use crate::register::score::{score, score_coarse};
 use crate::register::{RegisterParams, ScanModel, hypotheses::hypotheses};
 use nalgebra::{Matrix3, Point2, Rotation2, Vector2, Vector3};
@@ -82,7 +83,14 @@ pub enum AlignError {
 pub struct PairFit {
     pub transform: Similarity,
     pub residuals_m: Vec<f64>,
+    /// Of (x, y, yaw) of the transform, from the clicks' σ (`CLICK_SIGMA_M`, or their RMS
+    /// residual when larger).
+    pub covariance: Matrix3<f64>,
 }
+
+/// σ of a clicked point on each axis (m): a corner clicked on a drawing, or measured on
+/// site, is good to a couple of decimetres, not centimetres.
+pub const CLICK_SIGMA_M: f64 = 0.1;
 
 /// Parses `"sx,sy=dx,dy;sx,sy=dx,dy"` (site point = drawing point, metres).
 pub fn parse_pairs(text: &str) -> Result<Vec<PointPair>, AlignError> {
@@ -158,13 +166,30 @@ pub fn fit_pairs(pairs: &[PointPair], similarity: bool) -> Result<PairFit, Align
         yaw_rad,
         scale,
     };
-    let residuals_m = pairs
+    let residuals_m: Vec<f64> = pairs
         .iter()
         .map(|(s, d)| (transform.apply(s) - d).norm())
         .collect();
+    let rms = (residuals_m.iter().map(|r| r * r).sum::<f64>() / n).sqrt();
+    let var = rms.max(CLICK_SIGMA_M).powi(2);
+    // q = R p + t at each drawing point: ∂q/∂t = I, ∂q/∂yaw = perp(q − t).
+    let mut info = Matrix3::zeros();
+    for (_, d) in pairs {
+        let lever = d.coords - t;
+        for j in [
+            Vector3::new(1.0, 0.0, -lever.y),
+            Vector3::new(0.0, 1.0, lever.x),
+        ] {
+            info += j * j.transpose() / var;
+        }
+    }
+    let covariance = info
+        .try_inverse()
+        .unwrap_or_else(|| Matrix3::identity() * UNKNOWN_SIGMA.powi(2));
     Ok(PairFit {
         transform,
         residuals_m,
+        covariance,
     })
 }
 
@@ -314,20 +339,27 @@ pub struct Refined {
     /// Covariance of (x, y, yaw) of the transform: each fitted line once (see
     /// `line_covariance`), not each of its thousands of points.
     pub covariance: Matrix3<f64>,
+    /// Lines the covariance rests on: with enough support and not reported moved.
+    pub checked_lines: usize,
     /// Lines with enough support, the moved ones first, then by offset.
     pub lines: Vec<LineResidual>,
 }
 
 impl Refined {
-    /// σ of x and y (m) of where the site point `p_site` lands in the building: the
-    /// alignment's translation and, over the lever arm from the site origin, its turn.
+    /// σ of x and y (m) of where the site point `p_site` lands in the building.
     pub fn sigma_at(&self, p_site: &Point2<f64>) -> (f64, f64) {
-        let l = self.transform.apply(p_site).coords
-            - Vector2::new(self.transform.x_m, self.transform.y_m);
-        let j = nalgebra::Matrix2x3::new(1.0, 0.0, -l.y, 0.0, 1.0, l.x);
-        let c = j * self.covariance * j.transpose();
-        (c[(0, 0)].max(0.0).sqrt(), c[(1, 1)].max(0.0).sqrt())
+        sigma_at(&self.transform, &self.covariance, p_site)
     }
+}
+
+/// σ of x and y (m) of where the site point `p_site` lands in the building under `t` with
+/// covariance `c` of its (x, y, yaw): its translation and, over the lever arm from the site
+/// origin, its turn.
+pub fn sigma_at(t: &Similarity, c: &Matrix3<f64>, p_site: &Point2<f64>) -> (f64, f64) {
+    let l = t.apply(p_site).coords - Vector2::new(t.x_m, t.y_m);
+    let j = nalgebra::Matrix2x3::new(1.0, 0.0, -l.y, 0.0, 1.0, l.x);
+    let c = j * c * j.transpose();
+    (c[(0, 0)].max(0.0).sqrt(), c[(1, 1)].max(0.0).sqrt())
 }
 
 /// A wall this far (m) off its drawing line is reported moved.
@@ -479,6 +511,7 @@ fn residuals(map: &[MapPoint], index: &LineIndex<'_>, t: Similarity) -> Refined 
             covariance[(2, 2)].sqrt(),
         ),
         covariance,
+        checked_lines: extents.len(),
         lines,
     }
 }
@@ -492,7 +525,10 @@ const UNKNOWN_SIGMA: f64 = 1e3;
 /// line fit): the points along one wall share its error (its thickness, the drawing's
 /// accuracy), so each line counts once, as its seen extent's two ends, with the spread of the
 /// lines' offsets as their σ; walls reported moved are left out (the robust fit ignored them).
-/// Parallel walls only leave the slide along them unknown, and that shows.
+/// Parallel walls only leave the slide along them unknown, and that shows. A line no other
+/// line checks along its normal (the one wall seen across a room, or the partner of one
+/// found moved) would not show as moved if it were: it counts as known to
+/// `UNCHECKED_LINE_SIGMA_M` only.
 fn line_covariance(extents: &[(Point2<f64>, Point2<f64>, f64)], t: &Similarity) -> Matrix3<f64> {
     let unknown = Matrix3::identity() * UNKNOWN_SIGMA.powi(2);
     if extents.len() < 3 {
@@ -502,27 +538,51 @@ fn line_covariance(extents: &[(Point2<f64>, Point2<f64>, f64)], t: &Similarity) 
     let var = (extents.iter().map(|e| e.2 * e.2).sum::<f64>() / (extents.len() - 3).max(1) as f64)
         .max(MIN_LINE_SIGMA_M.powi(2));
     let origin = Vector2::new(t.x_m, t.y_m);
+    // Each line's information at unit variance, and its normal.
+    let lines: Vec<(Matrix3<f64>, Vector2<f64>)> = extents
+        .iter()
+        .filter_map(|(a, b, _)| {
+            let d = b - a;
+            let len = d.norm();
+            (len > 1e-9).then(|| {
+                let n = Vector2::new(-d.y, d.x) / len;
+                let mut info = Matrix3::zeros();
+                for e in [a, b] {
+                    // q = R p + t: ∂q/∂t = I, ∂q/∂yaw = perp(q − t).
+                    let lever = e.coords - origin;
+                    let j = Vector3::new(n.x, n.y, n.dot(&Vector2::new(-lever.y, lever.x)));
+                    info += j * j.transpose();
+                }
+                (info, n)
+            })
+        })
+        .collect();
+    let total: Matrix3<f64> = lines.iter().map(|(i, _)| i).sum();
+    let along = |info: &Matrix3<f64>, n: &Vector2<f64>| {
+        (n.transpose() * info.fixed_view::<2, 2>(0, 0) * n)[(0, 0)]
+    };
     let mut info = Matrix3::zeros();
-    for (a, b, _) in extents {
-        let d = b - a;
-        let len = d.norm();
-        let n = if len > 1e-9 {
-            Vector2::new(-d.y, d.x) / len
+    for (own, n) in &lines {
+        let checked = along(&(total - own), n) >= along(own, n) * CHECKED_SHARE;
+        let v = if checked {
+            var
         } else {
-            continue;
+            var.max(UNCHECKED_LINE_SIGMA_M.powi(2))
         };
-        for e in [a, b] {
-            // q = R p + t: ∂q/∂t = I, ∂q/∂yaw = perp(q − t).
-            let lever = e.coords - origin;
-            let j = Vector3::new(n.x, n.y, n.dot(&Vector2::new(-lever.y, lever.x)));
-            info += j * j.transpose() / var;
-        }
+        info += own / v;
     }
     match info.try_inverse() {
         Some(c) if c.iter().all(|v| v.is_finite()) && c[(0, 0)] >= 0.0 => c,
         _ => unknown,
     }
 }
+
+/// σ of a line no other checks (m): it may be a wall moved since the drawing, by anything
+/// the refinement's gate lets through; known as well as a click (`CLICK_SIGMA_M`).
+const UNCHECKED_LINE_SIGMA_M: f64 = CLICK_SIGMA_M;
+/// A line is checked when the other lines hold at least this share of its own information
+/// along its normal (one parallel wall that agrees is a check).
+const CHECKED_SHARE: f64 = 0.9;
 
 /// The drawing as a scan model for `register::hypotheses` and `register::score`: its lines
 /// sampled every 4 cm, each point and segment twice with opposite normals (a drawn wall is
@@ -762,15 +822,30 @@ pub struct Alignment {
     /// Residual of each given point pair under the final transform (m).
     pub pair_residuals_m: Vec<f64>,
     pub refined: Option<Refined>,
+    /// Of (x, y, yaw) of `building_from_site`, from the fit it came from: the lines', or the
+    /// clicks' where the lines were not kept. `None` when not aligned.
+    pub covariance: Option<Matrix3<f64>>,
 }
 
 impl Alignment {
-    /// The line fit the transform came from (its σ and residuals), when it did: `None` when
-    /// not aligned, or when the pairs' fit was kept because the walls fit poorly near it.
-    pub fn line_fit(&self) -> Option<&Refined> {
-        self.refined
-            .as_ref()
-            .filter(|_| self.building_from_site.is_some() && self.method.ends_with("+lines"))
+    /// σ of x, y (m) and yaw (rad) of the alignment.
+    pub fn sigma(&self) -> Option<(f64, f64, f64)> {
+        self.covariance.map(|c| {
+            (
+                c[(0, 0)].max(0.0).sqrt(),
+                c[(1, 1)].max(0.0).sqrt(),
+                c[(2, 2)].max(0.0).sqrt(),
+            )
+        })
+    }
+
+    /// σ of x and y (m) of where the site point `p_site` lands in the building; (0, 0)
+    /// when not aligned.
+    pub fn sigma_at(&self, p_site: &Point2<f64>) -> (f64, f64) {
+        match (&self.building_from_site, &self.covariance) {
+            (Some(t), Some(c)) => sigma_at(t, c, p_site),
+            _ => (0.0, 0.0),
+        }
     }
 }
 
@@ -792,32 +867,7 @@ pub fn align(
         20_000,
     );
     if !pairs.is_empty() {
-        return match fit_pairs(pairs, similarity) {
-            Ok(fit) => {
-                let refined = refine(&map, &index, &fit.transform, 0.5);
-                let ok = refined.inlier_share > 0.2;
-                let t = if ok { refined.transform } else { fit.transform };
-                Alignment {
-                    building_from_site: Some(t),
-                    method: if ok { "pairs+lines" } else { "pairs" }.into(),
-                    reason: (!ok).then(|| {
-                        format!(
-                            "the walls fit the drawing's lines poorly near the pairs' alignment ({:.0} % within 5 cm); kept the pairs' fit",
-                            refined.inlier_share * 100.0
-                        )
-                    }),
-                    pair_residuals_m: pairs.iter().map(|(s, d)| (t.apply(s) - d).norm()).collect(),
-                    refined: Some(refined),
-                }
-            }
-            Err(e) => Alignment {
-                building_from_site: None,
-                method: "pairs".into(),
-                reason: Some(e.to_string()),
-                pair_residuals_m: Vec::new(),
-                refined: None,
-            },
-        };
+        return from_pairs(&map, &index, pairs, similarity);
     }
     let dmodel = drawing_model(drawing, p);
     let auto = automatic(&dmodel, &index, sensors, p);
@@ -831,6 +881,7 @@ pub fn align(
                 method: "automatic+lines".into(),
                 reason: None,
                 pair_residuals_m: Vec::new(),
+                covariance: Some(refined.covariance),
                 refined: Some(refined),
             }
         }
@@ -840,8 +891,96 @@ pub fn align(
             reason: Some(verdict.err().unwrap_or_else(|| "no candidate".into())),
             pair_residuals_m: Vec::new(),
             refined: None,
+            covariance: None,
         },
     }
+}
+
+/// Aligns from clicked `pairs`, refined on the lines: the clicks' fit and the lines' fit
+/// from it, each with its covariance, combined. Where the walls seen pin the alignment, the
+/// lines decide; where they do not (one or two walls seen, perhaps one moved since the
+/// drawing, with nothing to check it by), the clicks keep their say.
+fn from_pairs(
+    map: &[MapPoint],
+    index: &LineIndex<'_>,
+    pairs: &[PointPair],
+    similarity: bool,
+) -> Alignment {
+    let fit = match fit_pairs(pairs, similarity) {
+        Ok(fit) => fit,
+        Err(e) => {
+            return Alignment {
+                building_from_site: None,
+                method: "pairs".into(),
+                reason: Some(e.to_string()),
+                pair_residuals_m: Vec::new(),
+                refined: None,
+                covariance: None,
+            };
+        }
+    };
+    let refined = refine(map, index, &fit.transform, 0.5);
+    let (t, covariance, method, reason) = if refined.inlier_share <= 0.2 {
+        let why = format!(
+            "the walls fit the drawing's lines poorly near the pairs' alignment ({:.0} % within 5 cm); kept the pairs' fit",
+            refined.inlier_share * 100.0
+        );
+        (fit.transform, fit.covariance, "pairs", Some(why))
+    } else {
+        let (t, c) = combine(
+            (&fit.transform, &fit.covariance),
+            (&refined.transform, &refined.covariance),
+        );
+        let (lines_m, lines_yaw) = pose_sigmas(&refined.covariance);
+        let (clicks_m, clicks_yaw) = pose_sigmas(&fit.covariance);
+        let weak = lines_m > clicks_m || lines_yaw > clicks_yaw;
+        let why = weak.then(|| {
+            format!(
+                "the walls seen ({} drawing lines matched, none found moved that others check) pin the alignment less well than the clicks: it leans on the clicks; give a third pair, or place a sensor that sees more walls",
+                refined.checked_lines
+            )
+        });
+        (t, c, "pairs+lines", why)
+    };
+    Alignment {
+        building_from_site: Some(t),
+        method: method.into(),
+        reason,
+        pair_residuals_m: pairs.iter().map(|(s, d)| (t.apply(s) - d).norm()).collect(),
+        refined: Some(refined),
+        covariance: Some(covariance),
+    }
+}
+
+/// Two independent estimates of one transform (x, y, yaw), each with its covariance, combined
+/// by their information (the scale is the second's).
+fn combine(
+    a: (&Similarity, &Matrix3<f64>),
+    b: (&Similarity, &Matrix3<f64>),
+) -> (Similarity, Matrix3<f64>) {
+    let (Some(ia), Some(ib)) = (a.1.try_inverse(), b.1.try_inverse()) else {
+        return (*b.0, *b.1);
+    };
+    let va = Vector3::new(a.0.x_m, a.0.y_m, a.0.yaw_rad);
+    // b's yaw taken next to a's.
+    let vb = Vector3::new(
+        b.0.x_m,
+        b.0.y_m,
+        a.0.yaw_rad + angle_diff(b.0.yaw_rad, a.0.yaw_rad),
+    );
+    let Some(c) = (ia + ib).try_inverse() else {
+        return (*b.0, *b.1);
+    };
+    let v = c * (ia * va + ib * vb);
+    (
+        Similarity {
+            x_m: v.x,
+            y_m: v.y,
+            yaw_rad: v.z,
+            scale: b.0.scale,
+        },
+        c,
+    )
 }
 
 /// Angle difference wrapped to (−π, π].
@@ -1026,6 +1165,83 @@ mod tests {
         let index = LineIndex::new(&d);
         let c = refine(&map_of(&corridor, &truth), &index, &truth, 0.5);
         assert!(c.sigma.0.max(c.sigma.1) > 10.0, "{:?}", c.sigma);
+    }
+
+    #[test]
+    fn a_wall_no_other_checks_counts_as_known_to_a_click_only() {
+        // A corridor's two long walls check each other across it; its one end wall is all
+        // that fixes the along, and would not show as moved if it were.
+        let mut walls = vec![
+            ((0.0, 0.0), (20.0, 0.0)),
+            ((20.0, 4.0), (0.0, 4.0)),
+            ((0.0, 4.0), (0.0, 0.0)),
+        ];
+        let truth = Similarity {
+            x_m: 3.0,
+            y_m: -1.0,
+            yaw_rad: 0.3,
+            scale: 1.0,
+        };
+        let along = |walls: &[Line]| {
+            let d = drawing(walls);
+            let r = refine(&map_of(walls, &truth), &LineIndex::new(&d), &truth, 0.5);
+            // σ in the building's axes: x along the corridor, y across.
+            (r.sigma_at(&Point2::new(0.0, 0.0)), r.checked_lines)
+        };
+        let ((ax, ay), lines) = along(&walls);
+        assert_eq!(lines, 3);
+        assert!(ax > 0.05 && ay < 0.02, "σ {ax:.3} {ay:.3}");
+        // A second end wall checks the first: both are known to the lines' spread again.
+        walls.push(((20.0, 0.0), (20.0, 4.0)));
+        let ((bx, by), _) = along(&walls);
+        assert!(bx < 0.02 && by < 0.02, "σ {bx:.3} {by:.3}");
+    }
+
+    #[test]
+    fn clicks_keep_their_say_where_the_one_wall_seen_would_carry_them_onto_a_moved_line() {
+        let room = [
+            ((0.0, 0.0), (20.0, 0.0)),
+            ((20.0, 0.0), (20.0, 10.0)),
+            ((20.0, 10.0), (0.0, 10.0)),
+            ((0.0, 10.0), (0.0, 0.0)),
+        ];
+        let truth = Similarity {
+            x_m: 5.0,
+            y_m: 2.0,
+            yaw_rad: -0.7,
+            scale: 1.0,
+        };
+        // The sensors see only the south wall, which stands 20 cm north of its drawn line.
+        let seen = [((2.0, 0.2), (18.0, 0.2))];
+        let d = drawing(&room);
+        let index = LineIndex::new(&d);
+        let site = |p: (f64, f64)| truth.to_site(&Point2::new(p.0, p.1));
+        let pairs = [
+            (site((0.0, 0.0)), Point2::new(0.0, 0.0)),
+            (site((20.0, 10.0)), Point2::new(20.0, 10.0)),
+        ];
+        let a = from_pairs(&map_of(&seen, &truth), &index, &pairs, false);
+        let t = a.building_from_site.expect("aligned");
+        let (dt, dr) = pose_error(&t.pose(), &truth.pose());
+        assert!(dt < 0.01 && dr < 0.001, "{dt} m {dr} rad off: {a:?}");
+        assert!(
+            a.reason
+                .as_deref()
+                .is_some_and(|r| r.contains("third pair")),
+            "{a:?}"
+        );
+        // Its σ is the clicks' (each good to 10 cm), not a line fit's centimetre.
+        let (sx, sy, _) = a.sigma().expect("σ");
+        assert!(sx.min(sy) > 0.04 && sx.max(sy) < 0.2, "σ {sx:.3} {sy:.3}");
+        // With the whole room seen, the lines decide: a click 15 cm off is corrected.
+        let mut rough = pairs;
+        rough[0].1.x += 0.15;
+        let a = from_pairs(&map_of(&room, &truth), &index, &rough, false);
+        let (dt, _) = pose_error(
+            &a.building_from_site.expect("aligned").pose(),
+            &truth.pose(),
+        );
+        assert!(dt < 0.01 && a.reason.is_none(), "{dt} m off: {a:?}");
     }
 
     #[test]

@@ -66,7 +66,8 @@ pub struct BuildingFromSite {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub reason: Option<String>,
     /// σ of x, y (m) and yaw (degrees), as the poses carry theirs: from the line fit, each
-    /// drawing line counted once (`align::Refined::covariance`); absent without one.
+    /// drawing line counted once (`align::Refined::covariance`), or from the clicks where
+    /// their fit was kept (`align::CLICK_SIGMA_M`); absent when not aligned.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sigma_x_m: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -101,7 +102,7 @@ impl BuildingFromSite {
             yaw_rad: 0.0,
             scale: 1.0,
         });
-        let sigma = a.line_fit().map(|r| r.sigma);
+        let sigma = a.sigma();
         BuildingFromSite {
             x_m: t.x_m,
             y_m: t.y_m,

@@ -98,6 +98,11 @@ struct PathOutcome {
     /// The largest placed sensor's building-frame error, m and degrees.
     worst: (f64, f64),
     within: usize,
+    /// Placed sensors beyond the target whose error the alignment's own σ does not cover
+    /// (more than 3σ off where it lands in the building): confidently off.
+    uncovered: usize,
+    /// The alignment's own σ (x, y, yaw), as reported.
+    sigma: String,
     ms: f64,
 }
 
@@ -119,10 +124,11 @@ impl PathOutcome {
     }
 }
 
-/// Scores an alignment: each placed sensor (index, site pose) against its truth.
+/// Scores an alignment: each placed sensor (index, site pose, its σ x, y m and yaw rad in
+/// the site) against its truth.
 fn score(
     a: &Alignment,
-    placed: &[(usize, Pose2)],
+    placed: &[(usize, Pose2, [f64; 3])],
     truths: &[Pose2],
     truth_bfs: &Pose2,
     ms: f64,
@@ -133,6 +139,8 @@ fn score(
             anchor: (f64::NAN, f64::NAN),
             worst: (f64::NAN, f64::NAN),
             within: 0,
+            uncovered: 0,
+            sigma: String::new(),
             ms,
         };
     };
@@ -140,11 +148,24 @@ fn score(
     let anchor = deg(pose_error(&t.pose(), truth_bfs));
     let errors: Vec<(f64, f64)> = placed
         .iter()
-        .map(|(k, site)| deg(pose_error(&t.sensor(site), &truths[*k])))
+        .map(|(k, site, _)| deg(pose_error(&t.sensor(site), &truths[*k])))
         .collect();
     let within = errors
         .iter()
         .filter(|e| e.0 <= TOL_M && e.1 <= TOL_DEG)
+        .count();
+    // σ in the building as `align` reports it: the sensor's own and the alignment's where
+    // the sensor lands.
+    let uncovered = placed
+        .iter()
+        .zip(&errors)
+        .filter(|((_, site, own), e)| {
+            let (ax, ay) = a.sigma_at(&Point2::from(site.translation.vector));
+            let m = (own[0].powi(2) + own[1].powi(2) + ax.powi(2) + ay.powi(2)).sqrt();
+            let yaw = own[2].hypot(a.sigma().map_or(0.0, |s| s.2)).to_degrees();
+            let beyond = e.0 > TOL_M || e.1 > TOL_DEG;
+            beyond && (e.0 > 3.0 * m || e.1 > 3.0 * yaw)
+        })
         .count();
     let worst = errors
         .iter()
@@ -161,6 +182,15 @@ fn score(
         anchor,
         worst,
         within,
+        uncovered,
+        sigma: a.sigma().map_or(String::new(), |s| {
+            format!(
+                "{:.1} cm, {:.1} cm, {:.2}°",
+                s.0 * 100.0,
+                s.1 * 100.0,
+                s.2.to_degrees()
+            )
+        }),
         ms,
     }
 }
@@ -339,14 +369,21 @@ fn solve(
     }
     let inputs = super::sim::site_inputs(models);
     let site = register_site(&inputs, 0, params, &SiteParams::default());
-    let placed: Vec<(usize, Pose2)> = site
+    let placed: Vec<(usize, Pose2, [f64; 3])> = site
         .sensors
         .iter()
         .enumerate()
-        .filter_map(|(k, s)| Some((k, s.pose.as_ref().ok()?.pose.planar())))
+        .filter_map(|(k, s)| {
+            let p = s.pose.as_ref().ok()?;
+            Some((
+                k,
+                p.pose.planar(),
+                [p.sigma_x_m, p.sigma_y_m, p.sigma_yaw_rad],
+            ))
+        })
         .collect();
     let truth_bfs = truths[0];
-    let site_err = placed.iter().fold((0.0f64, 0.0f64), |w, (k, p)| {
+    let site_err = placed.iter().fold((0.0f64, 0.0f64), |w, (k, p, _)| {
         let (m, r) = pose_error(p, &(truth_bfs.inverse() * truths[*k]));
         (w.0.max(m), w.1.max(r.to_degrees()))
     });
@@ -358,7 +395,7 @@ fn solve(
     let drawing = plan_drawing(&plan, &moved, args.drawing_clutter, rng)?;
     let align_sensors: Vec<AlignSensor<'_>> = placed
         .iter()
-        .map(|(k, pose)| AlignSensor {
+        .map(|(k, pose, _)| AlignSensor {
             id: &inputs[*k].id,
             model: &inputs[*k].model,
             site_from_sensor: *pose,
@@ -402,6 +439,8 @@ struct Totals {
     n: usize,
     ok: usize,
     off: usize,
+    /// Sites with a sensor off beyond its own 3σ.
+    uncovered: usize,
     wrong: usize,
     reasons: BTreeMap<String, usize>,
     ms: Vec<f64>,
@@ -413,7 +452,10 @@ impl Totals {
         self.ms.push(o.ms);
         match &o.verdict {
             Verdict::Ok => self.ok += 1,
-            Verdict::Off => self.off += 1,
+            Verdict::Off => {
+                self.off += 1;
+                self.uncovered += usize::from(o.uncovered > 0);
+            }
             Verdict::Wrong => self.wrong += 1,
             Verdict::Abstained(why) => {
                 let key = why
@@ -431,12 +473,13 @@ impl Totals {
         let pct = |k: usize| 100.0 * k as f64 / self.n.max(1) as f64;
         let abstained: usize = self.reasons.values().sum();
         println!(
-            "{label}: {} sites, every sensor within {:.0} cm / {TOL_DEG}° on {} ({:.0} %), off (near, beyond target) {}, WRONG {}, abstained {} {:?}; align ms median {:.0}, max {:.0}",
+            "{label}: {} sites, every sensor within {:.0} cm / {TOL_DEG}° on {} ({:.0} %), off (near, beyond target) {} ({} beyond their own 3σ), WRONG {}, abstained {} {:?}; align ms median {:.0}, max {:.0}",
             self.n,
             TOL_M * 100.0,
             self.ok,
             pct(self.ok),
             self.off,
+            self.uncovered,
             self.wrong,
             abstained,
             self.reasons,
@@ -513,11 +556,13 @@ pub(super) fn run(plans: &[Plan], args: &Args, params: &RegisterParams) -> Resul
                 Verdict::Abstained(why) => println!("      {label} abstained: {why}"),
                 Verdict::Ok => {}
                 _ => println!(
-                    "      {label}: alignment (anchor) {:.1} cm {:.2}° off; {}/{} placed sensors within target",
+                    "      {label}: alignment (anchor) {:.1} cm {:.2}° off (its σ {}); {}/{} placed sensors within target, {} beyond 3σ",
                     p.anchor.0 * 100.0,
                     p.anchor.1,
+                    p.sigma,
                     p.within,
-                    o.placed
+                    o.placed,
+                    p.uncovered
                 ),
             }
         }
