@@ -5,7 +5,7 @@
 //! - a page gets the banner, `STATUS`, `POSES`, `FRAME`s with points, `EVENT`s and `MAP`;
 //! - `survey` over the WebSocket places a sensor where it was dropped (`poses` says
 //!   `surveyed`, with the σ sent, kept in `state_dir`), the others are re-solved without
-//!   pulling it back, and `unsurvey` clears it;
+//!   pulling it back, its survey is named as off its scans, and `unsurvey` clears it;
 //! - without the token (even from loopback) HTTP and the upgrade get 401; an upgrade from
 //!   another Origin and a request for another Host get 403;
 //! - a client that reads nothing is dropped while one that reads keeps getting scans.
@@ -244,6 +244,25 @@ async fn the_pages_websocket_keeps_its_contract() {
         _ => None,
     })
     .await;
+    // Dropped 1.35 m and 17° from where its scans put it: that is said, once the re-solve
+    // has run, and the others were placed by their scans alone (not pulled towards it).
+    let said = until(
+        &mut page,
+        5000,
+        "the survey named as off its scans",
+        |m| match m {
+            Message::Event(e)
+                if e.kind == EventKind::Error
+                    && e.sensor.as_deref() == Some(id.as_str())
+                    && e.message.contains("from where its scans put it") =>
+            {
+                Some(e.message.clone())
+            }
+            _ => None,
+        },
+    )
+    .await;
+    eprintln!("{said}");
     // A page always watches everything, people included (protocol 1.2).
     send(&mut page, serde_json::json!({"cmd":"watch","tracks":true})).await;
     let watch = until(&mut page, 2000, "the WATCH reply", |m| match m {

@@ -177,6 +177,8 @@ struct Track {
     retry_at_ns: u64,
     /// The caveat its pose came with ("not confirmed by people…").
     caveat: Option<String>,
+    /// That its survey and its scans disagree has been said (once per survey).
+    survey_off_told: bool,
 }
 
 /// Share of the background's returns that `scan` now sees beyond (by more than
@@ -347,6 +349,8 @@ pub struct Registrar {
     /// Stream time: the newest stamp pushed. Every timer here runs on it, so a replay at any
     /// speed registers as it would live.
     stream_ns: u64,
+    /// (sensor, sentence) to say once, beside the outcomes: a survey its scans contradict.
+    notices: Vec<(String, String)>,
 }
 
 impl Registrar {
@@ -366,7 +370,13 @@ impl Registrar {
             motion_s: config.motion_buffer_s,
             checked_ns: 0,
             stream_ns: 0,
+            notices: Vec::new(),
         }
+    }
+
+    /// What is to be said besides the outcomes, once.
+    pub fn take_notices(&mut self) -> Vec<(String, String)> {
+        std::mem::take(&mut self.notices)
     }
 
     /// The newest stamp pushed, ns.
@@ -428,6 +438,7 @@ impl Registrar {
                         failures: 0,
                         retry_at_ns: 0,
                         caveat: None,
+                        survey_off_told: false,
                     },
                 );
             }
@@ -448,6 +459,7 @@ impl Registrar {
                     refine_from: None,
                 };
                 t.survey = survey;
+                t.survey_off_told = false;
                 t.pinned = pinned.is_some();
                 match pinned {
                     Some(pose) => {
@@ -997,10 +1009,22 @@ impl Registrar {
         };
         let evidence: Vec<_> = (0..site.sensors.len()).map(|i| site.evidence(i)).collect();
         let mut outcomes = Vec::new();
+        let mut notices = Vec::new();
         for (placement, evidence) in site.sensors.into_iter().zip(evidence) {
             let Some(track) = self.tracks.get_mut(&placement.id) else {
                 continue;
             };
+            if let Some((dt, dyaw)) = placement.survey_off.filter(|_| !track.survey_off_told) {
+                track.survey_off_told = true;
+                notices.push((
+                    placement.id.clone(),
+                    format!(
+                        "{}'s survey is {dt:.2} m / {:.1}° from where its scans put it against the others: it stands where surveyed, and its scans were left out of their placement; if the scans are right, clear its survey",
+                        placement.id,
+                        dyaw.to_degrees()
+                    ),
+                ));
+            }
             let Need::Pose { source, .. } = track.need else {
                 continue;
             };
@@ -1059,6 +1083,7 @@ impl Registrar {
                 retry_in_s,
             });
         }
+        self.notices.extend(notices);
         outcomes
     }
 }
@@ -1209,6 +1234,7 @@ pub fn run_worker(
                     if !registrar.pending().is_empty() {
                         let outcomes = registrar.finish(SystemTime::now());
                         publish(&pipeline, outcomes, false);
+                        tell(&pipeline, &mut registrar);
                     }
                     let _ = done.send(());
                 }
@@ -1242,6 +1268,14 @@ fn register_and_publish(pipeline: &Pipeline, registrar: &mut Registrar) {
     );
     let outcomes = registrar.register(registrar.stream_ns(), SystemTime::now());
     publish(pipeline, outcomes, true);
+    tell(pipeline, registrar);
+}
+
+/// Says the registrar's notices (a survey its scans contradict) as warnings.
+fn tell(pipeline: &Pipeline, registrar: &mut Registrar) {
+    for (id, message) in registrar.take_notices() {
+        pipeline.announce(EventKind::Error, Some(&id), message);
+    }
 }
 
 /// Checks the placed sensors against the walkers; withdraws what they contradict and reports

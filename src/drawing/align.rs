@@ -806,7 +806,7 @@ pub fn automatic(
 }
 
 /// Every k-th point, so at most `max` remain.
-fn thin(points: Vec<MapPoint>, max: usize) -> Vec<MapPoint> {
+fn thin<T>(points: Vec<T>, max: usize) -> Vec<T> {
     let step = points.len().div_ceil(max.max(1)).max(1);
     points.into_iter().step_by(step).collect()
 }
@@ -859,23 +859,122 @@ pub fn align(
     p: &RegisterParams,
 ) -> Alignment {
     let index = LineIndex::new(drawing);
-    let map: Vec<MapPoint> = thin(
+    // Each wall point with the sensor it came from, thinned alike.
+    let owned: Vec<(MapPoint, usize)> = thin(
         sensors
             .iter()
-            .flat_map(|s| map_points(s.model, &s.site_from_sensor))
+            .enumerate()
+            .flat_map(|(k, s)| {
+                map_points(s.model, &s.site_from_sensor)
+                    .into_iter()
+                    .map(move |m| (m, k))
+            })
             .collect(),
         20_000,
     );
-    if !pairs.is_empty() {
-        return from_pairs(&map, &index, pairs, similarity);
+    let map: Vec<MapPoint> = owned.iter().map(|(m, _)| *m).collect();
+    let first = if pairs.is_empty() {
+        automatically(drawing, &index, &map, sensors, p)
+    } else {
+        from_pairs(&map, &index, pairs, similarity)
+    };
+    // A sensor whose walls do not fit the drawing where the others put it (surveyed or
+    // dragged to the wrong place, knocked and not yet noticed) would pull the line fit: it
+    // is left out and named, and the lines fitted again without it.
+    let Some(t) = first.building_from_site.filter(|_| first.refined.is_some()) else {
+        return first;
+    };
+    let misfits = misfits(&owned, &index, &t, sensors.len());
+    if misfits.is_empty() {
+        return first;
     }
+    let kept: Vec<MapPoint> = owned
+        .iter()
+        .filter(|(_, k)| !misfits.iter().any(|(m, _)| m == k))
+        .map(|(m, _)| *m)
+        .collect();
+    let mut again = if pairs.is_empty() {
+        let refined = refine(&kept, &index, &t, 0.2);
+        Alignment {
+            building_from_site: Some(refined.transform),
+            covariance: Some(refined.covariance),
+            refined: Some(refined),
+            ..first.clone()
+        }
+    } else {
+        from_pairs(&kept, &index, pairs, similarity)
+    };
+    let named: Vec<String> = misfits
+        .iter()
+        .map(|(k, share)| format!("{} ({:.0} % of its walls)", sensors[*k].id, share * 100.0))
+        .collect();
+    let note = format!(
+        "left out of the line fit: {} within 5 cm of the drawing's lines where the site puts it, against most of the others': placed wrong (a survey, a drag, a knock), or seeing what the drawing leaves out",
+        named.join(", ")
+    );
+    again.reason = Some(match again.reason.take() {
+        Some(r) => format!("{r}; {note}"),
+        None => note,
+    });
+    again
+}
+
+/// A sensor fits the drawing poorly when this share of its wall points or fewer lie within
+/// 5 cm of a drawing line, against the median sensor's.
+const MISFIT_SHARE: f64 = 0.4;
+
+/// The sensors (index, share within 5 cm) whose walls fit the drawing under `t` at most
+/// `MISFIT_SHARE` as well as the median sensor's do; none unless two others fit.
+fn misfits(
+    owned: &[(MapPoint, usize)],
+    index: &LineIndex<'_>,
+    t: &Similarity,
+    sensors: usize,
+) -> Vec<(usize, f64)> {
+    let r = Rotation2::new(t.yaw_rad);
+    let mut hit = vec![(0usize, 0usize); sensors];
+    for (m, k) in owned {
+        hit[*k].1 += 1;
+        if index.nearest(&t.apply(&m.p), &(r * m.n), 0.05).is_some() {
+            hit[*k].0 += 1;
+        }
+    }
+    let shares: Vec<(usize, f64)> = hit
+        .iter()
+        .enumerate()
+        .filter(|(_, h)| h.1 >= MIN_LINE_POINTS)
+        .map(|(k, h)| (k, h.0 as f64 / h.1 as f64))
+        .collect();
+    let mut sorted: Vec<f64> = shares.iter().map(|s| s.1).collect();
+    sorted.sort_by(f64::total_cmp);
+    let Some(&median) = sorted.get(sorted.len() / 2) else {
+        return Vec::new();
+    };
+    let poor: Vec<(usize, f64)> = shares
+        .into_iter()
+        .filter(|s| s.1 <= MISFIT_SHARE * median)
+        .collect();
+    if sorted.len() - poor.len() < 2 {
+        return Vec::new();
+    }
+    poor
+}
+
+/// The automatic alignment, refined on every wall point (not the thinned set the search
+/// used).
+fn automatically(
+    drawing: &Drawing,
+    index: &LineIndex<'_>,
+    map: &[MapPoint],
+    sensors: &[AlignSensor<'_>],
+    p: &RegisterParams,
+) -> Alignment {
     let dmodel = drawing_model(drawing, p);
-    let auto = automatic(&dmodel, &index, sensors, p);
+    let auto = automatic(&dmodel, index, sensors, p);
     let best = auto.candidates.first().cloned();
     match (auto.verdict, best) {
         (Ok(()), Some(best)) => {
-            // The final fit uses every wall point, not the thinned set.
-            let refined = refine(&map, &index, &best.refined.transform, 0.2);
+            let refined = refine(map, index, &best.refined.transform, 0.2);
             Alignment {
                 building_from_site: Some(refined.transform),
                 method: "automatic+lines".into(),
@@ -1195,6 +1294,52 @@ mod tests {
         walls.push(((20.0, 0.0), (20.0, 4.0)));
         let ((bx, by), _) = along(&walls);
         assert!(bx < 0.02 && by < 0.02, "σ {bx:.3} {by:.3}");
+    }
+
+    #[test]
+    fn a_sensor_whose_walls_miss_the_drawing_where_the_others_fit_is_named() {
+        let room: [Line; 5] = [
+            ((0.0, 0.0), (20.0, 0.0)),
+            ((20.0, 0.0), (20.0, 10.0)),
+            ((20.0, 10.0), (0.0, 10.0)),
+            ((0.0, 10.0), (0.0, 0.0)),
+            ((8.0, 0.0), (8.0, 6.0)),
+        ];
+        let truth = Similarity {
+            x_m: 1.0,
+            y_m: 2.0,
+            yaw_rad: 0.4,
+            scale: 1.0,
+        };
+        let d = drawing(&room);
+        let index = LineIndex::new(&d);
+        // Sensors 0 and 1 see the room where it is; sensor 2 was dragged 2.5 m off, so its
+        // walls land in the site 2.5 m from where they stand.
+        let dragged = Similarity {
+            x_m: truth.x_m + 2.0,
+            y_m: truth.y_m - 1.5,
+            ..truth
+        };
+        let mut owned: Vec<(MapPoint, usize)> = Vec::new();
+        for (k, (walls, t)) in [
+            (&room[..2], &truth),
+            (&room[2..4], &truth),
+            (&room[3..], &dragged),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            owned.extend(map_of(walls, t).into_iter().map(|m| (m, k)));
+        }
+        let poor = misfits(&owned, &index, &truth, 3);
+        assert_eq!(
+            poor.iter().map(|p| p.0).collect::<Vec<_>>(),
+            [2],
+            "{poor:?}"
+        );
+        // Without two others that fit, nobody is blamed.
+        let two: Vec<(MapPoint, usize)> = owned.iter().filter(|(_, k)| *k != 1).cloned().collect();
+        assert!(misfits(&two, &index, &truth, 3).is_empty());
     }
 
     #[test]

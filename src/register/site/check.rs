@@ -8,11 +8,44 @@ use crate::register::{RegisterParams, ScanModel};
 use rayon::prelude::*;
 
 /// The solution after the last check: pose and σ per sensor, the sensor whose free space each
-/// dropped one contradicted, and the (pair, candidate) of every edge it rests on.
+/// dropped one contradicted, the (pair, candidate) of every edge it rests on, and for each
+/// surveyed sensor the scans contradict, how far apart the two put it.
 pub(super) struct Solved {
     pub solution: Vec<Option<(Pose2, [f64; 3])>>,
     pub contradicted: Vec<Option<usize>>,
     pub origin: Vec<(usize, usize)>,
+    pub survey_conflicts: Vec<Option<(f64, f64)>>,
+}
+
+/// A survey and the scans disagree beyond both their 3σ by more than this (m, rad) before the
+/// survey is called a mistake rather than weighed against the scans.
+const SURVEY_SLACK_M: f64 = 0.3;
+const SURVEY_SLACK_RAD: f64 = 3.0 * std::f64::consts::PI / 180.0;
+
+/// The surveyed sensors whose survey the scans alone (the edges, without any survey) put far
+/// off: (sensor, metres, radians apart).
+fn surveys_the_scans_contradict(
+    n: usize,
+    anchor: usize,
+    edges: &[Edge],
+    priors: &[(usize, super::Prior)],
+    sp: &SiteParams,
+) -> Vec<(usize, f64, f64)> {
+    if priors.is_empty() {
+        return Vec::new();
+    }
+    let scans = super::solve(n, anchor, edges, &[], sp);
+    priors
+        .iter()
+        .filter_map(|&(i, prior)| {
+            let (pose, sigma) = scans.get(i).copied().flatten()?;
+            let (dt, dyaw) = crate::geometry::pose_error(&pose, &prior.anchor_from_node());
+            let sigma_m = sigma[0].hypot(sigma[1]).hypot(prior.sigma_xy_m);
+            let sigma_rad = sigma[2].hypot(prior.sigma_yaw_rad);
+            (dt > 3.0 * sigma_m + SURVEY_SLACK_M || dyaw > 3.0 * sigma_rad + SURVEY_SLACK_RAD)
+                .then_some((i, dt, dyaw))
+        })
+        .collect()
 }
 
 pub(super) fn solve_without_conflicts(
@@ -30,10 +63,37 @@ pub(super) fn solve_without_conflicts(
     // edges and solve again until no placement contradicts another (`contradicts`: certain
     // contradictions only).
     let priors = super::priors_of(sensors);
+    // A survey metres off what the scans say (a drag to the wrong place, a typo) is a
+    // mistake, not a measurement to average: weighed in, it would carry every unit that
+    // shares a view with its sensor. The sensor stands where surveyed, as asked, and its
+    // edges are left out.
+    let mut survey_conflicts = vec![None; n];
+    for (i, dt, dyaw) in surveys_the_scans_contradict(n, anchor, &edges, &priors, sp) {
+        tracing::debug!(
+            "{}'s survey is {dt:.2} m / {:.1}° from where the scans put it: its edges are left out",
+            sensors[i].id,
+            dyaw.to_degrees()
+        );
+        survey_conflicts[i] = Some((dt, dyaw));
+        let keep: Vec<bool> = edges.iter().map(|e| e.a != i && e.b != i).collect();
+        edges = edges
+            .into_iter()
+            .zip(&keep)
+            .filter(|(_, k)| **k)
+            .map(|(e, _)| e)
+            .collect();
+        origin = origin
+            .into_iter()
+            .zip(&keep)
+            .filter(|(_, k)| **k)
+            .map(|(o, _)| o)
+            .collect();
+    }
     let mut solution = super::solve(n, anchor, &edges, &priors, sp);
     let mut contradicted = vec![None::<usize>; n];
     let certain = certain_only(p, sp);
     let reach = super::reach_m(sensors);
+    let mut unsettled: Vec<(usize, usize)> = Vec::new();
     loop {
         let placed: Vec<(usize, Pose2)> = solution
             .iter()
@@ -47,10 +107,15 @@ pub(super) fn solve_without_conflicts(
                     .iter()
                     .filter(move |(j, _)| *j > i)
                     .map(move |&(j, pj)| (i, pi, j, pj))
-                    // Out of each other's reach they cannot contradict each other.
+                    // Out of each other's reach they cannot contradict each other; a survey
+                    // the scans contradict vetoes no one (it is named already); and what
+                    // dropping edges cannot settle is left as it is.
                     .filter(|&(i, pi, j, pj)| {
                         (pi.translation.vector - pj.translation.vector).norm()
                             <= reach[i] + reach[j]
+                            && survey_conflicts[i].is_none()
+                            && survey_conflicts[j].is_none()
+                            && !unsettled.contains(&(i, j))
                     })
             })
             .find_first(|&(i, pi, j, pj)| {
@@ -64,15 +129,20 @@ pub(super) fn solve_without_conflicts(
             .map(|(i, _, j, _)| (i, j));
         let Some((i, j)) = conflict else { break };
         let support = |k: usize| edges.iter().filter(|e| e.a == k || e.b == k).count();
-        // Never drop the anchor; otherwise the sensor with fewer edges loses them all.
-        let loser = if i == anchor {
-            j
-        } else if j == anchor || support(i) < support(j) {
-            i
-        } else if support(j) < support(i) {
-            j
-        } else {
-            i.max(j)
+        // Never drop the anchor, nor a sensor without edges (placed by its survey alone:
+        // dropping nothing would find the same conflict again); otherwise the sensor with
+        // fewer edges loses them all.
+        let droppable = |k: usize| k != anchor && support(k) > 0;
+        let loser = match (droppable(i), droppable(j)) {
+            (false, false) => {
+                unsettled.push((i, j));
+                continue;
+            }
+            (true, false) => i,
+            (false, true) => j,
+            _ if support(i) < support(j) => i,
+            _ if support(j) < support(i) => j,
+            _ => i.max(j),
         };
         contradicted[loser] = Some(if loser == i { j } else { i });
         tracing::trace!(
@@ -97,6 +167,7 @@ pub(super) fn solve_without_conflicts(
         solution,
         contradicted,
         origin,
+        survey_conflicts,
     }
 }
 

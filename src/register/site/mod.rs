@@ -200,8 +200,12 @@ pub struct Placement {
     pub id: String,
     pub pose: Result<PlacedPose, String>,
     /// For a placed sensor that rests on too few pairs (`SiteParams::confirming_pairs`) and
-    /// no survey: what to check. None otherwise.
+    /// no survey, what to check; for a surveyed one the scans contradict, that. None
+    /// otherwise.
     pub caveat: Option<String>,
+    /// A survey the scans put this far off (m, rad): the sensor stands where surveyed, and
+    /// its scans were left out of the others' placement.
+    pub survey_off: Option<(f64, f64)>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]

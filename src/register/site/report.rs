@@ -22,7 +22,7 @@ pub(super) fn site_result(
         solution,
         contradicted,
         origin,
-        ..
+        survey_conflicts,
     } = solved;
     let anchor_pitch = sensors.get(anchor).map_or(0.0, |s| s.mount.pitch_rad);
     let id = |k: usize| sensors.get(k).map_or("another sensor", |s| s.id.as_str());
@@ -40,7 +40,14 @@ pub(super) fn site_result(
         .enumerate()
         .map(|(i, s)| Placement {
             id: s.id.clone(),
-            caveat: solution.get(i).copied().flatten().and_then(|_| caveat_of(i)),
+            survey_off: survey_conflicts.get(i).copied().flatten(),
+            caveat: match survey_conflicts.get(i).copied().flatten() {
+                Some((dt, dyaw)) => Some(format!(
+                    "stands where surveyed, {dt:.2} m / {:.1}° from where its scans put it against the others: its scans were left out of their placement; if the scans are right, clear its survey",
+                    dyaw.to_degrees()
+                )),
+                None => solution.get(i).copied().flatten().and_then(|_| caveat_of(i)),
+            },
             pose: match solution.get(i).copied().flatten() {
                 Some((pose, sigma)) => Ok(PlacedPose {
                     pose: Pose3::from_planar(

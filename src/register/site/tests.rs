@@ -140,6 +140,59 @@ fn surveyed_priors_place_an_unreached_sensor_and_weigh_against_edges() {
     assert!((sigma[0] - 0.05).abs() < 0.01, "σx {}", sigma[0]);
 }
 
+#[test]
+fn a_survey_metres_off_the_scans_stands_alone_and_does_not_carry_the_others() {
+    let truth = [
+        pose2(0.0, 0.0, 0.0),
+        pose2(5.0, 1.0, 0.5),
+        pose2(3.0, 6.0, -1.0),
+    ];
+    let model = ScanModel::new(&[], 0.25f64.to_radians(), &RegisterParams::default());
+    let input = |i: usize, prior: Option<Prior>| SensorInput {
+        id: format!("s{i}"),
+        mount: crate::geometry::Mount::default(),
+        model: model.clone(),
+        prior,
+    };
+    // Sensor 2 dragged 2.5 m from where the scans place it, with a drag's σ (5 cm, 2°).
+    let dragged = pose2(2.0, -1.5, 0.0) * truth[2];
+    let sensors = [
+        input(0, None),
+        input(1, None),
+        input(2, Some(Prior::new(dragged, 0.05, 2f64.to_radians()))),
+    ];
+    let edges = vec![
+        edge(0, 1, &truth, Pose2::identity()),
+        edge(1, 2, &truth, Pose2::identity()),
+        edge(0, 2, &truth, Pose2::identity()),
+    ];
+    let origin = vec![(0, 0), (1, 0), (2, 0)];
+    let (p, sp) = (RegisterParams::default(), SiteParams::default());
+    let solved = check::solve_without_conflicts(3, 0, edges.clone(), origin, &sensors, &p, &sp);
+    let (one, _) = solved.solution[1].expect("sensor 1 placed");
+    let (dt, dyaw) = pose_error(&one, &truth[1]);
+    assert!(
+        dt < 0.005 && dyaw < 0.001,
+        "sensor 1 carried {dt} m {dyaw} rad"
+    );
+    let (two, _) = solved.solution[2].expect("sensor 2 where surveyed");
+    assert!(pose_error(&two, &dragged).0 < 1e-6);
+    let (apart, _) = solved.survey_conflicts[2].expect("the conflict named");
+    assert!((apart - 2.5).abs() < 0.05, "{apart}");
+    assert!(solved.survey_conflicts[1].is_none());
+    // 20 cm off is weighed against the scans, as before (the surveyed test above).
+    let near = [
+        input(0, None),
+        input(1, None),
+        input(
+            2,
+            Some(Prior::new(pose2(0.2, 0.0, 0.0) * truth[2], 0.05, 0.02)),
+        ),
+    ];
+    let solved = check::solve_without_conflicts(3, 0, edges, vec![(0, 0); 3], &near, &p, &sp);
+    assert!(solved.survey_conflicts.iter().all(Option::is_none));
+}
+
 use crate::geometry::raycast::{Wall, cast, polygon};
 use crate::geometry::{ScanPoint, pose_error};
 use crate::register::Candidate;
