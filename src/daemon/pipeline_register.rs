@@ -1014,16 +1014,12 @@ impl Registrar {
             let Some(track) = self.tracks.get_mut(&placement.id) else {
                 continue;
             };
-            if let Some((dt, dyaw)) = placement.survey_off.filter(|_| !track.survey_off_told) {
+            // A survey its scans contradict: said once (a pinned sensor has no outcome to
+            // carry it), in the placement's own words.
+            if placement.survey_off.is_some() && !track.survey_off_told {
                 track.survey_off_told = true;
-                notices.push((
-                    placement.id.clone(),
-                    format!(
-                        "{}'s survey is {dt:.2} m / {:.1}° from where its scans put it against the others: it stands where surveyed, and its scans were left out of their placement; if the scans are right, clear its survey",
-                        placement.id,
-                        dyaw.to_degrees()
-                    ),
-                ));
+                let why = placement.caveat.as_deref().unwrap_or_default();
+                notices.push((placement.id.clone(), format!("{} {why}", placement.id)));
             }
             let Need::Pose { source, .. } = track.need else {
                 continue;

@@ -339,8 +339,8 @@ pub struct Refined {
     /// Covariance of (x, y, yaw) of the transform: each fitted line once (see
     /// `line_covariance`), not each of its thousands of points.
     pub covariance: Matrix3<f64>,
-    /// Lines the covariance rests on: with enough support and not reported moved.
-    pub checked_lines: usize,
+    /// Drawing lines the covariance rests on: with enough support, not reported moved.
+    pub fitted_lines: usize,
     /// Lines with enough support, the moved ones first, then by offset.
     pub lines: Vec<LineResidual>,
 }
@@ -511,7 +511,7 @@ fn residuals(map: &[MapPoint], index: &LineIndex<'_>, t: Similarity) -> Refined 
             covariance[(2, 2)].sqrt(),
         ),
         covariance,
-        checked_lines: extents.len(),
+        fitted_lines: extents.len(),
         lines,
     }
 }
@@ -822,8 +822,9 @@ pub struct Alignment {
     /// Residual of each given point pair under the final transform (m).
     pub pair_residuals_m: Vec<f64>,
     pub refined: Option<Refined>,
-    /// Of (x, y, yaw) of `building_from_site`, from the fit it came from: the lines', or the
-    /// clicks' where the lines were not kept. `None` when not aligned.
+    /// Of (x, y, yaw) of `building_from_site`, from the fit it came from: the lines'; with
+    /// clicks, theirs and the lines' combined, or theirs alone where the walls fit poorly.
+    /// `None` when not aligned.
     pub covariance: Option<Matrix3<f64>>,
 }
 
@@ -1035,8 +1036,8 @@ fn from_pairs(
         let weak = lines_m > clicks_m || lines_yaw > clicks_yaw;
         let why = weak.then(|| {
             format!(
-                "the walls seen ({} drawing lines matched, none found moved that others check) pin the alignment less well than the clicks: it leans on the clicks; give a third pair, or place a sensor that sees more walls",
-                refined.checked_lines
+                "the walls seen ({} of the drawing's lines fitted) pin the alignment less well than the clicks: it leans on the clicks; give a third pair, or place a sensor that sees more walls",
+                refined.fitted_lines
             )
         });
         (t, c, "pairs+lines", why)
@@ -1285,7 +1286,7 @@ mod tests {
             let d = drawing(walls);
             let r = refine(&map_of(walls, &truth), &LineIndex::new(&d), &truth, 0.5);
             // σ in the building's axes: x along the corridor, y across.
-            (r.sigma_at(&Point2::new(0.0, 0.0)), r.checked_lines)
+            (r.sigma_at(&Point2::new(0.0, 0.0)), r.fitted_lines)
         };
         let ((ax, ay), lines) = along(&walls);
         assert_eq!(lines, 3);

@@ -75,19 +75,7 @@ pub(super) fn solve_without_conflicts(
             dyaw.to_degrees()
         );
         survey_conflicts[i] = Some((dt, dyaw));
-        let keep: Vec<bool> = edges.iter().map(|e| e.a != i && e.b != i).collect();
-        edges = edges
-            .into_iter()
-            .zip(&keep)
-            .filter(|(_, k)| **k)
-            .map(|(e, _)| e)
-            .collect();
-        origin = origin
-            .into_iter()
-            .zip(&keep)
-            .filter(|(_, k)| **k)
-            .map(|(o, _)| o)
-            .collect();
+        drop_edges_of(i, &mut edges, &mut origin);
     }
     let mut solution = super::solve(n, anchor, &edges, &priors, sp);
     let mut contradicted = vec![None::<usize>; n];
@@ -150,17 +138,7 @@ pub(super) fn solve_without_conflicts(
             sensors[loser].id,
             sensors[if loser == i { j } else { i }].id
         );
-        let keep: Vec<bool> = edges.iter().map(|e| e.a != loser && e.b != loser).collect();
-        let mut k = 0;
-        edges.retain(|_| {
-            k += 1;
-            keep[k - 1]
-        });
-        let mut k = 0;
-        origin.retain(|_| {
-            k += 1;
-            keep[k - 1]
-        });
+        drop_edges_of(loser, &mut edges, &mut origin);
         solution = super::solve(n, anchor, &edges, &priors, sp);
     }
     Solved {
@@ -169,6 +147,15 @@ pub(super) fn solve_without_conflicts(
         origin,
         survey_conflicts,
     }
+}
+
+/// Removes every edge of sensor `k`, and its origin beside it.
+fn drop_edges_of(k: usize, edges: &mut Vec<Edge>, origin: &mut Vec<(usize, usize)>) {
+    let keep: Vec<bool> = edges.iter().map(|e| e.a != k && e.b != k).collect();
+    let mut kept = keep.iter();
+    edges.retain(|_| kept.next().copied().unwrap_or(true));
+    let mut kept = keep.iter();
+    origin.retain(|_| kept.next().copied().unwrap_or(true));
 }
 
 /// The registration parameters with only the contradictions the last check is sure of
