@@ -98,20 +98,29 @@ fn a_wrong_edge_on_a_cycle_away_from_the_anchor_is_dropped() {
     }
 }
 
-#[test]
-fn surveyed_priors_place_an_unreached_sensor_and_weigh_against_edges() {
-    let truth = [
+/// Three sensors' true poses, for the survey tests.
+fn three_truths() -> [Pose2; 3] {
+    [
         pose2(0.0, 0.0, 0.0),
         pose2(5.0, 1.0, 0.5),
         pose2(3.0, 6.0, -1.0),
-    ];
-    let model = ScanModel::new(&[], 0.25f64.to_radians(), &RegisterParams::default());
-    let input = |i: usize, prior: Option<Prior>| SensorInput {
+    ]
+}
+
+/// Sensor `s{i}` with no scan (the solve and its checks see only edges and priors).
+fn blank_input(i: usize, prior: Option<Prior>) -> SensorInput {
+    SensorInput {
         id: format!("s{i}"),
         mount: crate::geometry::Mount::default(),
-        model: model.clone(),
+        model: ScanModel::new(&[], 0.25f64.to_radians(), &RegisterParams::default()),
         prior,
-    };
+    }
+}
+
+#[test]
+fn surveyed_priors_place_an_unreached_sensor_and_weigh_against_edges() {
+    let truth = three_truths();
+    let input = blank_input;
     // Sensor 1: its edge (σ² 1e-4 plus the 1 cm floor: 2e-4) and a survey 20 cm off along
     // x (σ² 1e-4) meet at the weighted mean, 2/3 of the way to the survey. Sensor 2: no
     // edge, only a survey; it stands where surveyed, with the survey's σ.
@@ -142,18 +151,8 @@ fn surveyed_priors_place_an_unreached_sensor_and_weigh_against_edges() {
 
 #[test]
 fn a_survey_metres_off_the_scans_stands_alone_and_does_not_carry_the_others() {
-    let truth = [
-        pose2(0.0, 0.0, 0.0),
-        pose2(5.0, 1.0, 0.5),
-        pose2(3.0, 6.0, -1.0),
-    ];
-    let model = ScanModel::new(&[], 0.25f64.to_radians(), &RegisterParams::default());
-    let input = |i: usize, prior: Option<Prior>| SensorInput {
-        id: format!("s{i}"),
-        mount: crate::geometry::Mount::default(),
-        model: model.clone(),
-        prior,
-    };
+    let truth = three_truths();
+    let input = blank_input;
     // Sensor 2 dragged 2.5 m from where the scans place it, with a drag's σ (5 cm, 2°).
     let dragged = pose2(2.0, -1.5, 0.0) * truth[2];
     let sensors = [
