@@ -747,23 +747,7 @@ impl Pipeline {
     /// Sets poses (from the worker or `poses.toml`); `None` with a reason unsets one.
     pub(super) fn set_pose(&self, id: &str, pose: Result<PoseEntry, String>) {
         let mut inner = lock(&self.inner);
-        // The tracker's background of a sensor is in the sensor's own frame: a pose that
-        // goes, or comes back elsewhere (found moved), leaves it wrong, and a knocked unit's
-        // new view would read as people for a minute and a half (`absorb_s`).
-        let elsewhere = match (&pose, inner.poses.get(id)) {
-            (Ok(new), Some(old)) => {
-                let (dt, dyaw) = crate::geometry::pose_error(
-                    &new.site_from_sensor.planar(),
-                    &old.site_from_sensor.planar(),
-                );
-                dt > FORGET_M || dyaw > FORGET_DEG.to_radians()
-            }
-            (Err(_), Some(_)) => !inner.resolving.contains(id),
-            _ => false,
-        };
-        if elsewhere && let Some(queue) = self.tracker.get() {
-            let _ = queue.push(TrackIn::Forget(id.to_string()));
-        }
+        let before = inner.poses.get(id).map(|e| e.site_from_sensor.planar());
         match pose {
             Ok(entry) => {
                 inner.resolving.remove(id);
@@ -782,6 +766,21 @@ impl Pipeline {
                     slot.unposed_reason = reason;
                 }
             }
+        }
+        // The tracker's background of a sensor is in the sensor's own frame: a pose that
+        // went, or came back elsewhere (found moved), leaves it wrong, and a knocked unit's
+        // new view would read as people for a minute and a half (`absorb_s`).
+        let after = inner.poses.get(id).map(|e| e.site_from_sensor.planar());
+        let elsewhere = match (before, after) {
+            (Some(old), Some(new)) => {
+                let (dt, dyaw) = crate::geometry::pose_error(&new, &old);
+                dt > FORGET_M || dyaw > FORGET_DEG.to_radians()
+            }
+            (Some(_), None) => true,
+            _ => false,
+        };
+        if elsewhere && let Some(queue) = self.tracker.get() {
+            let _ = queue.push(TrackIn::Forget(id.to_string()));
         }
     }
 
@@ -1153,7 +1152,18 @@ mod tests {
 
     /// A pipeline of `ids` (the first the anchor), not yet added; the worker's command end.
     fn pipeline_of(ids: &[&str]) -> (Config, Pipeline, crossbeam_channel::Receiver<Command>) {
+        pipeline_in(ids, None)
+    }
+
+    /// [`pipeline_of`], saving to `state_dir` when given.
+    fn pipeline_in(
+        ids: &[&str],
+        state_dir: Option<&std::path::Path>,
+    ) -> (Config, Pipeline, crossbeam_channel::Receiver<Command>) {
         let mut text = format!("[site]\nname = \"s\"\nanchor = \"{}\"\n", ids[0]);
+        if let Some(dir) = state_dir {
+            text.push_str(&format!("state_dir = \"{}\"\n", dir.display()));
+        }
         for (i, id) in ids.iter().enumerate() {
             text.push_str(&format!(
                 "[[sensor]]\nid = \"{id}\"\nconnect = \"tcp://127.0.0.1:{}\"\n",
@@ -1300,20 +1310,7 @@ mod tests {
     #[test]
     fn a_survey_by_hand_places_the_sensor_on_disk_and_the_others_keep_their_poses() {
         let dir = tempfile::tempdir().unwrap();
-        let mut text = format!(
-            "[site]\nname = \"s\"\nanchor = \"a\"\nstate_dir = \"{}\"\n",
-            dir.path().display()
-        );
-        for (i, id) in ["a", "b", "c"].iter().enumerate() {
-            text.push_str(&format!(
-                "[[sensor]]\nid = \"{id}\"\nconnect = \"tcp://127.0.0.1:{}\"\n",
-                i + 1
-            ));
-        }
-        let config = Config::parse(&text, std::path::Path::new("/c/site.toml")).unwrap();
-        let (queue, _worker) = drop_oldest(16);
-        let (commands, worker) = crossbeam_channel::unbounded();
-        let p = Pipeline::new(&config, queue, commands, Publisher::new(4), None);
+        let (config, p, worker) = pipeline_in(&["a", "b", "c"], Some(dir.path()));
         for s in &config.sensors {
             p.add_sensor(
                 SensorSpec::from_config(s),
