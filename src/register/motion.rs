@@ -139,6 +139,13 @@ impl MotionEvidence {
         self.seen_through >= p.refute_min
             && self.seen_through as f64 > p.refute_ratio * self.seen as f64
     }
+
+    /// Enough walkers both saw here (`MotionParams::settle_min_seen`), few of them seen
+    /// through (`WalkerParams::max_through_share`), to confirm the pose.
+    pub fn confirms(&self, p: &super::RegisterParams) -> bool {
+        self.seen >= p.motion.settle_min_seen
+            && self.seen_through as f64 <= p.walkers.max_through_share * self.seen as f64
+    }
 }
 
 enum Look {

@@ -151,6 +151,12 @@ impl PairResult {
     pub fn registered(&self) -> bool {
         self.verdict.is_ok()
     }
+
+    /// Registered, and people both sensors saw walk confirm the pose
+    /// (`MotionParams::settle_min_seen` of them there, few seen through): not the walls alone.
+    pub fn confirmed_by_people(&self, p: &RegisterParams) -> bool {
+        self.registered() && self.motion.is_some_and(|e| e.confirms(p))
+    }
 }
 
 fn same_pose(x: &Pose2, y: &Pose2, p: &RegisterParams) -> bool {
@@ -630,9 +636,7 @@ fn outwatched(
     let (Some(best), Some(rival)) = (best, rival) else {
         return false;
     };
-    let confirmed = best.seen >= p.motion.settle_min_seen
-        && best.seen_through as f64 <= p.walkers.max_through_share * best.seen as f64;
-    expected && confirmed && rival.seen == 0
+    expected && best.confirms(p) && rival.seen == 0
 }
 
 /// How long the two sensors watched together, when that is long enough to expect a walker

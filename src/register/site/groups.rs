@@ -1,7 +1,7 @@
 //! Groups: the registered pairs' edges that cycles check (consistent around triangles and
-//! with a spanning tree, and on a cycle, not a bridge) bind sensors into groups whose members'
-//! poses are relative to each other; the anchor's group is placed. Also the graph helpers the
-//! other stages share (spanning poses from a sensor).
+//! with a spanning tree, and on a cycle, not a bridge) or people confirmed bind sensors into
+//! groups whose members' poses are relative to each other; the anchor's group is placed. Also
+//! the graph helpers the other stages share (spanning poses from a sensor).
 
 use super::memo::ScoreMemo;
 use super::{Edge, SensorInput, SiteParams, candidate_edge};
@@ -17,7 +17,8 @@ pub(super) struct Checked {
 }
 
 /// The registered pairs' answers kept by `consistent_edges` and not refuted by their ends'
-/// neighbourhoods (`neighbourhoods`) that lie on a cycle.
+/// neighbourhoods (`neighbourhoods`) that lie on a cycle or that people confirmed
+/// (`PairResult::confirmed_by_people`).
 #[allow(clippy::too_many_arguments)] // the stage inputs, as `join_groups`
 pub(super) fn checked_edges(
     n: usize,
@@ -52,7 +53,12 @@ pub(super) fn checked_edges(
     let unchecked = bridges(n, &kept_edges);
     let (mut edges, mut origin) = (Vec::new(), Vec::new());
     for (k, &e) in kept.iter().enumerate() {
-        if !unchecked.contains(&k) {
+        // People both saw walk check a pair as a cycle would: the walls' look-alike is what
+        // they refute. Left to propose only, a unit such a pair placed beside its partner
+        // joined elsewhere instead, on four walls-only pairs of a repeating office, 9.4 m /
+        // 180° off (held-out office, `eval --only drawing --seed 3`, site 7).
+        let walked = results[registered_origin[e]].confirmed_by_people(p);
+        if !unchecked.contains(&k) || walked {
             edges.push(registered[e].clone());
             origin.push((registered_origin[e], 0));
         }

@@ -241,9 +241,10 @@ pub struct SiteResult {
 
 /// Registers the pairs of `sensors` that matter (`pairs`) and places all of them in the frame of `anchor`.
 ///
-/// Edges that lie on a cycle of consistent registered pairs are trusted: they bind sensors into
-/// groups. Everything else — a registered pair no cycle checks (a bridge), an ambiguous pair's
-/// candidates — only proposes where a group stands, and a group joins the placed sensors only
+/// Edges that lie on a cycle of consistent registered pairs, or that people both sensors saw
+/// walk confirmed, are trusted: they bind sensors into groups. Everything else — a registered
+/// pair only the walls and no cycle check (a bridge), an ambiguous pair's candidates — only
+/// proposes where a group stands, and a group joins the placed sensors only
 /// where its scans fit every placed sensor's scan jointly, clearly better than anywhere else
 /// proposed, and contradict none of them (`join`).
 pub fn register_site(

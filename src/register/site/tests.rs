@@ -941,3 +941,41 @@ fn joins_that_take_minutes_are_said_with_how_far_they_got() {
         assert!(said.contains(part), "{part}: {said}");
     }
 }
+
+/// A registered pair on no cycle (a bridge) only proposes where its sensor joins, unless
+/// people both sensors saw walk confirmed it: their walks check it as a cycle would, so it
+/// binds its sensors into a group. Walls alone, or too few walkers, do not.
+#[test]
+fn a_bridge_people_confirmed_binds_its_sensors_and_a_walls_only_one_does_not() {
+    let truth = [
+        pose2(-3.0, -1.0, 0.3),
+        pose2(1.0, -2.0, 2.6),
+        pose2(-1.0, 1.5, -0.8),
+    ];
+    let sensors: Vec<SensorInput> = truth
+        .iter()
+        .enumerate()
+        .map(|(i, pose)| sensor_at(&hall(), *pose, 270f64.to_radians(), &format!("s{i}")))
+        .collect();
+    let (p, sp) = (RegisterParams::default(), SiteParams::default());
+    let registered = |a: usize, b: usize, seen: usize| {
+        let mut r = undecided_pair(&sensors[a], &sensors[b], &[truth[a].inverse() * truth[b]]);
+        r.verdict = Ok(());
+        r.motion = Some(crate::register::motion::MotionEvidence {
+            seen,
+            seen_through: 0,
+        });
+        r
+    };
+    let pairs = [(0, 1), (1, 2)];
+    let checked = |seen: [usize; 2]| {
+        let results = [registered(0, 1, seen[0]), registered(1, 2, seen[1])];
+        let memo = super::memo::ScoreMemo::default();
+        let c = groups::checked_edges(3, 0, &pairs, &results, &sensors, &p, &sp, &memo);
+        c.edges.iter().map(|e| (e.a, e.b)).collect::<Vec<_>>()
+    };
+    let many = p.motion.settle_min_seen;
+    assert_eq!(checked([0, many]), vec![(1, 2)]);
+    assert_eq!(checked([many, many]), vec![(0, 1), (1, 2)]);
+    assert_eq!(checked([0, many - 1]), Vec::<(usize, usize)>::new());
+}
