@@ -16,7 +16,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use scanfuse::drawing::align::{AlignSensor, Alignment, align};
 use scanfuse::drawing::{Drawing, WallSegment};
-use scanfuse::geometry::{Pose2, pose_error};
+use scanfuse::geometry::{Pose2, pose_error, within_sigma};
 use scanfuse::register::RegisterParams;
 use scanfuse::register::site::{SiteParams, register_site};
 use scanfuse::sim::plan::Plan;
@@ -161,10 +161,10 @@ fn score(
         .zip(&errors)
         .filter(|((_, site, own), e)| {
             let (ax, ay) = a.sigma_at(&Point2::from(site.translation.vector));
-            let m = (own[0].powi(2) + own[1].powi(2) + ax.powi(2) + ay.powi(2)).sqrt();
-            let yaw = own[2].hypot(a.sigma().map_or(0.0, |s| s.2)).to_degrees();
+            let sigma_xy = [own[0].hypot(ax), own[1].hypot(ay)];
+            let sigma_yaw = own[2].hypot(a.sigma().map_or(0.0, |s| s.2));
             let beyond = e.0 > TOL_M || e.1 > TOL_DEG;
-            beyond && (e.0 > 3.0 * m || e.1 > 3.0 * yaw)
+            beyond && !within_sigma((e.0, e.1.to_radians()), sigma_xy, sigma_yaw, 3.0)
         })
         .count();
     let worst = errors
