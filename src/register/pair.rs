@@ -309,11 +309,21 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         Some(_) => walls_under_walkers(a, b, &best, p),
         None => best.score,
     };
-    let verdict = if walls.overlap() < p.min_overlap {
+    // Where people both saw walk chose the pose and confirm it, a look-alike is what they
+    // ruled out: the walls need share only enough to refine it (their σ still gates it), but
+    // must fit what they share as well as ever (the score floor scales with the share).
+    let confirmed = by_walkers.is_some() && evidence.first().is_some_and(|e| e.confirms(p));
+    let (min_overlap, min_score) = if confirmed {
+        let share = (walls.overlap() / p.min_overlap).min(1.0);
+        (p.walkers.chosen_min_overlap, p.min_score * share)
+    } else {
+        (p.min_overlap, p.min_score)
+    };
+    let verdict = if walls.overlap() < min_overlap {
         Err(Abstain::TooLittleOverlap {
             overlap: walls.overlap(),
         })
-    } else if walls.value < p.min_score {
+    } else if walls.value < min_score {
         Err(Abstain::WeakMatch { score: walls.value })
     } else if walls.violation() > p.max_violation {
         Err(Abstain::ContradictsFreeSpace {

@@ -75,6 +75,10 @@ pub struct WalkerParams {
     /// beam less than this much (m) above what the other unit saw (`RegisterParams::
     /// free_space_dz_m` otherwise): people checked the free space already.
     pub chosen_free_space_dz_m: f64,
+    /// Where decisive walkers chose the pose and the walkers both saw there confirm it
+    /// (`MotionEvidence::confirms`), the walls' shared view need reach only this
+    /// (`RegisterParams::min_overlap` otherwise; `min_score` scales down with it).
+    pub chosen_min_overlap: f64,
 }
 
 impl Default for WalkerParams {
@@ -105,6 +109,7 @@ impl Default for WalkerParams {
             alone_max_sigma_rad: 0.3f64.to_radians(),
             alone_bias_m: 0.05,
             chosen_free_space_dz_m: 0.05,
+            chosen_min_overlap: 0.05,
         }
     }
 }
