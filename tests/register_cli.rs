@@ -48,15 +48,7 @@ fn check_fixture(name: &str, anchor: &str) {
     assert_eq!(json["anchor"], anchor);
     assert!(json["elapsed_ms"].as_u64().is_some());
     let recording = record::read(&path).unwrap();
-    let truth_of = |id: &str| {
-        let t = recording
-            .sensors
-            .iter()
-            .find(|s| s.id == id)
-            .and_then(|s| s.truth)
-            .unwrap();
-        pose2(t.x_m, t.y_m, t.yaw_deg.to_radians())
-    };
+    let truth_of = truths(&recording);
     let site_from_anchor = truth_of(anchor);
     let sensors = json["sensors"].as_array().unwrap();
     assert_eq!(sensors.len(), recording.sensors.len());
@@ -264,6 +256,14 @@ fn simulated(dir: &Path, plan: &str, seconds: &str) -> std::path::PathBuf {
     mcap
 }
 
+/// Each sensor's simulated truth in a recording, by id.
+fn truths(recording: &record::Recording) -> impl Fn(&str) -> Pose2 + '_ {
+    |id| {
+        let t = recording.sensor(id).and_then(|s| s.truth).unwrap();
+        pose2(t.x_m, t.y_m, t.yaw_deg.to_radians())
+    }
+}
+
 fn sensor<'a>(json: &'a serde_json::Value, id: &str) -> &'a serde_json::Value {
     let sensors = json["sensors"].as_array().unwrap();
     sensors.iter().find(|s| s["id"] == id).unwrap()
@@ -317,10 +317,7 @@ fn a_hall_full_of_people_places_every_scanner() {
     let mcap = simulated(dir.path(), &plan, "12");
     let json = register_json(&mcap, "sw");
     let recording = record::read(&mcap).unwrap();
-    let truth_of = |id: &str| {
-        let t = recording.sensor(id).and_then(|s| s.truth).unwrap();
-        pose2(t.x_m, t.y_m, t.yaw_deg.to_radians())
-    };
+    let truth_of = truths(&recording);
     let sw = truth_of("sw");
     for s in json["sensors"].as_array().unwrap() {
         let id = s["id"].as_str().unwrap();
@@ -334,7 +331,7 @@ fn with_sensors(plan: &str, sensors: &str) -> String {
     let mut kept = String::new();
     let mut in_sensor = false;
     for line in plan.lines() {
-        if line.starts_with("[[") || line.starts_with('[') {
+        if line.starts_with('[') {
             in_sensor = line.trim() == "[[sensor]]";
         }
         if !in_sensor {
@@ -366,10 +363,7 @@ fn people_confirming_the_walls_pose_place_a_pair_that_shares_little_wall() {
         "{pair}"
     );
     let recording = record::read(&mcap).unwrap();
-    let truth_of = |id: &str| {
-        let t = recording.sensor(id).and_then(|s| s.truth).unwrap();
-        pose2(t.x_m, t.y_m, t.yaw_deg.to_radians())
-    };
+    let truth_of = truths(&recording);
     let b = sensor(&json, "b");
     assert_eq!(b["registered"], true, "{b}");
     assert_placed_at(b, &(truth_of("a").inverse() * truth_of("b")), "b");

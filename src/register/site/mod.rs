@@ -243,9 +243,9 @@ pub struct SiteResult {
 ///
 /// Edges that lie on a cycle of consistent registered pairs, or that people both sensors saw
 /// walk confirmed, are trusted: they bind sensors into groups. Everything else — a registered
-/// pair only the walls and no cycle check (a bridge), an ambiguous pair's candidates — only
-/// proposes where a group stands, and a group joins the placed sensors only
-/// where its scans fit every placed sensor's scan jointly, clearly better than anywhere else
+/// pair that the walls alone and no cycle check (a bridge), an ambiguous pair's candidates —
+/// only proposes where a group stands, and a group joins the placed sensors only where its
+/// scans fit every placed sensor's scan jointly, clearly better than anywhere else
 /// proposed, and contradict none of them (`join`).
 pub fn register_site(
     sensors: &[SensorInput],
