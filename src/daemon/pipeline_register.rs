@@ -1009,7 +1009,6 @@ impl Registrar {
         };
         let evidence: Vec<_> = (0..site.sensors.len()).map(|i| site.evidence(i)).collect();
         let mut outcomes = Vec::new();
-        let mut notices = Vec::new();
         for (placement, evidence) in site.sensors.into_iter().zip(evidence) {
             let Some(track) = self.tracks.get_mut(&placement.id) else {
                 continue;
@@ -1019,7 +1018,8 @@ impl Registrar {
             if placement.survey_off.is_some() && !track.survey_off_told {
                 track.survey_off_told = true;
                 let why = placement.caveat.as_deref().unwrap_or_default();
-                notices.push((placement.id.clone(), format!("{} {why}", placement.id)));
+                self.notices
+                    .push((placement.id.clone(), format!("{} {why}", placement.id)));
             }
             let Need::Pose { source, .. } = track.need else {
                 continue;
@@ -1079,7 +1079,6 @@ impl Registrar {
                 retry_in_s,
             });
         }
-        self.notices.extend(notices);
         outcomes
     }
 }

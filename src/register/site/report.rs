@@ -38,10 +38,12 @@ pub(super) fn site_result(
     let placements = sensors
         .iter()
         .enumerate()
-        .map(|(i, s)| Placement {
+        .map(|(i, s)| {
+            let survey_off = survey_conflicts.get(i).copied().flatten();
+            Placement {
             id: s.id.clone(),
-            survey_off: survey_conflicts.get(i).copied().flatten(),
-            caveat: match survey_conflicts.get(i).copied().flatten() {
+            survey_off,
+            caveat: match survey_off {
                 Some((dt, dyaw)) => Some(format!(
                     "stands where surveyed, {dt:.2} m / {:.1}° from where its scans put it against the others: its scans were left out of their placement; if the scans are right, clear its survey",
                     dyaw.to_degrees()
@@ -93,6 +95,7 @@ pub(super) fn site_result(
                     }
                 }),
             },
+            }
         })
         .collect();
     let reports = pairs

@@ -220,6 +220,15 @@ pub(crate) fn sensor_at(
     sensor_within(walls, site_from_sensor, fov_rad, step, f64::INFINITY, id)
 }
 
+/// A 270° sensor `s{i}` of `walls` at each of `truth`.
+fn sensors_at(walls: &[Wall], truth: &[Pose2]) -> Vec<SensorInput> {
+    truth
+        .iter()
+        .enumerate()
+        .map(|(i, pose)| sensor_at(walls, *pose, 270f64.to_radians(), &format!("s{i}")))
+        .collect()
+}
+
 /// `sensor_at` with beams `step` apart and returns only within `range_m`.
 fn sensor_within(
     walls: &[Wall],
@@ -542,11 +551,7 @@ struct TwoSensors {
 }
 
 fn two_in(walls: &[Wall], truth: [Pose2; 2]) -> TwoSensors {
-    let sensors: Vec<SensorInput> = truth
-        .iter()
-        .enumerate()
-        .map(|(i, pose)| sensor_at(walls, *pose, 270f64.to_radians(), &format!("s{i}")))
-        .collect();
+    let sensors = sensors_at(walls, &truth);
     let pair = undecided_pair(&sensors[0], &sensors[1], &[truth[0].inverse() * truth[1]]);
     TwoSensors { sensors, pair }
 }
@@ -791,11 +796,7 @@ fn in_hall_and_far_room(truth: &[Pose2]) -> Vec<SensorInput> {
         (52.0, 5.0),
         (40.0, 5.0),
     ]));
-    truth
-        .iter()
-        .enumerate()
-        .map(|(i, t)| sensor_at(&walls, *t, 270f64.to_radians(), &format!("s{i}")))
-        .collect()
+    sensors_at(&walls, truth)
 }
 
 /// Two sensors in the hall and two in a room 40 m off it, placed at the truth: pair selection
@@ -952,11 +953,7 @@ fn a_bridge_people_confirmed_binds_its_sensors_and_a_walls_only_one_does_not() {
         pose2(1.0, -2.0, 2.6),
         pose2(-1.0, 1.5, -0.8),
     ];
-    let sensors: Vec<SensorInput> = truth
-        .iter()
-        .enumerate()
-        .map(|(i, pose)| sensor_at(&hall(), *pose, 270f64.to_radians(), &format!("s{i}")))
-        .collect();
+    let sensors = sensors_at(&hall(), &truth);
     let (p, sp) = (RegisterParams::default(), SiteParams::default());
     let registered = |a: usize, b: usize, seen: usize| {
         let mut r = undecided_pair(&sensors[a], &sensors[b], &[truth[a].inverse() * truth[b]]);
