@@ -2,13 +2,16 @@
 //! placements its pairs' candidates propose, scored against all placed scans; refused when
 //! ambiguous, weak, contradicted or free to slide), and the best-supported acceptable group
 //! joins first, one at a time, since each join is evidence for the rest. People walking weigh
-//! in twice: a placement a pair's walkers decided stands on their walks where walls share too
-//! little or let it slide, and candidates they refuted propose nothing. Owns `Refusal`, the
-//! reasons a group stays unplaced.
+//! in three times: a placement a pair's walkers decided stands on their walks where walls
+//! share too little or let it slide, candidates they refuted propose nothing, and a best
+//! placement that puts a member's walkers where a placed sensor saw straight through (or the
+//! reverse) is refused, whichever pair proposed it. Owns `Refusal`, the reasons a group stays
+//! unplaced.
 
 use super::memo::ScoreMemo;
 use super::{SensorInput, SiteParams};
 use crate::geometry::{Pose2, pose_error, pose2};
+use crate::register::motion::co_motion;
 use crate::register::{Abstain, Candidate, PairResult, RegisterParams};
 use rayon::prelude::*;
 
@@ -250,6 +253,9 @@ pub(super) enum Refusal {
     /// The best-scoring placement fits every placed sensor but for a few members' scans, which
     /// contradict one's free space: the group is weighed again without this one.
     MemberContradicts { member: usize },
+    /// The best placement the walls allow puts people a member saw walking where placed
+    /// sensor `with` saw straight through at that moment (or the reverse): a look-alike place.
+    PeopleSawThrough { with: usize },
     /// The best placement is proposed only by pairs that share too little view or fit poorly.
     NoPairStands,
     /// The best placement shares too little view with the placed sensors.
@@ -293,6 +299,10 @@ impl Refusal {
                 "every placement its pairs propose puts a scan in space {} saw empty ({:.0} % of points); {HELP}",
                 id(*with),
                 violation * 100.0
+            ),
+            Refusal::PeopleSawThrough { with } => format!(
+                "where the walls fit it best, people it saw walking stand where {} saw straight through at that moment (a look-alike place); {HELP}",
+                id(*with)
             ),
             Refusal::NoPairStands => format!(
                 "its best placement rests only on pairs with too little shared view or a poor fit; {HELP}"
@@ -410,21 +420,7 @@ impl JoinContext<'_> {
     /// Scores a group (members with `root_from_member`) placed at `anchor_from_root` against
     /// every placed sensor.
     pub(super) fn joint(&self, group: &[(usize, Pose2)], anchor_from_root: &Pose2) -> Joint {
-        let reach = |k: usize| self.reach_m.get(k).copied().unwrap_or(f64::INFINITY);
-        // Every (placed, member) pair within reach, in this order (the worst and the witnesses
-        // are the first found): out of each other's reach, no hit, no contradiction, nothing.
-        let mut terms: Vec<(usize, usize, Pose2)> = Vec::new();
-        for &(i, anchor_from_i) in &self.placed {
-            for &(j, root_from_j) in group {
-                if i >= self.sensors.len() || j >= self.sensors.len() {
-                    continue;
-                }
-                let i_from_j = anchor_from_i.inverse() * anchor_from_root * root_from_j;
-                if i_from_j.translation.vector.norm() <= reach(i) + reach(j) {
-                    terms.push((i, j, i_from_j));
-                }
-            }
-        }
+        let terms = self.terms(group, anchor_from_root);
         let score = |i: usize, j: usize, i_from_j: &Pose2| {
             crate::register::score::score(
                 &self.sensors[i].model,
@@ -463,6 +459,59 @@ impl JoinContext<'_> {
             }
         }
         joint
+    }
+
+    /// Every (placed, member) pair within reach of each other with the group at
+    /// `anchor_from_root`, and the member's pose in the placed sensor's frame, in this order
+    /// (the worst and the witnesses of `joint` are the first found): out of each other's
+    /// reach, no hit, no contradiction, nothing.
+    fn terms(
+        &self,
+        group: &[(usize, Pose2)],
+        anchor_from_root: &Pose2,
+    ) -> Vec<(usize, usize, Pose2)> {
+        let reach = |k: usize| self.reach_m.get(k).copied().unwrap_or(f64::INFINITY);
+        let mut terms = Vec::new();
+        for &(i, anchor_from_i) in &self.placed {
+            for &(j, root_from_j) in group {
+                if i >= self.sensors.len() || j >= self.sensors.len() {
+                    continue;
+                }
+                let i_from_j = anchor_from_i.inverse() * anchor_from_root * root_from_j;
+                if i_from_j.translation.vector.norm() <= reach(i) + reach(j) {
+                    terms.push((i, j, i_from_j));
+                }
+            }
+        }
+        terms
+    }
+
+    /// The placed sensor whose walkers a member, with the group at `anchor_from_root`, saw
+    /// straight through at that moment, or the reverse, as often as refutes a pair's candidate
+    /// (`MotionEvidence::refutes`). The walls' joint score cannot tell a look-alike room from
+    /// the right one; people walking can, as they do for a pair.
+    fn refuted_by_walkers(
+        &self,
+        group: &[(usize, Pose2)],
+        anchor_from_root: &Pose2,
+    ) -> Option<usize> {
+        self.terms(group, anchor_from_root)
+            .into_iter()
+            .find(|(i, j, i_from_j)| {
+                let (Some(mi), Some(mj)) = (
+                    self.sensors[*i].model.motion.as_ref(),
+                    self.sensors[*j].model.motion.as_ref(),
+                ) else {
+                    return false;
+                };
+                // Only level planes at torso height: a pitched beam crosses people at their
+                // legs somewhere along its way, and passes between them.
+                if !(mi.sees_torsos() && mj.sees_torsos()) {
+                    return false;
+                }
+                co_motion(mi, mj, i_from_j, &self.p.motion).refutes(&self.p.motion)
+            })
+            .map(|(i, _, _)| i)
     }
 
     /// The candidates of every pair between sensor `k` and a placed sensor, each with its pair
@@ -625,6 +674,12 @@ impl JoinContext<'_> {
                 None => Refusal::NoProposal,
             });
         };
+        // People walking veto the walls' best where they saw through it; the next best is
+        // not taken instead (the walls' look-alikes come in families, and what the walkers
+        // left unchecked is no better than what they refuted).
+        if let Some(with) = self.refuted_by_walkers(group, &best.anchor_from_root) {
+            return Err(Refusal::PeopleSawThrough { with });
+        }
         let joint = &best.joint;
         // Third sensors settle which of a pair's answers is right; they do not make a placement
         // out of scraps: one proposal must stand on its own pair's shared view and fit.
