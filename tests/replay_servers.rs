@@ -18,12 +18,22 @@ use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use daemon_run_common::*;
+use scanfuse::daemon::protocol::Status;
 
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .expect("a free port")
+/// The port of the first `127.0.0.1:PORT` in a status line (`page at http://…`,
+/// `Foxglove at ws://…`): the servers bind port 0 and say which port they got, so no test
+/// races another process for a port it picked and let go.
+fn port_in(line: &str) -> Option<u16> {
+    let (_, rest) = line.split_once("127.0.0.1:")?;
+    let digits: String = rest.chars().take_while(char::is_ascii_digit).collect();
+    digits.parse().ok()
+}
+
+/// The port a server of the replay on `sock` says it bound (`line` picks its status line).
+fn bound_port(client: &mut Client, what: &str, line: impl Fn(&Status) -> Option<String>) -> u16 {
+    wait_for(Duration::from_secs(60), what, || {
+        line(&client.status()).as_deref().and_then(port_in)
+    })
 }
 
 /// `scanfuse replay hall.mcap` at ×0.05 (the 2 s recording lasts 40 s) with `extra` flags.
@@ -69,8 +79,18 @@ fn get(port: u16, path: &str) -> Option<(String, String)> {
 #[test]
 fn replay_with_web_serves_the_page() {
     let dir = tempfile::tempdir().unwrap();
-    let port = free_port();
-    let _replay = start_replay(dir.path(), &["--web".into(), format!("127.0.0.1:{port}")]);
+    let sock = dir.path().join("s.sock");
+    let _replay = start_replay(
+        dir.path(),
+        &[
+            "--web".into(),
+            "127.0.0.1:0".into(),
+            "--socket".into(),
+            sock.display().to_string(),
+        ],
+    );
+    let mut client = Client::connect(&sock, Duration::from_secs(30));
+    let port = bound_port(&mut client, "the page's address", |s| s.web.clone());
     let (status, body) = wait_for(Duration::from_secs(60), "the page to answer", || {
         get(port, "/")
     });
@@ -93,21 +113,22 @@ fn a_foxglove_client_gets_scans_transforms_at_the_socket_poses_and_the_grid() {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
-    let port = free_port();
     let sock = dir.path().join("s.sock");
     let _replay = start_replay(
         dir.path(),
         &[
             "--foxglove".into(),
-            format!("127.0.0.1:{port}"),
+            "127.0.0.1:0".into(),
             "--socket".into(),
             sock.display().to_string(),
         ],
     );
     let mut client = Client::connect(&sock, Duration::from_secs(30));
-    let status = client.status();
+    let port = bound_port(&mut client, "the Foxglove server's address", |s| {
+        s.foxglove.clone()
+    });
     assert_eq!(
-        status.foxglove.as_deref(),
+        client.status().foxglove.as_deref(),
         Some(format!("Foxglove at ws://127.0.0.1:{port}").as_str()),
         "status names the Foxglove server"
     );
