@@ -29,7 +29,8 @@ fn port_in(line: &str) -> Option<u16> {
     digits.parse().ok()
 }
 
-/// The port a server of the replay on `sock` says it bound (`line` picks its status line).
+/// The port a server of the replay `client` talks to says it bound (`line` picks its status
+/// line), once it says.
 fn bound_port(client: &mut Client, what: &str, line: impl Fn(&Status) -> Option<String>) -> u16 {
     wait_for(Duration::from_secs(60), what, || {
         line(&client.status()).as_deref().and_then(port_in)
@@ -51,6 +52,27 @@ fn start_replay(dir: &Path, extra: &[String]) -> Proc {
             .spawn()
             .expect("start scanfuse replay"),
     )
+}
+
+/// The status socket `start_serving` gives a replay in `dir`.
+fn socket_in(dir: &Path) -> std::path::PathBuf {
+    dir.join("s.sock")
+}
+
+/// `start_replay` serving `flag` (`--web`, `--foxglove`) at `addr`, with its status socket in
+/// `dir` (`socket_in`), and a client of that socket.
+fn start_serving(dir: &Path, flag: &str, addr: &str) -> (Proc, Client) {
+    let sock = socket_in(dir);
+    let replay = start_replay(
+        dir,
+        &[
+            flag.into(),
+            addr.into(),
+            "--socket".into(),
+            sock.display().to_string(),
+        ],
+    );
+    (replay, Client::connect(&sock, Duration::from_secs(30)))
 }
 
 fn log_tail(dir: &Path) -> String {
@@ -79,17 +101,7 @@ fn get(port: u16, path: &str) -> Option<(String, String)> {
 #[test]
 fn replay_with_web_serves_the_page() {
     let dir = tempfile::tempdir().unwrap();
-    let sock = dir.path().join("s.sock");
-    let _replay = start_replay(
-        dir.path(),
-        &[
-            "--web".into(),
-            "127.0.0.1:0".into(),
-            "--socket".into(),
-            sock.display().to_string(),
-        ],
-    );
-    let mut client = Client::connect(&sock, Duration::from_secs(30));
+    let (_replay, mut client) = start_serving(dir.path(), "--web", "127.0.0.1:0");
     let port = bound_port(&mut client, "the page's address", |s| s.web.clone());
     let (status, body) = wait_for(Duration::from_secs(60), "the page to answer", || {
         get(port, "/")
@@ -113,17 +125,7 @@ fn a_foxglove_client_gets_scans_transforms_at_the_socket_poses_and_the_grid() {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
-    let sock = dir.path().join("s.sock");
-    let _replay = start_replay(
-        dir.path(),
-        &[
-            "--foxglove".into(),
-            "127.0.0.1:0".into(),
-            "--socket".into(),
-            sock.display().to_string(),
-        ],
-    );
-    let mut client = Client::connect(&sock, Duration::from_secs(30));
+    let (_replay, mut client) = start_serving(dir.path(), "--foxglove", "127.0.0.1:0");
     let port = bound_port(&mut client, "the Foxglove server's address", |s| {
         s.foxglove.clone()
     });
@@ -146,7 +148,7 @@ fn a_foxglove_client_gets_scans_transforms_at_the_socket_poses_and_the_grid() {
         .arg(common::repo().join("tests/python/foxglove_client.py"))
         .args(["--url", &format!("ws://127.0.0.1:{port}")])
         .arg("--socket")
-        .arg(&sock)
+        .arg(socket_in(dir.path()))
         .output()
         .expect("run the Foxglove client");
     assert!(
@@ -173,17 +175,8 @@ fn a_taken_foxglove_port_is_reported_and_the_replay_goes_on() {
     let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
     let port = taken.local_addr().unwrap().port();
     let dir = tempfile::tempdir().unwrap();
-    let sock = dir.path().join("s.sock");
-    let _replay = start_replay(
-        dir.path(),
-        &[
-            "--foxglove".into(),
-            format!("127.0.0.1:{port}"),
-            "--socket".into(),
-            sock.display().to_string(),
-        ],
-    );
-    let mut client = Client::connect(&sock, Duration::from_secs(30));
+    let (_replay, mut client) =
+        start_serving(dir.path(), "--foxglove", &format!("127.0.0.1:{port}"));
     let status = client.status();
     let why = status.foxglove.unwrap_or_default();
     assert!(

@@ -798,7 +798,7 @@ fn spread(points: impl Iterator<Item = Point2<f64>>) -> f64 {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::geometry::pose2;
     use crate::geometry::raycast::{Wall, polygon, scan_270};
@@ -808,7 +808,12 @@ mod tests {
 
     /// A 270° scan at 0.25° steps of `walls` plus `people` (0.2 m radius discs, as squares)
     /// from `site_from_sensor`.
-    fn scan(walls: &[Wall], people: &[[f64; 2]], site_from_sensor: &Pose2, t_ns: u64) -> Scan {
+    pub(crate) fn scan(
+        walls: &[Wall],
+        people: &[[f64; 2]],
+        site_from_sensor: &Pose2,
+        t_ns: u64,
+    ) -> Scan {
         let mut seen = walls.to_vec();
         for [x, y] in people {
             let r = 0.2;

@@ -764,7 +764,7 @@ fn sensor_seeing_people(
     seconds: f64,
     people_at: impl Fn(f64) -> Vec<[f64; 2]>,
 ) -> SensorInput {
-    use crate::geometry::raycast::scan_270;
+    use crate::register::walkers::tests::scan;
     let p = RegisterParams::default();
     let mount = Mount {
         height_m: Some(1.0),
@@ -772,19 +772,15 @@ fn sensor_seeing_people(
     };
     let scans: Vec<crate::scan::Scan> = (0..(seconds * 40.0) as u64)
         .map(|k| {
-            let mut seen = walls.to_vec();
-            for [x, y] in people_at(k as f64 / 40.0) {
-                seen.extend(polygon(&[
-                    (x - 0.2, y - 0.2),
-                    (x + 0.2, y - 0.2),
-                    (x + 0.2, y + 0.2),
-                    (x - 0.2, y + 0.2),
-                ]));
-            }
-            scan_270(&seen, &site_from_sensor, 0.25, k * 25_000_000)
+            scan(
+                walls,
+                &people_at(k as f64 / 40.0),
+                &site_from_sensor,
+                k * 25_000_000,
+            )
         })
         .collect();
-    let still = scan_270(walls, &site_from_sensor, 0.25, 0);
+    let still = scan(walls, &[], &site_from_sensor, 0);
     SensorInput {
         id: id.to_string(),
         model: ScanModel::from_scan(&still, None, &mount, &p)
