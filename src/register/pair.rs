@@ -32,9 +32,14 @@ pub enum Abstain {
     Ambiguous { ratio: f64, other: Pose2 },
     /// The geometry does not fix the position along one direction (a corridor seen lengthwise).
     Degenerate { weak_axis_deg: f64 },
-    /// Every candidate puts people one sensor saw walking where the other saw straight through
-    /// at that moment (the best candidate's counts).
-    PeopleDisagree { seen_through: usize, seen: usize },
+    /// People one sensor saw walking stand where the other saw straight through at that
+    /// moment, at the walls' best pose (its counts); `left`: why the best pose people left
+    /// standing is not reported either, if any was.
+    PeopleDisagree {
+        seen_through: usize,
+        seen: usize,
+        left: Option<Box<Abstain>>,
+    },
     /// The walls' best pose and the pose people walking agree on differ (`other`: the walkers'
     /// pose in the frame of the walls' best), and neither rules the other out.
     WalkersDisagree { other: Pose2 },
@@ -75,10 +80,20 @@ impl fmt::Display for Abstain {
                 f,
                 "too uncertain (σ {sigma_m:.2} m / {sigma_yaw_deg:.1}°): too few points fix it"
             ),
-            Abstain::PeopleDisagree { seen_through, seen } => write!(
-                f,
-                "people disagree: at the best pose {seen_through} walkers one sensor saw stand where the other saw through at that moment ({seen} seen by both); a look-alike place"
-            ),
+            Abstain::PeopleDisagree {
+                seen_through,
+                seen,
+                left,
+            } => {
+                write!(
+                    f,
+                    "people disagree: at the best pose {seen_through} walkers one sensor saw stand where the other saw through at that moment ({seen} seen by both); a look-alike place"
+                )?;
+                match left {
+                    Some(why) => write!(f, "; the best pose they leave: {why}"),
+                    None => Ok(()),
+                }
+            }
             Abstain::WalkersDisagree { other } => write!(
                 f,
                 "walls and walkers disagree: the people both sensors saw walking put it {:.2} m / {:.1}° from where the walls do; walk through their shared view again, or survey it",
@@ -255,6 +270,7 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
                 Err(Abstain::PeopleDisagree {
                     seen_through: e.seen_through,
                     seen: e.seen,
+                    left: None,
                 }),
                 c.a_from_b,
                 c.score,
@@ -359,12 +375,13 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         Ok(())
     };
     // When people ruled out a pose that fitted the walls better than anything left, that is
-    // the reason worth reporting, not the leftover's weakness.
+    // the reason worth reporting first, and the leftover's own second (what would settle it).
     let verdict = match (verdict, refuted) {
-        (Err(_), Some((c, e))) if c.score.value > best.score.value => {
+        (Err(left), Some((c, e))) if c.score.value > best.score.value => {
             Err(Abstain::PeopleDisagree {
                 seen_through: e.seen_through,
                 seen: e.seen,
+                left: Some(Box::new(left)),
             })
         }
         (verdict, _) => verdict,
@@ -839,6 +856,31 @@ mod tests {
         };
         let chosen = walls_under_walkers(&low_far, &high_near, &best, &p);
         assert!(chosen.violation() > 0.9, "{chosen:?}");
+    }
+
+    #[test]
+    fn people_disagreeing_also_say_why_the_pose_they_leave_is_not_reported() {
+        let left = Abstain::WeakMatch { score: 0.08 };
+        let why = Abstain::PeopleDisagree {
+            seen_through: 12,
+            seen: 3,
+            left: Some(Box::new(left)),
+        }
+        .to_string();
+        assert!(
+            why.starts_with("people disagree: at the best pose 12 walkers"),
+            "{why}"
+        );
+        assert!(
+            why.ends_with("; the best pose they leave: weak match (score 0.08)"),
+            "{why}"
+        );
+        let alone = Abstain::PeopleDisagree {
+            seen_through: 12,
+            seen: 3,
+            left: None,
+        };
+        assert!(alone.to_string().ends_with("a look-alike place"), "{alone}");
     }
 
     #[test]

@@ -745,6 +745,7 @@ fn candidates_people_refuted_propose_nothing_and_speak_for_nothing() {
     with.pair.verdict = Err(crate::register::Abstain::PeopleDisagree {
         seen_through: 35,
         seen: 40,
+        left: None,
     });
     let refused = with.context(&p, &sp, |ctx| ctx.weigh(&s1)).err();
     assert!(
