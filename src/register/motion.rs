@@ -17,6 +17,8 @@ pub type SharedTick = (f64, Vec<Point2<f64>>, Vec<Point2<f64>>);
 
 /// How far a walker goes between two kept frames (0.1 s apart) at most (m).
 const STRIDE_M: f64 = 0.3;
+/// A walker moving at least this fast (m/s) has a heading its silhouette is measured against.
+const WALKING_M_S: f64 = 0.4;
 /// Where a still beam got nothing back, its free space is taken to reach this far (m): the
 /// longest range of the units scanfuse drives.
 const OPEN_M: f64 = 30.0;
@@ -244,6 +246,42 @@ impl MotionTrack {
             p.slope.abs() <= LEVEL_RAD.tan()
                 && (TORSO_HEIGHT_M[0]..=TORSO_HEIGHT_M[1]).contains(&p.height_m)
         })
+    }
+
+    /// How wide its walkers looked against the way they walked ([`detect::Silhouette`]):
+    /// each walker of a frame that, one frame before, stood within a stride of where it is,
+    /// and has moved at least [`WALKING_M_S`] since (a heading to measure against).
+    pub fn silhouettes(&self) -> Vec<detect::Silhouette> {
+        let centre = |w: &Vec<Point2<f64>>| detect::centre(w, detect::Body::Round);
+        let mut out = Vec::new();
+        for pair in self.frames.windows(2) {
+            let [before, now] = pair else { continue };
+            let dt_s = (now.t_ns as f64 - before.t_ns as f64) * 1e-9;
+            if now.tick != before.tick + 1 || dt_s <= 1e-3 {
+                continue;
+            }
+            let then: Vec<Point2<f64>> = before.walkers.iter().filter_map(centre).collect();
+            for w in &now.walkers {
+                let Some(c) = centre(w) else { continue };
+                let Some(q) = then
+                    .iter()
+                    .filter(|q| (c - **q).norm() <= STRIDE_M)
+                    .min_by(|x, y| (c - **x).norm().total_cmp(&(c - **y).norm()))
+                else {
+                    continue;
+                };
+                let step = c - q;
+                if step.norm() < WALKING_M_S * dt_s || c.coords.norm() < 1e-6 {
+                    continue;
+                }
+                let cos = c.coords.normalize().dot(&step.normalize());
+                out.push(detect::Silhouette {
+                    half_width_m: 0.5 * detect::shown_width_m(w),
+                    cos2: cos * cos,
+                });
+            }
+        }
+        out
     }
 
     /// Walkers seen over the whole track.

@@ -14,7 +14,7 @@ use rayon::prelude::*;
 use super::motion::{MotionParams, MotionTrack, co_motion};
 use super::pair::pose_sigmas;
 use crate::geometry::{Pose2, pose_error};
-use crate::track::detect::Body;
+use crate::track::detect::{Body, torso_area};
 
 /// Thresholds of the walker fit.
 #[derive(Debug, Clone, PartialEq)]
@@ -24,6 +24,9 @@ pub struct WalkerParams {
     /// areas (m², `detect::Body::Area`), from a slim person's hips to a broad torso. The one
     /// whose centres the people agree on best is kept.
     pub body_areas_m2: Vec<f64>,
+    /// The torsos' area is measured from their silhouettes (`detect::torso_area`) only with
+    /// this many seen from in front and as many from the side; `body_areas_m2` otherwise.
+    pub min_silhouettes: usize,
     /// Sightings of one tick that cannot be carried to a common time are paired only this close
     /// in time (s): a walker moves 2 cm in 15 ms, and the same way every time along a corridor.
     pub max_skew_s: f64,
@@ -58,15 +61,18 @@ pub struct WalkerParams {
     /// sightings over this long and this much floor, a residual this small, a rival of at
     /// most `alone_max_ambiguity` as many walks ([`WalkerFit::rival_share`]; more only where
     /// the rival fails the walls' free space or the walkers seen through), and their own σ
-    /// within these (m, rad). The σ limit is tight (2 cm) because the bias of a body's shape
-    /// averages out only over many walks: a fit of σ 2.6 cm from ten walks in an open hall,
-    /// its rival far behind, was 13 cm off.
+    /// within these (m, rad). The σ limit is tight (2 cm) where a body's shape was chosen, not
+    /// measured: its bias averages out only over many walks (a fit of σ 2.6 cm from ten walks
+    /// in an open hall, its rival far behind, was 13 cm off; with the area measured, 2 cm).
     pub alone_min_inliers: usize,
     pub alone_min_span_s: f64,
     pub alone_min_spread_m: f64,
     pub alone_max_rms_m: f64,
     pub alone_max_ambiguity: f64,
     pub alone_max_sigma_m: f64,
+    /// The position σ limit where the torsos' area was measured (`WalkerFit::torso_area_m2`):
+    /// the centres are then placed without a shape's bias, and the σ says what it is.
+    pub alone_max_sigma_measured_m: f64,
     pub alone_max_sigma_rad: f64,
     /// A walker-only pose is biased by a body's shape and the time between two scans; this
     /// much (m) is added in quadrature to its position σ so that the site weighs it honestly.
@@ -85,6 +91,7 @@ impl Default for WalkerParams {
     fn default() -> Self {
         WalkerParams {
             body_areas_m2: vec![0.06, 0.08, 0.10, 0.12],
+            min_silhouettes: 20,
             max_skew_s: 0.015,
             min_apart_m: 1.0,
             pair_tol_m: 0.2,
@@ -106,6 +113,7 @@ impl Default for WalkerParams {
             alone_max_rms_m: 0.1,
             alone_max_ambiguity: 0.25,
             alone_max_sigma_m: 0.02,
+            alone_max_sigma_measured_m: 0.035,
             alone_max_sigma_rad: 0.3f64.to_radians(),
             alone_bias_m: 0.05,
             chosen_free_space_dz_m: 0.05,
@@ -139,6 +147,9 @@ pub struct WalkerFit {
     /// The pair's pose is this fit's own, placed by the walkers alone (the walls had no
     /// answer there), not a wall candidate they chose.
     pub alone: bool,
+    /// The torsos' area (m²) the centres were placed with, where it was measured from the
+    /// walkers' silhouettes (`detect::torso_area`); `None` where a body was chosen instead.
+    pub torso_area_m2: Option<f64>,
 }
 
 impl WalkerFit {
@@ -180,8 +191,17 @@ impl WalkerFit {
             && self.span_s >= p.alone_min_span_s
             && self.spread_m >= p.alone_min_spread_m
             && self.rms_m <= p.alone_max_rms_m
-            && sigma_m <= p.alone_max_sigma_m
+            && sigma_m <= self.alone_max_sigma_m(p)
             && sigma_rad <= p.alone_max_sigma_rad
+    }
+
+    /// The σ (m) a fit may have to place a pair alone: `alone_max_sigma_measured_m` where the
+    /// torsos' area was measured, `alone_max_sigma_m` where a body was chosen.
+    fn alone_max_sigma_m(&self, p: &WalkerParams) -> f64 {
+        match self.torso_area_m2 {
+            Some(_) => p.alone_max_sigma_measured_m,
+            None => p.alone_max_sigma_m,
+        }
     }
 
     /// The covariance to report for a walker-only placement: the fit's, its position
@@ -424,30 +444,47 @@ pub fn fit_walkers(
     refined.retain(|(_, pose, _)| !co_motion(a, b, pose, motion).refutes(motion));
     refined.sort_by_key(|x| std::cmp::Reverse(x.0));
     let (inliers, pose, pairs) = refined.first()?.clone();
-    // The people's shape: the body whose centres agree best at the winner, refined again.
-    // Only where both planes cut people level across the torso (elsewhere legs, heads, or a
-    // mix down a pitched plane: round is the safer guess).
-    let areas: &[f64] = if a.sees_torsos() && b.sees_torsos() {
-        &p.body_areas_m2
-    } else {
-        &[]
+    // The people's shape, refined again with it. Only where both planes cut people level
+    // across the torso (elsewhere legs, heads, or a mix down a pitched plane: round is the
+    // safer guess). There, the torsos' area as their silhouettes show it against the way
+    // they walk (`detect::torso_area`, both units' walkers); where too few were seen from in
+    // front and from the side to measure it, the body of `body_areas_m2` (or round) whose
+    // centres agree best at the winner. The choice is the weaker: the agreement is nearly
+    // flat in the area, and an area 0.02 m² off moves every centre 2–4 cm along its beam,
+    // which left walker poses 4–12 cm off where the measured area leaves 1–3.
+    let refit = |area: f64| {
+        let ticks = ticks_of(Body::Area(area));
+        let all: Vec<&Tick> = ticks.iter().collect();
+        let (pose, agreement) = refine_on(&all, pose, p.inlier_m)?;
+        Some((agreement.count, pose, agreement.pairs))
     };
-    let (inliers, pose, pairs) = areas
-        .iter()
-        .filter_map(|&area| {
-            let ticks = ticks_of(Body::Area(area));
-            let all: Vec<&Tick> = ticks.iter().collect();
-            let (pose, agreement) = refine_on(&all, pose, p.inlier_m)?;
-            Some((agreement.count, pose, agreement.pairs))
+    let torsos = a.sees_torsos() && b.sees_torsos();
+    let measured = torsos
+        .then(|| {
+            let mut seen = a.silhouettes();
+            seen.extend(b.silhouettes());
+            torso_area(&seen, p.min_silhouettes)
         })
-        .chain(std::iter::once((inliers, pose, pairs)))
-        .max_by(|x, y| {
-            let (sx, sy) = (
-                support(&x.2, &x.1, p.inlier_m),
-                support(&y.2, &y.1, p.inlier_m),
-            );
-            sx.total_cmp(&sy)
-        })?;
+        .flatten()
+        .and_then(|area| Some((area, refit(area)?)));
+    let chosen = || {
+        let areas: &[f64] = if torsos { &p.body_areas_m2 } else { &[] };
+        areas
+            .iter()
+            .filter_map(|&area| refit(area))
+            .chain(std::iter::once((inliers, pose, pairs)))
+            .max_by(|x, y| {
+                let (sx, sy) = (
+                    support(&x.2, &x.1, p.inlier_m),
+                    support(&y.2, &y.1, p.inlier_m),
+                );
+                sx.total_cmp(&sy)
+            })
+    };
+    let (torso_area_m2, (inliers, pose, pairs)) = match measured {
+        Some((area, fit)) => (Some(area), fit),
+        None => (None, chosen()?),
+    };
     // Leaders that refine to the winner were the same pose seen through noise. The rival:
     // the most sightings, and the most walks of one person in both views, of any other.
     let others: Vec<&(usize, Pose2, Matched)> = refined
@@ -488,6 +525,7 @@ pub fn fit_walkers(
         rival,
         covariance: covariance(&pose, &pairs, rms_m, p),
         alone: false,
+        torso_area_m2,
     })
 }
 
@@ -949,12 +987,34 @@ pub(crate) mod tests {
         // its unit: the two units come out several cm too close together.
         let round = WalkerParams {
             body_areas_m2: Vec::new(),
+            min_silhouettes: usize::MAX,
             ..WalkerParams::default()
         };
         let (as_torsos, as_round) = (error(&WalkerParams::default()), error(&round));
         println!("as torsos {as_torsos:.3} m off, as round bodies {as_round:.3} m");
         assert!(as_torsos < 0.03, "as torsos {as_torsos:.3} m off");
         assert!(as_round > 0.06, "as round bodies {as_round:.3} m off");
+    }
+
+    #[test]
+    fn the_torsos_area_is_measured_from_a_unit_in_front_and_one_beside_them() {
+        let front = torso_track(&pose2(0.5, 5.0, 0.0), 20.0);
+        let side = torso_track(&pose2(7.0, -0.8, std::f64::consts::FRAC_PI_2), 20.0);
+        let truth = std::f64::consts::PI * 0.14 * 0.225;
+        let min = WalkerParams::default().min_silhouettes;
+        // From in front alone the depth is unknown; with the side view it is measured.
+        assert_eq!(torso_area(&front.silhouettes(), min), None);
+        let mut seen = front.silhouettes();
+        seen.extend(side.silhouettes());
+        let area = torso_area(&seen, min).expect("seen from in front and beside");
+        println!(
+            "{} silhouettes: {area:.4} m² against {truth:.4}",
+            seen.len()
+        );
+        assert!(
+            (area - truth).abs() < 0.1 * truth,
+            "{area:.4} m² against {truth:.4}"
+        );
     }
 
     #[test]
@@ -1092,6 +1152,7 @@ pub(crate) mod tests {
             runner_up_walks: fit.walks,
             rival: Some(rival),
             alone: false,
+            torso_area_m2: None,
             ..fit.clone()
         };
         // A rival where the people walk as well (here the truth itself): nothing is placed.
@@ -1149,6 +1210,7 @@ pub(crate) mod tests {
             rival: None,
             covariance,
             alone: false,
+            torso_area_m2: None,
         }
     }
 

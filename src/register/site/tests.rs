@@ -673,6 +673,7 @@ fn walked_alone(a_from_b: Pose2) -> crate::register::walkers::WalkerFit {
         rival: None,
         covariance: Matrix3::from_diagonal(&nalgebra::Vector3::new(4e-4, 4e-4, 1e-5)),
         alone: true,
+        torso_area_m2: None,
     }
 }
 
