@@ -20,9 +20,10 @@ use crate::track::detect::{Body, torso_area};
 #[derive(Debug, Clone, PartialEq)]
 pub struct WalkerParams {
     /// Bodies a walker fit is tried with besides a round one, where both scanners cut people
-    /// level across the torso (`MotionTrack::sees_torsos`): centrally symmetric ones of these
-    /// areas (m², `detect::Body::Area`), from a slim person's hips to a broad torso. The one
-    /// whose centres the people agree on best is kept.
+    /// level across the torso (`MotionTrack::sees_torsos`) but too few walkers were seen to
+    /// measure the torsos' area (`min_silhouettes`): centrally symmetric ones of these areas
+    /// (m², `detect::Body::Area`), from a slim person's hips to a broad torso. The one whose
+    /// centres the people agree on best is kept.
     pub body_areas_m2: Vec<f64>,
     /// The torsos' area is measured from their silhouettes (`detect::torso_area`) only with
     /// this many seen from in front and as many from the side; `body_areas_m2` otherwise.
