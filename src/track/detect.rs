@@ -270,7 +270,7 @@ mod tests {
         // Only ever seen from in front: the depth is unknown.
         let front: Vec<Silhouette> = all.iter().copied().filter(|s| s.cos2 > 0.5).collect();
         assert_eq!(torso_area(&front, 20), None);
-        // A round body looks as wide from every side: no torso to measure.
+        // Bodies 8 cm across from every side (legs, say) are no torso: nothing is measured.
         let round: Vec<Silhouette> = all
             .iter()
             .map(|s| Silhouette {
