@@ -17,6 +17,15 @@ pub type SharedTick = (f64, Vec<Point2<f64>>, Vec<Point2<f64>>);
 
 /// How far a walker goes between two kept frames (0.1 s apart) at most (m).
 const STRIDE_M: f64 = 0.3;
+/// Of the walker centres of the frame before, the one nearest `c` within a stride: where the
+/// walker at `c` stood then.
+fn one_stride_before<'a>(then: &'a [Point2<f64>], c: &Point2<f64>) -> Option<&'a Point2<f64>> {
+    then.iter()
+        .map(|q| (q, (c - q).norm()))
+        .filter(|(_, d)| *d <= STRIDE_M)
+        .min_by(|x, y| x.1.total_cmp(&y.1))
+        .map(|(q, _)| q)
+}
 /// A walker moving at least this fast (m/s) has a heading its silhouette is measured against.
 const WALKING_M_S: f64 = 0.4;
 /// Where a still beam got nothing back, its free space is taken to reach this far (m): the
@@ -263,11 +272,7 @@ impl MotionTrack {
             let then: Vec<Point2<f64>> = before.walkers.iter().filter_map(centre).collect();
             for w in &now.walkers {
                 let Some(c) = centre(w) else { continue };
-                let Some(q) = then
-                    .iter()
-                    .filter(|q| (c - **q).norm() <= STRIDE_M)
-                    .min_by(|x, y| (c - **x).norm().total_cmp(&(c - **y).norm()))
-                else {
+                let Some(q) = one_stride_before(&then, &c) else {
                     continue;
                 };
                 let step = c - q;
@@ -332,16 +337,9 @@ impl MotionTrack {
             let then = centres(h);
             Some(
                 now.iter()
-                    .map(|c| {
-                        let previous = then
-                            .iter()
-                            .map(|q| (q, (c - q).norm()))
-                            .filter(|(_, d)| *d <= STRIDE_M)
-                            .min_by(|x, y| x.1.total_cmp(&y.1));
-                        match previous {
-                            Some((q, _)) if span_s > 1e-3 => c + (c - q) * (dt_s / span_s),
-                            _ => *c,
-                        }
+                    .map(|c| match one_stride_before(&then, c) {
+                        Some(q) if span_s > 1e-3 => c + (c - q) * (dt_s / span_s),
+                        _ => *c,
                     })
                     .collect(),
             )
