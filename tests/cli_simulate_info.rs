@@ -1,6 +1,6 @@
 //! `scanfuse simulate` and `scanfuse info` as a user runs them: the built binary, real files.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};

@@ -1,6 +1,6 @@
 //! `scanfuse check` and `scanfuse status`, run as the built binary.
 
-mod daemon_common;
+use crate::daemon_common;
 
 use std::path::Path;
 use std::process::{Command, Output, Stdio};

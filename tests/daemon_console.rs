@@ -1,7 +1,7 @@
 //! What the daemon commands print when nobody reads them at a terminal (the journal, a file,
 //! a pipe): each event once, as a structured log line, and the results on stdout.
 
-mod daemon_run_common;
+use crate::daemon_run_common;
 
 use daemon_run_common::{bin, fixture};
 

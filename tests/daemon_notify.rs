@@ -13,11 +13,13 @@ use scanfuse::daemon::notify::Notifier;
 const MODE: &str = "SCANFUSE_NOTIFY_CHILD_MODE";
 
 fn run_child(mode: &str, notify_socket: Option<&std::path::Path>) -> std::process::ExitStatus {
+    // The test's name in this binary: its module path without the crate's name.
+    let (_, module) = module_path!().split_once("::").unwrap();
     let mut cmd = Command::new(std::env::current_exe().unwrap());
     cmd.args([
         "--ignored",
         "--exact",
-        "child",
+        &format!("{module}::child"),
         "--nocapture",
         "--test-threads=1",
     ])

@@ -3,7 +3,7 @@
 //! within 10 cm / 1° of the recording's truth; `save` and SIGTERM leave whole map files; a
 //! restart takes the saved poses without registering again.
 
-mod daemon_run_common;
+use crate::daemon_run_common;
 
 use std::time::Duration;
 

@@ -6,7 +6,7 @@
 //! lacks, a fault reboots do not clear) shows `failed` with the reason, the others stream on;
 //! one that returns nothing is named as blind, on the socket and as its registration reason.
 
-mod daemon_run_common;
+use crate::daemon_run_common;
 
 use std::time::Duration;
 

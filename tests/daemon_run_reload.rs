@@ -1,7 +1,7 @@
 //! SIGHUP re-reads the config: sensors added start streaming, sensors removed disappear, the
 //! others keep running; a broken config is refused and the daemon keeps the old one.
 
-mod daemon_run_common;
+use crate::daemon_run_common;
 
 use std::time::Duration;
 

@@ -10,7 +10,7 @@
 //! Stream time is read from the scans the daemon has taken (`status`: 40 Hz units), so a poll
 //! can only see a placement late, never early. About 10 s in a debug build.
 
-mod daemon_run_common;
+use crate::daemon_run_common;
 
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};

@@ -2,7 +2,7 @@
 //! errors that keep the connection serving, the client cap, slow watchers, stale sockets,
 //! shutdown.
 
-mod daemon_common;
+use crate::daemon_common;
 
 use std::os::unix::fs::PermissionsExt;
 use std::time::Duration;

@@ -7,7 +7,7 @@
 //! offset and turned from it. Needs SCANFUSE_TEST_PYTHON with ezdxf (tests/python/
 //! requirements.txt; .ci/run installs it); skips without it, except under CI.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::Command;

@@ -3,7 +3,7 @@
 //! fast), so the driver, over loopback, crosses the wrap within seconds: its unwrapped sensor
 //! stamps go on past 2^24 without a jump and every host-side stamp stays monotonic.
 
-mod driver_support;
+use crate::driver_support;
 
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};

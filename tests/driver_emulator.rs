@@ -1,7 +1,7 @@
 //! Driver ↔ emulator over real loopback sockets: every scan arrives with the recorded ranges,
 //! and each injected fault is recovered from with the counters saying what happened.
 
-mod driver_support;
+use crate::driver_support;
 
 use std::time::Duration;
 

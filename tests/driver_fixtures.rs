@@ -2,7 +2,7 @@
 //! moment, is served by the emulator and read back by the driver over loopback; every scan
 //! arrives with the simulated ranges (in mm, no-returns as no-returns).
 
-mod driver_support;
+use crate::driver_support;
 
 use std::path::PathBuf;
 use std::time::Duration;

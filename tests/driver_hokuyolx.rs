@@ -6,7 +6,7 @@
 //! `$HOKUYOLX_PYTHON`, or `target/hokuyolx-venv/bin/python`. Without one that can
 //! `import hokuyolx` the test says it skipped and passes.
 
-mod driver_support;
+use crate::driver_support;
 
 use std::path::PathBuf;
 use std::process::Stdio;

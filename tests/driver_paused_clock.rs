@@ -1,7 +1,7 @@
 //! The driver's timing on tokio's paused clock, with the emulator in the same process over an
 //! in-memory link: backoff, watchdog and time sync are checked to the millisecond, in no time.
 
-mod driver_support;
+use crate::driver_support;
 
 use std::sync::{Arc, Mutex};
 use std::time::Duration;

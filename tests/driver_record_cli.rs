@@ -3,7 +3,7 @@
 //! SCIP bytes; against the emulator's faults, `record` says what is wrong with the unit and
 //! leaves no file when it recorded nothing.
 
-mod driver_support;
+use crate::driver_support;
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};

@@ -1,7 +1,7 @@
 //! The serial path: the emulator on one end of a pty, the driver opening the other end as
 //! `serial:///dev/pts/N`, exactly as it opens a USB Hokuyo.
 
-mod driver_support;
+use crate::driver_support;
 
 use std::time::Duration;
 

@@ -1,7 +1,7 @@
 //! The fused map of a simulated site: walls where the floor plan has them, and files that
 //! Pillow, plyfile and PyYAML open.
 
-mod common;
+use crate::common;
 
 use nalgebra::{Isometry2, Point2, Point3, Vector2};
 use scanfuse::fuse::{self, Cell, GridParams, OccupancyGrid, TaggedPoint};

@@ -10,8 +10,8 @@
 //! `mosquitto` and `mosquitto-clients` (`.ci/run` installs them); each test skips with a note
 //! when its client is missing, except under CI.
 
-mod common;
-mod daemon_run_common;
+use crate::common;
+use crate::daemon_run_common;
 
 use std::io::{BufRead, BufReader};
 use std::net::TcpListener;

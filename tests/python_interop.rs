@@ -1,6 +1,6 @@
 //! A scanfuse recording opens in the official Python `mcap` reader with its protobuf decoder.
 
-mod common;
+use crate::common;
 
 use std::process::Command;
 

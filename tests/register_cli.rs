@@ -3,7 +3,7 @@
 //! all; a look-alike office refused by people walking, or unconfirmed when no one does; bad
 //! input exits 2 naming the file.
 
-mod common;
+use crate::common;
 
 use scanfuse::geometry::{Pose2, pose_error, pose2};
 use scanfuse::record;

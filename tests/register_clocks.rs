@@ -2,7 +2,7 @@
 //! from the walkers and taken out, or, where it cannot be found, those walkers are not used
 //! (never compared at skewed times).
 
-mod common;
+use crate::common;
 
 use scanfuse::geometry::{pose_error, pose2};
 use scanfuse::record::RecordingWriter;

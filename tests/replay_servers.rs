@@ -8,8 +8,8 @@
 //!   `poses` reports, and the occupancy Grid. Needs SCANFUSE_TEST_PYTHON (skips without it,
 //!   except under CI).
 
-mod common;
-mod daemon_run_common;
+use crate::common;
+use crate::daemon_run_common;
 
 use std::io::{Read, Write};
 use std::net::TcpStream;

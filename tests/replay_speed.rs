@@ -3,7 +3,7 @@
 //! ends as soon as the data and the registration are done, and SIGTERM stops a replay at once.
 //! Run on every committed fixture, and on the demo config through `scanfuse run`.
 
-mod daemon_run_common;
+use crate::daemon_run_common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};

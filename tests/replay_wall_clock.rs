@@ -3,7 +3,7 @@
 //! daemons would load the machine under `replay_speed`'s ×8 run, which does not wait for the
 //! pipeline (as live units do not).
 
-mod daemon_run_common;
+use crate::daemon_run_common;
 
 use std::path::Path;
 use std::time::Duration;

@@ -12,7 +12,7 @@
 //!
 //! One daemon for the whole file, so one test.
 
-mod daemon_run_common;
+use crate::daemon_run_common;
 
 use std::net::SocketAddr;
 use std::time::Duration;

@@ -13,8 +13,8 @@
 //! Needs SCANFUSE_TEST_PYTHON (the venv .ci/run builds) and /usr/bin/chromium (.ci/run
 //! installs it); skips without them, except under CI.
 
-mod common;
-mod daemon_run_common;
+use crate::common;
+use crate::daemon_run_common;
 
 use std::path::Path;
 use std::process::Command;

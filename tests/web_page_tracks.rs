@@ -7,7 +7,7 @@
 //! Needs SCANFUSE_TEST_PYTHON (with Playwright; the venv .ci/run builds) and /usr/bin/chromium
 //! (.ci/run installs it); skips without them, except under CI.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::Command;

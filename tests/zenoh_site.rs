@@ -18,7 +18,7 @@
 //! are, also east once restarted.
 #![cfg(feature = "zenoh")]
 
-mod daemon_run_common;
+use crate::daemon_run_common;
 
 use std::path::Path;
 use std::time::{Duration, Instant};

@@ -11,8 +11,8 @@
 //! note without it, except under CI.
 #![cfg(feature = "zenoh")]
 
-mod common;
-mod daemon_run_common;
+use crate::common;
+use crate::daemon_run_common;
 
 use std::io::{BufRead, BufReader, Write};
 use std::process::{Child, ChildStdin, Command, Stdio};

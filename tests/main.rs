@@ -1,0 +1,53 @@
+//! Every end-to-end test in one binary: one link instead of one per file, and the tests of
+//! different files run side by side (most wait on daemons, replays and browsers, not the CPU).
+//! Filter by file: `cargo test --test integration zenoh_site`.
+
+// Helpers the test files share.
+mod common;
+mod daemon_common;
+mod daemon_run_common;
+mod driver_support;
+
+// One module per file.
+mod cli_simulate_info;
+mod daemon_cli;
+mod daemon_config;
+mod daemon_console;
+mod daemon_map_after_move;
+mod daemon_notify;
+mod daemon_run_demo;
+mod daemon_run_faults;
+mod daemon_run_moved;
+mod daemon_run_moved_live;
+mod daemon_run_reload;
+mod daemon_run_walkers;
+mod daemon_signals;
+mod daemon_socket;
+mod daemon_state;
+mod daemon_systemd;
+mod drawing_align;
+mod driver_clock_wrap;
+mod driver_connect_timeout;
+mod driver_emulator;
+mod driver_fixtures;
+mod driver_hokuyolx;
+mod driver_paused_clock;
+mod driver_record_cli;
+mod driver_serial;
+mod map_files;
+mod people_outputs;
+mod python_interop;
+mod recording;
+mod register_cli;
+mod register_clocks;
+mod register_pair;
+mod register_real;
+mod replay_servers;
+mod replay_speed;
+mod replay_wall_clock;
+mod track_sim;
+mod web_contract;
+mod web_page_browser;
+mod web_page_tracks;
+mod zenoh_site;
+mod zenoh_zone;
