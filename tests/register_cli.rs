@@ -362,6 +362,10 @@ fn people_confirming_the_walls_pose_place_a_pair_that_shares_little_wall() {
         pair["walkers"]["sightings"].as_u64().unwrap() >= 25,
         "{pair}"
     );
+    // Both units at torso height: the bodies' area is measured, not chosen. The expo's people
+    // are discs of 0.25 m radius (0.196 m²), one of 0.3 m; measured 0.173 m².
+    let area = pair["walkers"]["torso_area_m2"].as_f64();
+    assert!(area.is_some_and(|a| (0.14..0.25).contains(&a)), "{pair}");
     let recording = record::read(&mcap).unwrap();
     let truth_of = truths(&recording);
     let b = sensor(&json, "b");

@@ -74,11 +74,15 @@ pub(super) struct PairOut {
     walkers: Option<WalkersOut>,
 }
 
-/// How many walker sightings both sensors shared at the pair's pose, over how long.
+/// How many walker sightings both sensors shared at the pair's pose, over how long, and the
+/// torsos' area their centres were placed with where it was measured (absent where it was
+/// chosen: too few walkers seen from in front and from the side, or legs).
 #[derive(Serialize)]
 pub(super) struct WalkersOut {
     sightings: usize,
     seconds: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    torso_area_m2: Option<f64>,
 }
 
 /// A pair pair selection did not register, and why.
@@ -381,6 +385,7 @@ pub(super) fn to_output(
             walkers: p.result.walkers.as_ref().map(|f| WalkersOut {
                 sightings: f.inliers,
                 seconds: f.span_s,
+                torso_area_m2: f.torso_area_m2,
             }),
         })
         .collect();
