@@ -51,3 +51,24 @@ mod web_page_browser;
 mod web_page_tracks;
 mod zenoh_site;
 mod zenoh_zone;
+
+/// A file in tests/ that is not a module here would never run (`autotests = false`).
+#[test]
+fn every_test_file_is_a_module_of_this_binary() {
+    let tests = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests");
+    let main = std::fs::read_to_string(tests.join("main.rs")).unwrap();
+    for entry in std::fs::read_dir(&tests).unwrap() {
+        let path = entry.unwrap().path();
+        let Some(stem) = path.file_stem().and_then(|s| s.to_str()) else {
+            continue;
+        };
+        let is_rust = path.extension().is_some_and(|e| e == "rs");
+        let is_module_dir = path.join("mod.rs").is_file();
+        if (is_rust && stem != "main") || is_module_dir {
+            assert!(
+                main.lines().any(|l| l == format!("mod {stem};")),
+                "tests/{stem} is not declared in tests/main.rs, so it never runs"
+            );
+        }
+    }
+}
