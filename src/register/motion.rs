@@ -17,6 +17,12 @@ pub type SharedTick = (f64, Vec<Point2<f64>>, Vec<Point2<f64>>);
 
 /// How far a walker goes between two kept frames (0.1 s apart) at most (m).
 const STRIDE_M: f64 = 0.3;
+/// A walker moving at least this fast (m/s) has a heading its silhouette is measured against.
+const WALKING_M_S: f64 = 0.4;
+/// Where a still beam got nothing back, its free space is taken to reach this far (m): the
+/// longest range of the units scanfuse drives.
+const OPEN_M: f64 = 30.0;
+
 /// Of the walker centres of the frame before, the one nearest `c` within a stride: where the
 /// walker at `c` stood then.
 fn one_stride_before<'a>(then: &'a [Point2<f64>], c: &Point2<f64>) -> Option<&'a Point2<f64>> {
@@ -26,11 +32,6 @@ fn one_stride_before<'a>(then: &'a [Point2<f64>], c: &Point2<f64>) -> Option<&'a
         .min_by(|x, y| x.1.total_cmp(&y.1))
         .map(|(q, _)| q)
 }
-/// A walker moving at least this fast (m/s) has a heading its silhouette is measured against.
-const WALKING_M_S: f64 = 0.4;
-/// Where a still beam got nothing back, its free space is taken to reach this far (m): the
-/// longest range of the units scanfuse drives.
-const OPEN_M: f64 = 30.0;
 
 /// Thresholds of the motion check.
 #[derive(Debug, Clone, PartialEq)]
