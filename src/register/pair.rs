@@ -11,7 +11,7 @@ use super::telling::generic_match;
 use super::walkers::{WalkerFit, fit_walkers, walkers_keep};
 use super::{RegisterParams, ScanModel};
 use crate::geometry::{Pose2, pose_error, pose2};
-use nalgebra::Matrix3;
+use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 use std::fmt;
 
@@ -260,7 +260,7 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
     }
     // The people's fit, decisive or disputed: what may place the pair alone.
     let any_fit = walkers.as_ref().or(disputed.as_ref());
-    let Some((best, icp)) = distinct.first().cloned() else {
+    let Some((mut best, icp)) = distinct.first().cloned() else {
         if let Some(placed) = any_fit.and_then(|f| placed_by_walkers(a, b, f, hypotheses_count, p))
         {
             return placed;
@@ -300,12 +300,32 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         };
     };
     let (covariance, weak) = covariance_at(a, b, &best.a_from_b, p);
-    let overlap = best.score.overlap();
     // The walkers chose this pose among the walls' candidates: what the walls cannot tell
     // apart (a look-alike, the runner-up) they settled; the rest the walls must still show.
     let by_walkers = walkers
         .as_ref()
         .filter(|f| f.near(&best.a_from_b, &p.walkers));
+    // What the walls leave loose (along a corridor seen lengthwise) the walkers may fix: the
+    // two joined, the walls' pose moves only where they could not hold it. Along that
+    // direction the walkers place the pair alone, so only a fit that could place it alone may
+    // (its errors run to 2-3 of its σ: `eval --diagnose`). Where the walls hold it all, their
+    // pose stands.
+    let loose = weak.is_some() || too_uncertain(&covariance, p).is_some();
+    let fixes = |fit: &&WalkerFit| loose && fit.places_alone_but_for_its_rival(&p.walkers);
+    let (covariance, weak) = match by_walkers.filter(fixes) {
+        Some(fit) => {
+            let (pose, joined) = joined_with_walkers(&best.a_from_b, &covariance, fit, p);
+            best.a_from_b = pose;
+            best.score = score(a, b, &pose, p);
+            if let Some((first, _)) = distinct.first_mut() {
+                first.a_from_b = pose;
+                first.score = best.score;
+            }
+            (joined, None)
+        }
+        None => (covariance, weak),
+    };
+    let overlap = best.score.overlap();
     // The runner-up is one the walkers left standing: in their basin when they chose, and not
     // a pose people watched long enough to confirm and never did while they confirm the best.
     let expected = unconfirmed(a, b, None, p).is_some();
@@ -475,7 +495,7 @@ pub(crate) fn placed_by_walkers(
     if fails(&at, &e) {
         return None;
     }
-    let covariance = fit.alone_covariance(&p.walkers);
+    let covariance = fit.biased_covariance(&p.walkers);
     Some(PairResult {
         verdict: Ok(()),
         a_from_b: pose,
@@ -755,6 +775,39 @@ fn too_uncertain(covariance: &Matrix3<f64>, p: &RegisterParams) -> Option<(f64, 
     let (sigma_m, sigma_rad) = pose_sigmas(covariance);
     let within = sigma_m <= p.max_sigma_m && sigma_rad <= p.max_sigma_rad;
     (!within).then_some((sigma_m, sigma_rad))
+}
+
+/// The walls' pose and covariance joined with the walkers' fit (information-weighted, the
+/// fit's covariance widened by its bias, [`WalkerFit::biased_covariance`]): where the walls
+/// fix a direction they keep it, where they cannot the walkers' pose holds it.
+fn joined_with_walkers(
+    walls: &Pose2,
+    covariance: &Matrix3<f64>,
+    fit: &WalkerFit,
+    p: &RegisterParams,
+) -> (Pose2, Matrix3<f64>) {
+    let info = |c: &Matrix3<f64>| {
+        let e = c.symmetric_eigen();
+        let inv = e.eigenvalues.map(|l| 1.0 / l.max(1e-12));
+        e.eigenvectors * Matrix3::from_diagonal(&inv) * e.eigenvectors.transpose()
+    };
+    let people = info(&fit.biased_covariance(&p.walkers));
+    let Some(joined) = (info(covariance) + people).try_inverse() else {
+        return (*walls, *covariance);
+    };
+    let (tw, tk) = (walls.translation.vector, fit.a_from_b.translation.vector);
+    let d = Vector3::new(
+        tk.x - tw.x,
+        tk.y - tw.y,
+        crate::geometry::wrap_angle_rad(fit.a_from_b.rotation.angle() - walls.rotation.angle()),
+    );
+    let step = joined * people * d;
+    let pose = pose2(
+        tw.x + step.x,
+        tw.y + step.y,
+        walls.rotation.angle() + step.z,
+    );
+    (pose, joined)
 }
 
 /// A pose's position σ along its worst direction (m: the largest eigenvalue of the xy block)

@@ -87,8 +87,9 @@ pub struct Args {
     /// sees, as in a drawing whose furniture layer was not left out.
     #[arg(long, default_value_t = 0)]
     pub drawing_clutter: usize,
-    /// For each pair at ≥ 30 % overlap that was not registered correctly, print which stage lost
-    /// the true pose: rotation candidates, translation hypotheses, coarse ranking or refinement.
+    /// For each pair at ≥ 30 % overlap that was not registered correctly, and each pair placed
+    /// wrong at any overlap, print which stage lost the true pose (rotation candidates,
+    /// translation hypotheses, coarse ranking or refinement) and what the walkers' fit says.
     #[arg(long)]
     pub diagnose: bool,
     /// Also write one CSV row per registered pair (truth error, verdict, ambiguity, score,
@@ -545,16 +546,20 @@ fn score_at_truth(case: &Case, params: &RegisterParams) -> scanfuse::register::s
 fn diagnose(cases: &[Case], tol_m: f64, tol_rad: f64, params: &RegisterParams) {
     use scanfuse::register::hypotheses::{hypotheses, rotation_candidates};
     use scanfuse::register::score::score_coarse;
-    println!("\ndiagnosis of pairs at ≥ 30 % overlap not registered correctly:");
+    println!(
+        "\ndiagnosis of pairs at ≥ 30 % overlap not registered correctly, and of every wrong pose:"
+    );
     println!(
         "{:<26} {:>5} {:>6} {:>5} {:>6} {:>7} {:>5} {:>7} {:>7}  verdict",
         "pair", "ovl", "rot°", "segs", "hyp cm", "hyp °", "rank", "of", "truth−best"
     );
     let mut lost = [0usize; 4];
-    for case in cases.iter().filter(|c| c.overlap >= 0.3) {
+    for case in cases {
         let r = register_pair(&case.a, &case.b, params);
         let (dt, dyaw) = pose_error(&r.a_from_b, &case.a_from_b);
-        if r.registered() && dt <= tol_m && dyaw <= tol_rad {
+        let right = dt <= tol_m && dyaw <= tol_rad;
+        // Every miss at ≥ 30 % overlap, and every wrong pose at any.
+        if (r.registered() && right) || (case.overlap < 0.3 && !r.registered()) {
             continue;
         }
         let true_yaw = case.a_from_b.rotation.angle();
@@ -601,6 +606,31 @@ fn diagnose(cases: &[Case], tol_m: f64, tol_rad: f64, params: &RegisterParams) {
             dir(&r.score.b_in_a),
             r.score.value
         );
+        if let (Some(ma), Some(mb)) = (case.a.motion.as_ref(), case.b.motion.as_ref())
+            && let Some(f) =
+                scanfuse::register::walkers::fit_walkers(ma, mb, &params.walkers, &params.motion)
+        {
+            let (fit_m, fit_rad) = pose_error(&f.a_from_b, &case.a_from_b);
+            let (s_m, s_rad) = scanfuse::register::pair::pose_sigmas(&f.covariance);
+            let e = scanfuse::register::motion::co_motion(ma, mb, &case.a_from_b, &params.motion);
+            println!(
+                "    walkers: fit {:.2} m {:.1}° off, σ {:.1} cm {:.2}°, inliers {}, span {:.1} s, spread {:.1} m, rms {:.2}, walks {} vs {}, decisive {}, alone {}; at truth seen {} through {}",
+                fit_m,
+                fit_rad.to_degrees(),
+                s_m * 100.0,
+                s_rad.to_degrees(),
+                f.inliers,
+                f.span_s,
+                f.spread_m,
+                f.rms_m,
+                f.walks,
+                f.runner_up_walks,
+                f.decisive(&params.walkers),
+                f.places_alone_but_for_its_rival(&params.walkers),
+                e.seen,
+                e.seen_through
+            );
+        }
         println!(
             "{:<26} {:>4.0}% {:>6.1} {:>2}/{:<2} {:>6.0} {:>7.1} {:>5} {:>7} {:>+7.3}  {verdict}",
             case.label,
@@ -618,6 +648,63 @@ fn diagnose(cases: &[Case], tol_m: f64, tol_rad: f64, params: &RegisterParams) {
     println!(
         "lost at: rotation {}, translation {}, coarse rank {}, refinement/verdict {}",
         lost[0], lost[1], lost[2], lost[3]
+    );
+    walker_calibration(cases, params);
+}
+
+/// How far decisive walker fits are from the truth against the σ they give (with their
+/// bias, as the walls are joined with them): a fit whose errors run past its σ would let
+/// a pose the walkers fix be placed wrong.
+fn walker_calibration(cases: &[Case], params: &RegisterParams) {
+    use scanfuse::register::walkers::fit_walkers;
+    let (mut d2, mut along, mut yaw) = (Vec::new(), Vec::new(), Vec::new());
+    for case in cases {
+        let (Some(ma), Some(mb)) = (case.a.motion.as_ref(), case.b.motion.as_ref()) else {
+            continue;
+        };
+        let Some(fit) = fit_walkers(ma, mb, &params.walkers, &params.motion)
+            .filter(|f| f.decisive(&params.walkers))
+        else {
+            continue;
+        };
+        let c = fit.biased_covariance(&params.walkers);
+        let (t, tf) = (
+            case.a_from_b.translation.vector,
+            fit.a_from_b.translation.vector,
+        );
+        let e = nalgebra::Vector3::new(
+            tf.x - t.x,
+            tf.y - t.y,
+            scanfuse::geometry::wrap_angle_rad(
+                fit.a_from_b.rotation.angle() - case.a_from_b.rotation.angle(),
+            ),
+        );
+        // A wrong look-alike is not a calibration question.
+        if e.xy().norm() > 1.0 || e.z.abs() > 5f64.to_radians() {
+            continue;
+        }
+        if let Some(info) = c.try_inverse() {
+            d2.push((e.transpose() * info * e)[(0, 0)]);
+        }
+        let (s_m, s_rad) = scanfuse::register::pair::pose_sigmas(&c);
+        along.push(e.xy().norm() / s_m.max(1e-9));
+        yaw.push(e.z.abs() / s_rad.max(1e-12));
+    }
+    if d2.is_empty() {
+        return;
+    }
+    let q = |v: &[f64], p: f64| quantile(v, p);
+    println!(
+        "decisive walker fits near the truth: {}; Mahalanobis² (x, y, yaw) median {:.1} p90 {:.1} p95 {:.1} max {:.1} (calibrated: 2.4, 6.3, 7.8); position err/σ median {:.2} p95 {:.2}; heading err/σ median {:.2} p95 {:.2}",
+        d2.len(),
+        q(&d2, 0.5),
+        q(&d2, 0.9),
+        q(&d2, 0.95),
+        q(&d2, 1.0),
+        q(&along, 0.5),
+        q(&along, 0.95),
+        q(&yaw, 0.5),
+        q(&yaw, 0.95),
     );
 }
 
