@@ -17,8 +17,6 @@ pub type SharedTick = (f64, Vec<Point2<f64>>, Vec<Point2<f64>>);
 
 /// How far a walker goes between two kept frames (0.1 s apart) at most (m).
 const STRIDE_M: f64 = 0.3;
-/// A walker moving at least this fast (m/s) has a heading its silhouette is measured against.
-const WALKING_M_S: f64 = 0.4;
 /// Where a still beam got nothing back, its free space is taken to reach this far (m): the
 /// longest range of the units scanfuse drives.
 const OPEN_M: f64 = 30.0;
@@ -122,12 +120,6 @@ pub struct MotionTrack {
     cos_pitch: f64,
     plane: Option<ScanPlane>,
 }
-
-/// Heights (m) at which a level scanner cuts people across the hips, waist or chest.
-const TORSO_HEIGHT_M: [f64; 2] = [0.7, 1.5];
-/// A plane pitched more than this cuts people at heights that vary with range (at 2°, 35 cm
-/// over 10 m): legs far off, a torso near.
-const LEVEL_RAD: f64 = 2.0 * std::f64::consts::PI / 180.0;
 
 #[derive(Debug, Clone)]
 struct Frame {
@@ -248,19 +240,16 @@ impl MotionTrack {
         out
     }
 
-    /// Whether its plane cuts people at one height, and that height is a torso's
-    /// ([`TORSO_HEIGHT_M`], level within [`LEVEL_RAD`]): only then can a walker's blob be the
-    /// near side of something other than a round body. Not with the mount unknown.
+    /// Whether its plane cuts people across the torso ([`detect::cuts_torsos`]). Not with the
+    /// mount unknown.
     pub fn sees_torsos(&self) -> bool {
-        self.plane.is_some_and(|p| {
-            p.slope.abs() <= LEVEL_RAD.tan()
-                && (TORSO_HEIGHT_M[0]..=TORSO_HEIGHT_M[1]).contains(&p.height_m)
-        })
+        self.plane
+            .is_some_and(|p| detect::cuts_torsos(p.height_m, p.slope.atan()))
     }
 
     /// How wide its walkers looked against the way they walked ([`detect::Silhouette`]):
     /// each walker of a frame that, one frame before, stood within a stride of where it is,
-    /// and has moved at least [`WALKING_M_S`] since (a heading to measure against).
+    /// and has moved at least [`detect::WALKING_M_S`] since (a heading to measure against).
     pub fn silhouettes(&self) -> Vec<detect::Silhouette> {
         let centre = |w: &Vec<Point2<f64>>| detect::centre(w, detect::Body::Round);
         let mut out = Vec::new();
@@ -277,14 +266,10 @@ impl MotionTrack {
                     continue;
                 };
                 let step = c - q;
-                if step.norm() < WALKING_M_S * dt_s || c.coords.norm() < 1e-6 {
+                if step.norm() < detect::WALKING_M_S * dt_s {
                     continue;
                 }
-                let cos = c.coords.normalize().dot(&step.normalize());
-                out.push(detect::Silhouette {
-                    half_width_m: 0.5 * detect::shown_width_m(w),
-                    cos2: cos * cos,
-                });
+                out.extend(detect::silhouette(w, &c, &step));
             }
         }
         out

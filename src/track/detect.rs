@@ -108,6 +108,41 @@ pub struct Silhouette {
     pub cos2: f64,
 }
 
+/// Heights (m) at which a level scanner cuts people across the hips, waist or chest.
+const TORSO_HEIGHT_M: [f64; 2] = [0.7, 1.5];
+/// A plane pitched more than this cuts people at heights that vary with range (at 2°, 35 cm
+/// over 10 m): legs far off, a torso near.
+const LEVEL_RAD: f64 = 2.0 * std::f64::consts::PI / 180.0;
+
+/// Whether a scanner this high (m) and pitched this much (rad) cuts people at one height, and
+/// that height a torso's: only then can a walker's blob be the near side of something other
+/// than a round body ([`Body::Area`], [`torso_area`]).
+pub fn cuts_torsos(height_m: f64, pitch_rad: f64) -> bool {
+    pitch_rad.abs() <= LEVEL_RAD && (TORSO_HEIGHT_M[0]..=TORSO_HEIGHT_M[1]).contains(&height_m)
+}
+
+/// A walker moving at least this fast (m/s) has a heading its silhouette is measured against.
+pub const WALKING_M_S: f64 = 0.4;
+
+/// How `blob` (sensor frame, its centre `centre`) looks against `walked`, the way its person
+/// walks (any length, sensor frame): half the width it shows, and cos² of the angle between
+/// the beam and that way. `None` at the origin or without a heading.
+pub fn silhouette(
+    blob: &[Point2<f64>],
+    centre: &Point2<f64>,
+    walked: &Vector2<f64>,
+) -> Option<Silhouette> {
+    let (beam, way) = (
+        centre.coords.try_normalize(1e-9)?,
+        walked.try_normalize(1e-9)?,
+    );
+    let cos = beam.dot(&way);
+    Some(Silhouette {
+        half_width_m: 0.5 * shown_width_m(blob),
+        cos2: cos * cos,
+    })
+}
+
 /// The area (m²) of the torsos people show, from how wide they look against the way they
 /// walk. A torso `a` across the walking direction and `b` along it (semi-axes) shows a half
 /// width h with h² = a² cos²θ + b² sin²θ, θ between the beam and the walking direction: from

@@ -56,6 +56,10 @@ pub struct TrackParams {
     /// and 0.949 → 0.969, id switches per 5 person-minutes 6.2 → 4.7 and 16.9 → 9.3 (0.5 m:
     /// 0.976, 0.961; 4.8, 9.6; at 30 s, 0.35 m and 0.4 m made hundreds of false track-frames).
     pub leg_track_m: f64,
+    /// A level unit at torso height places its people as torsos of the area it measures from
+    /// how wide they look against the way their tracks go (`detect::torso_area`), once it has
+    /// 20 such sightings from in front and 20 from the side; round bodies until then.
+    pub min_silhouettes: usize,
     /// Returns farther than 25 m from their sensor make no detection.
     pub max_range_m: f64,
     /// Detections of different sensors within 0.45 m are one person.
@@ -151,6 +155,7 @@ impl Default for TrackParams {
             leg_min_points: 2,
             leg_pair_m: 0.6,
             leg_track_m: 0.6,
+            min_silhouettes: 20,
             max_range_m: 25.0,
             merge_m: 0.45,
             step_s: 0.025,

@@ -33,6 +33,11 @@ const HIDDEN_BODY_M: f64 = 0.35;
 /// How many of a sensor's latest intervals between scans its period is taken from.
 const PERIOD_GAPS: usize = 32;
 
+/// How many of a sensor's latest walker silhouettes its torsos' area is measured from, and
+/// how many new ones measure it again.
+const SILHOUETTES: usize = 4000;
+const REMEASURE_EVERY: usize = 200;
+
 /// One sensor's scan as the tracker takes it.
 #[derive(Debug, Clone, Copy)]
 pub struct SensorScan<'a> {
@@ -73,6 +78,18 @@ struct SensorState {
     /// A low unit's latest legs (their centres, sensor frame), given to the tracks at the
     /// step.
     legs_seen: Vec<Point2<f64>>,
+    /// The torsos its people show, once measured: its centres then follow a torso of that
+    /// area rather than a round body.
+    torsos: Torsos,
+}
+
+/// How wide the people one sensor saw walking looked against the way their tracks went (the
+/// newest `SILHOUETTES`), and the torsos' area measured from them once it can be.
+#[derive(Debug, Default)]
+struct Torsos {
+    silhouettes: VecDeque<detect::Silhouette>,
+    since_measured: usize,
+    area_m2: Option<f64>,
 }
 
 impl SensorState {
@@ -110,6 +127,49 @@ impl SensorState {
         }
         self.last_ns = Some(stamp_ns);
         self.delivered = true;
+    }
+}
+
+impl Torsos {
+    /// Keeps how wide each of `blobs` (sensor frame, the sensor at `pose`) looked against the
+    /// way its track goes, for a blob that is one walker's: a confirmed track walking
+    /// ([`detect::WALKING_M_S`]) within `same_person_m` of its round centre and no other
+    /// within `max_person_m`. Measures the torsos' area again every `REMEASURE_EVERY` kept.
+    fn measure(
+        &mut self,
+        blobs: &[Vec<Point2<f64>>],
+        pose: &Pose2,
+        walking: &[(Point2<f64>, Vector2<f64>)],
+        p: &TrackParams,
+    ) {
+        for b in blobs {
+            let Some(c) = detect::centre(b, detect::Body::Round) else {
+                continue;
+            };
+            let at = pose * c;
+            let mut near = walking
+                .iter()
+                .filter(|(q, _)| (q - at).norm() <= p.max_person_m);
+            let (Some((q, v)), None) = (near.next(), near.next()) else {
+                continue;
+            };
+            if (q - at).norm() > p.same_person_m || v.norm() < detect::WALKING_M_S {
+                continue;
+            }
+            let Some(seen) = detect::silhouette(b, &c, &(pose.rotation.inverse() * v)) else {
+                continue;
+            };
+            if self.silhouettes.len() == SILHOUETTES {
+                self.silhouettes.pop_front();
+            }
+            self.silhouettes.push_back(seen);
+            self.since_measured += 1;
+            if self.since_measured >= REMEASURE_EVERY {
+                self.since_measured = 0;
+                let (front, back) = self.silhouettes.as_slices();
+                self.area_m2 = detect::torso_area(&[front, back].concat(), p.min_silhouettes);
+            }
+        }
     }
 }
 
@@ -292,6 +352,13 @@ impl Tracker {
         // Projected once: the background learns from every scan, detections need the points.
         let points = project_scan(s.scan, s.geometry, &s.mount, &p.project);
         let ranges = ranges_of(&points, s.scan.ranges_m.len());
+        // Where the confirmed tracks are and which way they go: what a blob's heading is.
+        let walking: Vec<(Point2<f64>, Vector2<f64>)> = self
+            .tracks
+            .iter()
+            .filter(|t| t.id != 0)
+            .map(|t| (t.filter.position(), t.filter.velocity()))
+            .collect();
         let state = self.sensors.entry(s.id.to_string()).or_default();
         state.delivers(s.scan.stamp_ns);
         state.seen.clear();
@@ -343,7 +410,18 @@ impl Tracker {
                     .collect();
                 people_on_legs(&state.legs_seen, p)
             } else {
-                people_in(blobs, p)
+                let torsos = s
+                    .mount
+                    .height_m
+                    .is_some_and(|h| detect::cuts_torsos(h, s.mount.pitch_rad));
+                if torsos {
+                    state.torsos.measure(&blobs, &pose, &walking, p);
+                }
+                let body = state
+                    .torsos
+                    .area_m2
+                    .map_or(detect::Body::Round, detect::Body::Area);
+                people_in(blobs, body, p)
             };
             state.seen.extend(centres.into_iter().map(|c| pose * c));
             let stamp_ns = s.scan.stamp_ns;
@@ -901,16 +979,18 @@ fn people_on_legs(legs: &[Point2<f64>], p: &TrackParams) -> Vec<Point2<f64>> {
     centres
 }
 
-/// The people in a level unit's blobs (sensor frame), one centre each: blobs split where
-/// several stand side by side, within range.
-fn people_in(blobs: Vec<Vec<Point2<f64>>>, p: &TrackParams) -> Vec<Point2<f64>> {
-    // Round bodies, not the torso shapes the walker fit tries (`WalkerParams::
-    // body_areas_m2`): a 0.10 m² torso on level units cut MOTP by 1.3–1.6 cm but raised id
-    // switches 3–4 % (`eval --only tracking --track-seconds 240`, seeds 1–2).
+/// The people in a level unit's blobs (sensor frame), one centre each, placed behind the
+/// returns as `body` says (a torso of the unit's measured area, else round): blobs split
+/// where several stand side by side, within range.
+fn people_in(
+    blobs: Vec<Vec<Point2<f64>>>,
+    body: detect::Body,
+    p: &TrackParams,
+) -> Vec<Point2<f64>> {
     let centres: Vec<Point2<f64>> = blobs
         .into_iter()
         .flat_map(|b| detect::split_wide(b, p.max_person_m, p.person_m, p.blob.min_points))
-        .filter_map(|b| detect::centre(&b, detect::Body::Round))
+        .filter_map(|b| detect::centre(&b, body))
         .collect();
     // One body seen as two runs (an arm apart from the torso) is one person.
     let mut centres = detect::pair_legs(&centres, p.same_person_m);
@@ -1299,6 +1379,89 @@ mod tests {
             }
         }
         (a_ids, b_ids)
+    }
+
+    /// One person, a 0.45 × 0.28 m torso turned the way they walk, going round a 3 m circle
+    /// at 1.2 m/s for `seconds`, seen by two level units at 1.1 m: each unit's measured torso
+    /// area (`None` where not measured) and the track's mean distance from the truth over the
+    /// last 10 s.
+    fn walker_on_a_circle(params: TrackParams, seconds: u64) -> (Vec<Option<f64>>, f64) {
+        let room = polygon(&[(0.0, 0.0), (14.0, 0.0), (14.0, 10.0), (0.0, 10.0)]);
+        let poses = [pose2(0.5, 0.5, 0.6), pose2(13.5, 9.0, -2.4)];
+        let mount = Mount {
+            height_m: Some(1.1),
+            ..Mount::default()
+        };
+        let mut tracker = Tracker::new(params);
+        let (centre, radius, speed) = (Point2::new(7.0, 5.0), 3.0, 1.2);
+        let at = |t_s: f64| {
+            let phi = speed * t_s / radius;
+            (centre + radius * Vector2::new(phi.cos(), phi.sin()), phi)
+        };
+        let (mut err_sum, mut err_n) = (0.0, 0usize);
+        for k in 0..(seconds * S / TICK) {
+            let t_ns = k * TICK;
+            let (c, phi) = at(t_ns as f64 * 1e-9);
+            // Walking along the tangent: the torso's 0.28 m depth along it, 0.45 m across.
+            let (along, across) = (
+                Vector2::new(-phi.sin(), phi.cos()),
+                Vector2::new(phi.cos(), phi.sin()),
+            );
+            let torso: Vec<(f64, f64)> = (0..16)
+                .map(|i| {
+                    let a = i as f64 * std::f64::consts::TAU / 16.0;
+                    let q = c + 0.14 * a.cos() * along + 0.225 * a.sin() * across;
+                    (q.x, q.y)
+                })
+                .collect();
+            let mut seen = room.clone();
+            seen.extend(polygon(&torso));
+            for (i, pose) in poses.iter().enumerate() {
+                let s = scan(&seen, pose, t_ns + i as u64 * TICK / 2);
+                let Some(out) = tracker.push(SensorScan {
+                    id: ["a", "b"][i],
+                    scan: &s,
+                    geometry: None,
+                    mount,
+                    site_from_sensor: Some(*pose),
+                }) else {
+                    continue;
+                };
+                if out.t_ns + 10 * S >= seconds * S
+                    && let Some((_, d)) = id_near(&out, at(out.t_ns as f64 * 1e-9).0)
+                {
+                    err_sum += d;
+                    err_n += 1;
+                }
+            }
+        }
+        let areas = tracker.sensors.values().map(|s| s.torsos.area_m2).collect();
+        (areas, err_sum / err_n.max(1) as f64)
+    }
+
+    #[test]
+    fn a_level_unit_measures_the_torsos_it_sees_and_centres_people_by_them() {
+        let truth = std::f64::consts::PI * 0.225 * 0.14;
+        let (areas, measured) = walker_on_a_circle(TrackParams::default(), 40);
+        for area in &areas {
+            let area = area.expect("each unit measured the torso");
+            assert!(
+                (area / truth - 1.0).abs() < 0.2,
+                "{area:.3} m² against {truth:.3}"
+            );
+        }
+        let round = TrackParams {
+            min_silhouettes: usize::MAX,
+            ..TrackParams::default()
+        };
+        let (areas, assumed) = walker_on_a_circle(round, 40);
+        assert!(areas.iter().all(Option::is_none));
+        assert!(
+            measured < assumed - 0.01,
+            "{:.1} cm off with the torso measured, {:.1} cm as a round body",
+            measured * 100.0,
+            assumed * 100.0
+        );
     }
 
     #[test]
