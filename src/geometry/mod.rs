@@ -6,5 +6,7 @@ pub mod project;
 pub mod raycast;
 pub mod tables;
 
-pub use pose::{Pose2, Pose3, pose_error, pose2, within_sigma, wrap_angle_rad, yaw_rad};
+pub use pose::{
+    Pose2, Pose3, pose_delta, pose_error, pose2, within_sigma, wrap_angle_rad, yaw_rad,
+};
 pub use project::{Mount, ProjectParams, ScanPoint, beam_angles_rad, project_scan};

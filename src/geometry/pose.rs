@@ -33,6 +33,13 @@ pub fn pose_error(estimate: &Pose2, truth: &Pose2) -> (f64, f64) {
     (dt, dyaw)
 }
 
+/// `to`'s (x, y, yaw) minus `from`'s, the heading folded into (−π, π]: a step in the
+/// parameters a pose's (x, y, yaw) covariance is of.
+pub fn pose_delta(from: &Pose2, to: &Pose2) -> Vector3<f64> {
+    let d = to.translation.vector - from.translation.vector;
+    Vector3::new(d.x, d.y, wrap_angle_rad(yaw_rad(to) - yaw_rad(from)))
+}
+
 /// Whether a pose error (m, rad, as [`pose_error`] gives it) lies within `k` σ of what was
 /// claimed for the pose: σ of x and y (m) and of the heading (rad). Beyond, the claim was
 /// wrong, not just imprecise (what the zones' eval and bench count).

@@ -10,8 +10,8 @@ use super::score::{PoseScore, score, score_coarse};
 use super::telling::generic_match;
 use super::walkers::{WalkerFit, fit_walkers, walkers_keep};
 use super::{RegisterParams, ScanModel};
-use crate::geometry::{Pose2, pose_error, pose2};
-use nalgebra::{Matrix3, Vector3};
+use crate::geometry::{Pose2, pose_delta, pose_error, pose2};
+use nalgebra::Matrix3;
 use rayon::prelude::*;
 use std::fmt;
 
@@ -786,28 +786,25 @@ fn joined_with_walkers(
     fit: &WalkerFit,
     p: &RegisterParams,
 ) -> (Pose2, Matrix3<f64>) {
-    let info = |c: &Matrix3<f64>| {
-        let e = c.symmetric_eigen();
-        let inv = e.eigenvalues.map(|l| 1.0 / l.max(1e-12));
-        e.eigenvectors * Matrix3::from_diagonal(&inv) * e.eigenvectors.transpose()
-    };
+    let info = |c: &Matrix3<f64>| floored_inverse(c, 0.0, 1e-12);
     let people = info(&fit.biased_covariance(&p.walkers));
     let Some(joined) = (info(covariance) + people).try_inverse() else {
         return (*walls, *covariance);
     };
-    let (tw, tk) = (walls.translation.vector, fit.a_from_b.translation.vector);
-    let d = Vector3::new(
-        tk.x - tw.x,
-        tk.y - tw.y,
-        crate::geometry::wrap_angle_rad(fit.a_from_b.rotation.angle() - walls.rotation.angle()),
-    );
-    let step = joined * people * d;
-    let pose = pose2(
-        tw.x + step.x,
-        tw.y + step.y,
-        walls.rotation.angle() + step.z,
-    );
+    let step = joined * people * pose_delta(walls, &fit.a_from_b);
+    let t = walls.translation.vector;
+    let pose = pose2(t.x + step.x, t.y + step.y, walls.rotation.angle() + step.z);
     (pose, joined)
+}
+
+/// `m` (symmetric) inverted through its eigenvalues, each taken as at least `relative` of the
+/// largest and at least `absolute`: a nearly singular matrix gives a huge value along its weak
+/// direction rather than a negative or NaN one.
+fn floored_inverse(m: &Matrix3<f64>, relative: f64, absolute: f64) -> Matrix3<f64> {
+    let e = m.symmetric_eigen();
+    let floor = (relative * e.eigenvalues.max()).max(absolute);
+    let inv = e.eigenvalues.map(|l| 1.0 / l.max(floor));
+    e.eigenvectors * Matrix3::from_diagonal(&inv) * e.eigenvectors.transpose()
 }
 
 /// A pose's position σ along its worst direction (m: the largest eigenvalue of the xy block)
@@ -828,15 +825,8 @@ fn covariance_of(icp: &IcpResult, p: &RegisterParams) -> (Matrix3<f64>, Option<f
     } else {
         1.0
     };
-    // Inverted through its eigenvalues, floored, so a nearly singular system gives a huge
-    // variance along its weak direction rather than a negative or NaN one.
-    let full = h.symmetric_eigen();
-    let floor = 1e-9 * full.eigenvalues.max().max(1e-12);
-    let inv_eig = full.eigenvalues.map(|l| 1.0 / l.max(floor));
-    let covariance = full.eigenvectors
-        * Matrix3::from_diagonal(&inv_eig)
-        * full.eigenvectors.transpose()
-        * (sigma * sigma * p.covariance_inflation);
+    // Floored at 1e-9 of its largest eigenvalue: a huge variance along a weak direction.
+    let covariance = floored_inverse(&h, 1e-9, 1e-21) * (sigma * sigma * p.covariance_inflation);
     let tt = h.fixed_view::<2, 2>(0, 0).into_owned();
     let eig = tt.symmetric_eigen();
     let (k_min, k_max) = if eig.eigenvalues[0] <= eig.eigenvalues[1] {

@@ -211,14 +211,20 @@ impl WalkerFit {
         }
     }
 
+    /// How far (m) its centres may sit off the bodies' own, whatever its σ: `measured_bias_m`
+    /// where the torsos' area was measured, `alone_bias_m` where a body was chosen.
+    pub fn bias_m(&self, p: &WalkerParams) -> f64 {
+        match self.torso_area_m2 {
+            Some(_) => p.measured_bias_m,
+            None => p.alone_bias_m,
+        }
+    }
+
     /// The covariance the pose the walkers give has: the fit's, its position widened by the
     /// bias a body's shape and time leave (`alone_bias_m`, or `measured_bias_m` where the
     /// torsos' area was measured).
     pub fn biased_covariance(&self, p: &WalkerParams) -> Matrix3<f64> {
-        let bias = match self.torso_area_m2 {
-            Some(_) => p.measured_bias_m,
-            None => p.alone_bias_m,
-        };
+        let bias = self.bias_m(p);
         let mut c = self.covariance;
         c[(0, 0)] += bias * bias;
         c[(1, 1)] += bias * bias;
@@ -1204,11 +1210,7 @@ pub(crate) mod tests {
         assert!(fit.alone && fit.places_alone(&p.walkers), "{fit:?}");
         assert_eq!(evidence(r.walkers.as_ref()), "walkers");
         // Its σ includes the bias a body's shape and time leave, so the site weighs it as it is.
-        let bias = match fit.torso_area_m2 {
-            Some(_) => p.walkers.measured_bias_m,
-            None => p.walkers.alone_bias_m,
-        };
-        assert!(r.covariance[(0, 0)].sqrt() >= bias);
+        assert!(r.covariance[(0, 0)].sqrt() >= fit.bias_m(&p.walkers));
         // The same walkers held to a stricter count than they reach: not placed alone, and
         // with no wall to place it, not registered.
         let strict = crate::register::RegisterParams {

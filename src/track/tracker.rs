@@ -134,12 +134,13 @@ impl Torsos {
     /// Keeps how wide each of `blobs` (sensor frame, the sensor at `pose`) looked against the
     /// way its track goes, for a blob that is one walker's: a confirmed track walking
     /// ([`detect::WALKING_M_S`]) within `same_person_m` of its round centre and no other
-    /// within `max_person_m`. Measures the torsos' area again every `REMEASURE_EVERY` kept.
+    /// confirmed one within `max_person_m`. Measures the torsos' area again every
+    /// `REMEASURE_EVERY` kept.
     fn measure(
         &mut self,
         blobs: &[Vec<Point2<f64>>],
         pose: &Pose2,
-        walking: &[(Point2<f64>, Vector2<f64>)],
+        tracks: &[TrackState],
         p: &TrackParams,
     ) {
         for b in blobs {
@@ -147,8 +148,10 @@ impl Torsos {
                 continue;
             };
             let at = pose * c;
-            let mut near = walking
+            let mut near = tracks
                 .iter()
+                .filter(|t| t.id != 0)
+                .map(|t| (t.filter.position(), t.filter.velocity()))
                 .filter(|(q, _)| (q - at).norm() <= p.max_person_m);
             let (Some((q, v)), None) = (near.next(), near.next()) else {
                 continue;
@@ -352,13 +355,6 @@ impl Tracker {
         // Projected once: the background learns from every scan, detections need the points.
         let points = project_scan(s.scan, s.geometry, &s.mount, &p.project);
         let ranges = ranges_of(&points, s.scan.ranges_m.len());
-        // Where the confirmed tracks are and which way they go: what a blob's heading is.
-        let walking: Vec<(Point2<f64>, Vector2<f64>)> = self
-            .tracks
-            .iter()
-            .filter(|t| t.id != 0)
-            .map(|t| (t.filter.position(), t.filter.velocity()))
-            .collect();
         let state = self.sensors.entry(s.id.to_string()).or_default();
         state.delivers(s.scan.stamp_ns);
         state.seen.clear();
@@ -415,7 +411,7 @@ impl Tracker {
                     .height_m
                     .is_some_and(|h| detect::cuts_torsos(h, s.mount.pitch_rad));
                 if torsos {
-                    state.torsos.measure(&blobs, &pose, &walking, p);
+                    state.torsos.measure(&blobs, &pose, &self.tracks, p);
                 }
                 let body = state
                     .torsos

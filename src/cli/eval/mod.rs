@@ -668,17 +668,7 @@ fn walker_calibration(cases: &[Case], params: &RegisterParams) {
             continue;
         };
         let c = fit.biased_covariance(&params.walkers);
-        let (t, tf) = (
-            case.a_from_b.translation.vector,
-            fit.a_from_b.translation.vector,
-        );
-        let e = nalgebra::Vector3::new(
-            tf.x - t.x,
-            tf.y - t.y,
-            scanfuse::geometry::wrap_angle_rad(
-                fit.a_from_b.rotation.angle() - case.a_from_b.rotation.angle(),
-            ),
-        );
+        let e = scanfuse::geometry::pose_delta(&case.a_from_b, &fit.a_from_b);
         // A wrong look-alike is not a calibration question.
         if e.xy().norm() > 1.0 || e.z.abs() > 5f64.to_radians() {
             continue;

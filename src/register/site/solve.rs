@@ -4,7 +4,7 @@
 
 use super::groups::Checked;
 use super::{Edge, Prior, SiteParams, candidate_edge};
-use crate::geometry::{Pose2, pose_error, pose2, wrap_angle_rad, yaw_rad};
+use crate::geometry::{Pose2, pose_delta, pose_error, pose2, wrap_angle_rad, yaw_rad};
 use crate::register::{PairResult, RegisterParams};
 use nalgebra::{DMatrix, DVector, Matrix3};
 use nalgebra_sparse::factorization::CscCholesky;
@@ -205,13 +205,8 @@ pub fn solve(
             // too (an edge's left perturbation would rotate about the anchor instead); on a
             // zone, the surveyed unit's, where the zone puts it.
             let survey_residual = |x: &[Pose2]| {
-                let at = x[0] * node_from_sensor;
-                let d = at.translation.vector - z.translation.vector;
-                [
-                    d.x,
-                    d.y,
-                    wrap_angle_rad(at.rotation.angle() - z.rotation.angle()),
-                ]
+                let d = pose_delta(&z, &(x[0] * node_from_sensor));
+                [d.x, d.y, d.z]
             };
             add(&[i], &survey_residual, &w, &poses);
         }
