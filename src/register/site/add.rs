@@ -10,7 +10,7 @@
 //! Where it stands then, and how surely, comes from the pairs that agree with it (`settle`).
 
 use super::descriptor::ViewDescriptor;
-use super::join::JoinContext;
+use super::join::{JoinContext, Refusal};
 use super::memo::ScoreMemo;
 use super::report::{caveat, evidence};
 use super::settle::settle;
@@ -196,6 +196,10 @@ fn settled(
         let why = "no pair agrees with where its view fits the placed sensors".to_string();
         return AddedSensor::refused(why, pairs, others.len());
     };
+    if let Some(loose) = Refusal::loose(&s.sigma, sp) {
+        let why = loose.describe(&|i| sensors.get(i).map_or("?", |s| s.id.as_str()));
+        return AddedSensor::refused(why, pairs, others.len());
+    }
     let used: Vec<((usize, usize), &PairResult)> = s
         .used
         .iter()

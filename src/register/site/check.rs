@@ -2,17 +2,20 @@
 //! that registered; the weaker side of a certain contradiction loses its edges and the site is
 //! solved again until none is left.
 
+use super::join::Refusal;
 use super::{Edge, SensorInput, SiteParams};
 use crate::geometry::Pose2;
 use crate::register::{RegisterParams, ScanModel};
 use rayon::prelude::*;
 
 /// The solution after the last check: pose and σ per sensor, the sensor whose free space each
-/// dropped one contradicted, the (pair, candidate) of every edge it rests on, and for each
-/// surveyed sensor the scans contradict, how far apart the two put it.
+/// dropped one contradicted, those left unplaced as too loose (`Refusal::Loose`), the (pair,
+/// candidate) of every edge it rests on, and for each surveyed sensor the scans contradict,
+/// how far apart the two put it.
 pub(super) struct Solved {
     pub solution: Vec<Option<(Pose2, [f64; 3])>>,
     pub contradicted: Vec<Option<usize>>,
+    pub loose: Vec<Option<Refusal>>,
     pub origin: Vec<(usize, usize)>,
     pub survey_conflicts: Vec<Option<(f64, f64)>>,
 }
@@ -141,9 +144,29 @@ pub(super) fn solve_without_conflicts(
         drop_edges_of(loser, &mut edges, &mut origin);
         solution = super::solve(n, anchor, &edges, &priors, sp);
     }
+    // A pose the solve cannot say it is sure of is not given: its edges are left out (they
+    // told the rest next to nothing) and the site solved again without it.
+    let mut loose = vec![None; n];
+    loop {
+        let found: Vec<(usize, Refusal)> = solution
+            .iter()
+            .enumerate()
+            .filter_map(|(i, s)| Some((i, Refusal::loose(&s.as_ref()?.1, sp)?)))
+            .collect();
+        if found.is_empty() {
+            break;
+        }
+        for (i, why) in found {
+            tracing::debug!("{} is placed too loosely: {why:?}", sensors[i].id);
+            drop_edges_of(i, &mut edges, &mut origin);
+            loose[i] = Some(why);
+        }
+        solution = super::solve(n, anchor, &edges, &priors, sp);
+    }
     Solved {
         solution,
         contradicted,
+        loose,
         origin,
         survey_conflicts,
     }

@@ -282,6 +282,24 @@ pub(super) enum Refusal {
         against: usize,
         then: Box<Refusal>,
     },
+    /// Placed, but the pairs it rests on leave its pose looser than a placed sensor's may be
+    /// (`SiteParams::placed_max_sigma_m`, `placed_max_sigma_rad`): σ of position (m) and
+    /// heading (rad).
+    Loose { sigma_m: f64, sigma_yaw_rad: f64 },
+}
+
+impl Refusal {
+    /// `Loose` where σ (x, y, yaw) is wider than a placed sensor's may be.
+    pub(super) fn loose(sigma: &[f64; 3], sp: &SiteParams) -> Option<Refusal> {
+        let sigma_m = sigma[0].hypot(sigma[1]);
+        let sigma_yaw_rad = sigma[2];
+        // NaN is loose too: a solve that could not say how sure it is.
+        let within = sigma_m <= sp.placed_max_sigma_m && sigma_yaw_rad <= sp.placed_max_sigma_rad;
+        (!within).then_some(Refusal::Loose {
+            sigma_m,
+            sigma_yaw_rad,
+        })
+    }
 }
 
 impl Refusal {
@@ -343,6 +361,13 @@ impl Refusal {
             } => format!(
                 "its group put it where {support} of its pairs agree, but {against} put it elsewhere (a look-alike place?), and there: {}",
                 then.describe(id)
+            ),
+            Refusal::Loose {
+                sigma_m,
+                sigma_yaw_rad,
+            } => format!(
+                "its scans fit the placed sensors', but the pairs that place it fix it only loosely (σ {sigma_m:.2} m / {:.1}°: what they share holds too little across some direction); survey it, add a sensor that sees both it and a placed one, or let people walk where it and a placed sensor both look",
+                sigma_yaw_rad.to_degrees()
             ),
             Refusal::Slides { axis_deg } => format!(
                 "its position along {axis_deg:.0}° is not fixed by what the placed sensors see (a corridor seen lengthwise); survey it, or add a sensor that sees across"

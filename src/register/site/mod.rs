@@ -172,6 +172,14 @@ pub struct SiteParams {
     /// share of the points where they meet may land in the other side's free space
     /// (`neighbourhoods`); zone links stand on the same share of their zones' whole views.
     pub whole_view_violation: f64,
+    /// A sensor is placed only with σ within these (position, m; heading, rad): the site's
+    /// own cycle tolerance (`cycle_m`, `cycle_rad`). A wider σ says the pairs that place it
+    /// leave it loose, however well the joint score took it (a group joined through one pair
+    /// that sees one wall or a glass front was placed right to 3 cm with σ 482 m / 8°:
+    /// glass-shop, seed 1). Over eval's sites (seed 1: 10 per kind in both plan sets, two
+    /// 50-unit concourses) placed sensors had σ up to 6.7 cm and 0.18°.
+    pub placed_max_sigma_m: f64,
+    pub placed_max_sigma_rad: f64,
 }
 
 impl Default for SiteParams {
@@ -190,6 +198,8 @@ impl Default for SiteParams {
             confirming_pairs: 3,
             partners: 8,
             whole_view_violation: 0.15,
+            placed_max_sigma_m: 0.25,
+            placed_max_sigma_rad: 2.5f64.to_radians(),
         }
     }
 }

@@ -21,6 +21,7 @@ pub(super) fn site_result(
     let Solved {
         solution,
         contradicted,
+        loose,
         origin,
         survey_conflicts,
     } = solved;
@@ -61,12 +62,13 @@ pub(super) fn site_result(
                     sigma_y_m: sigma[1],
                     sigma_yaw_rad: sigma[2],
                 }),
-                None => Err(match contradicted[i] {
-                    Some(j) => format!(
+                None => Err(match (contradicted[i], &loose[i]) {
+                    (_, Some(why)) => why.describe(&id),
+                    (Some(j), None) => format!(
                         "its only registrations put its scan in space {} saw empty",
                         id(j)
                     ),
-                    None => {
+                    (None, None) => {
                         let g = groups.iter().position(|g| g.iter().any(|(m, _)| *m == i));
                         let others: Vec<&str> = g
                             .and_then(|g| groups.get(g))

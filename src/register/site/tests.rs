@@ -876,6 +876,56 @@ fn a_sensor_reached_by_no_edge_stays_unplaced() {
     assert!(solution[2].is_none());
 }
 
+/// Found in a shop with a glass front: two units outside joined the two inside through one
+/// pair that saw one wall, and were reported placed with σ 482 m. A pose the solve cannot
+/// say it is sure of is not given, and a sensor resting on it loses it too.
+#[test]
+fn a_sensor_the_pairs_leave_loose_is_not_placed_and_says_why() {
+    let truth = [
+        pose2(0.0, 0.0, 0.0),
+        pose2(5.0, 1.0, 0.5),
+        pose2(3.0, 6.0, -1.0),
+        pose2(6.0, 7.0, 0.2),
+    ];
+    let sp = SiteParams::default();
+    // 0–1 tight; 1–2 fixes 2 across a wall but not along it (σ 30 m along x); 2–3 tight.
+    let along_wall = Edge {
+        covariance: Matrix3::from_diagonal(&nalgebra::Vector3::new(900.0, 1e-4, 1e-5)),
+        ..edge(1, 2, &truth, Pose2::identity())
+    };
+    let edges = vec![
+        edge(0, 1, &truth, Pose2::identity()),
+        along_wall,
+        edge(2, 3, &truth, Pose2::identity()),
+    ];
+    let origin = vec![(0, 0), (1, 0), (2, 0)];
+    let sensors: Vec<SensorInput> = (0..4).map(|i| blank_input(i, None)).collect();
+    let p = RegisterParams::default();
+    let solved = super::check::solve_without_conflicts(4, 0, edges, origin, &sensors, &p, &sp);
+    assert!(solved.solution[1].is_some() && solved.loose[1].is_none());
+    for i in [2, 3] {
+        assert!(solved.solution[i].is_none(), "sensor {i} placed");
+        let Some(Refusal::Loose { sigma_m, .. }) = solved.loose[i] else {
+            panic!("sensor {i}: {:?}", solved.loose[i]);
+        };
+        assert!(sigma_m > 10.0, "{sigma_m}");
+    }
+    // Their edges no longer count as used.
+    assert_eq!(solved.origin, vec![(0, 0)]);
+    let why = solved.loose[2].as_ref().unwrap().describe(&|_| "s");
+    assert!(
+        why.contains("only loosely") && why.contains("survey it"),
+        "{why}"
+    );
+    // Within the limits, the same chain is placed.
+    let tight: Vec<Edge> = (0..3)
+        .map(|k| edge(k, k + 1, &truth, Pose2::identity()))
+        .collect();
+    let origin = vec![(0, 0), (1, 0), (2, 0)];
+    let solved = super::check::solve_without_conflicts(4, 0, tight, origin, &sensors, &p, &sp);
+    assert!(solved.solution.iter().all(Option::is_some));
+}
+
 #[test]
 fn the_last_check_drops_a_sensor_only_for_contradictions_it_is_sure_of() {
     use crate::register::score::tests::facing;
