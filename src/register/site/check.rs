@@ -145,12 +145,17 @@ pub(super) fn solve_without_conflicts(
         solution = super::solve(n, anchor, &edges, &priors, sp);
     }
     // A pose the solve cannot say it is sure of is not given: its edges are left out (they
-    // told the rest next to nothing) and the site solved again without it.
+    // told the rest next to nothing) and the site solved again without it. A surveyed
+    // sensor stands as surveyed, with the σ it was given: that is a person's word, not the
+    // scans'. Each round refuses at least one sensor more, so the loop ends.
     let mut loose = vec![None; n];
     loop {
         let found: Vec<(usize, Refusal)> = solution
             .iter()
             .enumerate()
+            .filter(|&(i, _)| {
+                loose[i].is_none() && sensors.get(i).is_some_and(|s| s.prior.is_none())
+            })
             .filter_map(|(i, s)| Some((i, Refusal::loose(&s.as_ref()?.1, sp)?)))
             .collect();
         if found.is_empty() {

@@ -924,6 +924,15 @@ fn a_sensor_the_pairs_leave_loose_is_not_placed_and_says_why() {
     let origin = vec![(0, 0), (1, 0), (2, 0)];
     let solved = super::check::solve_without_conflicts(4, 0, tight, origin, &sensors, &p, &sp);
     assert!(solved.solution.iter().all(Option::is_some));
+    // Placed by hand as loosely as the page lets a person (σ 0.1 m, 3°), and reached by no
+    // edge: it stands as surveyed, with the σ it was given (and the check ends).
+    let mut sensors = sensors;
+    sensors[3].prior = Some(Prior::new(truth[3], 0.1, 3f64.to_radians()));
+    let edges = vec![edge(0, 1, &truth, Pose2::identity())];
+    let solved =
+        super::check::solve_without_conflicts(4, 0, edges, vec![(0, 0)], &sensors, &p, &sp);
+    let (_, sigma) = solved.solution[3].expect("placed by hand");
+    assert!(sigma[2] > sp.placed_max_sigma_rad, "{sigma:?}");
 }
 
 #[test]
