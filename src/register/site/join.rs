@@ -300,9 +300,7 @@ impl Refusal {
             sigma_yaw_rad,
         })
     }
-}
 
-impl Refusal {
     pub(super) fn describe<'a>(&self, id: &impl Fn(usize) -> &'a str) -> String {
         const HELP: &str = "survey it, or add a sensor that sees both it and a placed one";
         match self {
