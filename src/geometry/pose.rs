@@ -40,6 +40,12 @@ pub fn pose_delta(from: &Pose2, to: &Pose2) -> Vector3<f64> {
     Vector3::new(d.x, d.y, wrap_angle_rad(yaw_rad(to) - yaw_rad(from)))
 }
 
+/// `from` moved by `step` in its (x, y, yaw): what [`pose_delta`] measures, applied.
+pub fn pose_step(from: &Pose2, step: &Vector3<f64>) -> Pose2 {
+    let t = from.translation.vector;
+    pose2(t.x + step.x, t.y + step.y, yaw_rad(from) + step.z)
+}
+
 /// Whether a pose error (m, rad, as [`pose_error`] gives it) lies within `k` σ of what was
 /// claimed for the pose: σ of x and y (m) and of the heading (rad). Beyond, the claim was
 /// wrong, not just imprecise (what the zones' eval and bench count).

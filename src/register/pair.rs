@@ -10,7 +10,7 @@ use super::score::{PoseScore, score, score_coarse};
 use super::telling::generic_match;
 use super::walkers::{WalkerFit, fit_walkers, walkers_keep};
 use super::{RegisterParams, ScanModel};
-use crate::geometry::{Pose2, pose_delta, pose_error, pose2};
+use crate::geometry::{Pose2, pose_delta, pose_error, pose_step, pose2};
 use nalgebra::Matrix3;
 use rayon::prelude::*;
 use std::fmt;
@@ -792,9 +792,7 @@ fn joined_with_walkers(
         return (*walls, *covariance);
     };
     let step = joined * people * pose_delta(walls, &fit.a_from_b);
-    let t = walls.translation.vector;
-    let pose = pose2(t.x + step.x, t.y + step.y, walls.rotation.angle() + step.z);
-    (pose, joined)
+    (pose_step(walls, &step), joined)
 }
 
 /// `m` (symmetric) inverted through its eigenvalues, each taken as at least `relative` of the

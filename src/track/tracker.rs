@@ -169,8 +169,8 @@ impl Torsos {
             self.since_measured += 1;
             if self.since_measured >= REMEASURE_EVERY {
                 self.since_measured = 0;
-                let (front, back) = self.silhouettes.as_slices();
-                self.area_m2 = detect::torso_area(&[front, back].concat(), p.min_silhouettes);
+                let seen = self.silhouettes.make_contiguous();
+                self.area_m2 = detect::torso_area(seen, p.min_silhouettes);
             }
         }
     }

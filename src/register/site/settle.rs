@@ -7,7 +7,7 @@
 
 use super::SiteParams;
 use super::solve::{agreeing_candidate, floored};
-use crate::geometry::{Pose2, pose2, wrap_angle_rad, yaw_rad};
+use crate::geometry::{Pose2, pose_delta, pose_step, pose2};
 use crate::register::{PairResult, RegisterParams};
 use nalgebra::{Matrix3, Vector3};
 
@@ -62,20 +62,13 @@ pub(super) fn settle(
             continue;
         };
         let estimate = through(&c.a_from_b);
-        let diff = |x: &Pose2, from: &Pose2| {
-            Vector3::new(
-                x.translation.x - from.translation.x,
-                x.translation.y - from.translation.y,
-                wrap_angle_rad(yaw_rad(x) - yaw_rad(from)),
-            )
-        };
         // The pair's covariance is of a left perturbation of a_from_b (a's frame): carried
         // through to the added sensor's own position and heading, numerically as the solve.
         let eps = 1e-6;
         let j = Matrix3::from_fn(|m, k| {
             let mut d = [0.0; 3];
             d[k] = eps;
-            diff(&through(&(pose2(d[0], d[1], d[2]) * c.a_from_b)), &estimate)[m] / eps
+            pose_delta(&estimate, &through(&(pose2(d[0], d[1], d[2]) * c.a_from_b)))[m] / eps
         });
         // The partner's own error moves it as a rigid lever: its heading swings the added
         // sensor about it.
@@ -91,17 +84,13 @@ pub(super) fn settle(
             continue;
         };
         info += w;
-        pull += w * diff(&estimate, at);
+        pull += w * pose_delta(at, &estimate);
         used.push(k);
     }
     let cov = info.try_inverse().filter(|_| !used.is_empty())?;
     let step = cov * pull;
     Some(Settled {
-        pose: pose2(
-            at.translation.x + step.x,
-            at.translation.y + step.y,
-            yaw_rad(at) + step.z,
-        ),
+        pose: pose_step(at, &step),
         sigma: [0, 1, 2].map(|m| cov[(m, m)].max(0.0).sqrt()),
         used,
     })
