@@ -222,11 +222,19 @@ def main():
         page.mouse.down()
         page.mouse.move(x0 + 30, y0 - 20, steps=12)
         page.mouse.up()
-        dropped = drawn(page)[sensor]
         bx, by, byaw = before[sensor]
-        moved_m = ((dropped[0] - bx) ** 2 + (dropped[1] - by) ** 2) ** 0.5
-        if moved_m < 0.05:
-            sys.exit(f"the drag did not move {sensor} on the page: {before[sensor]} → {dropped}")
+
+        def moved_from(p):
+            return ((p[0] - bx) ** 2 + (p[1] - by) ** 2) ** 0.5
+
+        # The glyph is redrawn on the page's next animation frame, which a loaded machine may
+        # not have run yet when the mouse is released: wait for it, not for a fixed time.
+        dropped = until(
+            lambda: f"the drag to move {sensor} on the page: {before[sensor]} → {drawn(page)[sensor]}",
+            10,
+            lambda: drawn(page)[sensor] if moved_from(drawn(page)[sensor]) >= 0.05 else None,
+        )
+        moved_m = moved_from(dropped)
 
         def surveyed_there():
             for s in ask(args.socket, {"cmd": "poses"})["sensors"]:
