@@ -720,9 +720,7 @@ impl JoinContext<'_> {
         if !stands_alone && !walked {
             return Err(Refusal::NoPairStands);
         }
-        if let [_] = group
-            && let Some(refusal) = self.lone_witness_abstains(&best.joint, &best.sources)
-        {
+        if let Some(refusal) = self.lone_witness_abstains(group, &best.joint, &best.sources) {
             return Err(refusal);
         }
         if joint.overlap < self.p.min_overlap && !walked {
@@ -790,9 +788,14 @@ impl JoinContext<'_> {
     /// alone, would put it; otherwise the pair's own reason for abstaining is the refusal.
     /// (Placing through such a pair's other candidates, or past its σ and corridor checks, made
     /// a site of two sensors confidently wrong more often than the pair alone.) A group joining
-    /// is checked by its other members' views of the placed sensors' free space as well.
+    /// is checked by its other members' views of the placed sensors' walls and free space as
+    /// well, so the walls' reasons are weighed afresh for it; but not whether people confirmed
+    /// it: a pair people walked by without confirming is walls alone, and a group of office
+    /// cells matches a row of look-alike cells as well as one cell does (a held-out site had
+    /// three units joined 8 m off that way).
     pub(super) fn lone_witness_abstains(
         &self,
+        group: &[(usize, Pose2)],
         joint: &Joint,
         sources: &[(usize, usize)],
     ) -> Option<Refusal> {
@@ -804,6 +807,9 @@ impl JoinContext<'_> {
             .iter()
             .position(|&(a, b)| (a, b) == (*i, *j) || (a, b) == (*j, *i))?;
         let r = self.results.get(k)?;
+        if group.len() > 1 && !matches!(r.verdict, Err(Abstain::Unconfirmed { .. })) {
+            return None;
+        }
         let why = match &r.verdict {
             Err(why) => why.to_string(),
             Ok(()) if !sources.contains(&(k, 0)) => {

@@ -612,6 +612,60 @@ fn a_sensor_one_placed_sensor_sees_stands_only_where_that_pair_alone_would_put_i
     assert!(said.is_some_and(|s| s.contains("only s0")));
 }
 
+/// A group of two (s1 in the hall, s2 in a room 40 m off) that only s0 sees, through one
+/// pair: people walking without confirming that pair leave the group unplaced as they would
+/// the pair, while a walls reason the group's own joint score weighs again does not.
+#[test]
+fn a_group_one_unconfirmed_pair_witnesses_is_not_joined() {
+    let truth = [
+        pose2(-3.0, -1.0, 0.3),
+        pose2(2.0, 0.5, 2.8),
+        pose2(45.0, 2.5, 0.0),
+    ];
+    let sensors = in_hall_and_far_room(&truth);
+    let group = [(1, Pose2::identity()), (2, truth[1].inverse() * truth[2])];
+    let (p, sp) = (RegisterParams::default(), SiteParams::default());
+    let weigh = |verdict: Result<(), crate::register::Abstain>| {
+        let pair = PairResult {
+            verdict,
+            ..undecided_pair(&sensors[0], &sensors[1], &[truth[0].inverse() * truth[1]])
+        };
+        let (pairs, results) = ([(0, 1)], [pair]);
+        JoinContext {
+            sensors: &sensors,
+            placed: vec![(0, truth[0])],
+            pairs: &pairs,
+            results: &results,
+            p: &p,
+            sp: &sp,
+            reach_m: &[],
+            memo: None,
+        }
+        .weigh(&group)
+    };
+    let join = weigh(Ok(())).expect("a registered pair joins its group");
+    let (dt, dyaw) = pose_error(&join.anchor_from_root, &truth[1]);
+    assert!(dt < 1e-6 && dyaw < 1e-6, "{dt} {dyaw}");
+    assert_eq!(join.score.witnesses, [(0, 1)], "s2 shares nothing with s0");
+    let refusal = weigh(Err(crate::register::Abstain::Unconfirmed {
+        watched_s: 30.0,
+    }))
+    .err();
+    let Some(Refusal::LonePair { with: 0, why }) = &refusal else {
+        panic!("expected the lone pair's refusal, got {refusal:?}");
+    };
+    assert!(why.contains("not confirmed"), "{why}");
+    let uncertain = crate::register::Abstain::Uncertain {
+        sigma_m: 0.2,
+        sigma_yaw_deg: 0.1,
+    };
+    let weighed_again = weigh(Err(uncertain));
+    assert!(
+        !matches!(weighed_again, Err(Refusal::LonePair { .. })),
+        "{weighed_again:?}"
+    );
+}
+
 #[test]
 fn a_weak_join_names_the_rival_only_when_there_is_one() {
     let id = |i: usize| ["s0", "s1"][i];
