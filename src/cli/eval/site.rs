@@ -1,6 +1,6 @@
 //! One site of sensors solved and scored against its truth, and the table the sites print.
 
-use scanfuse::geometry::{Pose2, pose_error};
+use scanfuse::geometry::{Pose2, pose_error, within_sigma};
 use scanfuse::register::RegisterParams;
 use scanfuse::register::model::shared_view;
 use scanfuse::register::site::{
@@ -20,6 +20,8 @@ pub(super) struct SiteOutcome {
     /// Placed sensors with a caveat (too few pairs), and how many of those are wrong.
     flagged: usize,
     flagged_wrong: usize,
+    /// Wrong placements off by more than 3σ of their own reported σ: confidently wrong.
+    confident_wrong: usize,
     /// For each sensor not placed right: why, and whether the truth was among its candidates.
     why_wrong: Vec<String>,
     /// Pairs registered, pairs in all, rounds of pair selection.
@@ -84,6 +86,7 @@ pub(super) struct SiteTotals {
     reachable: usize,
     flagged: usize,
     flagged_wrong: usize,
+    confident_wrong: usize,
     slowest_ms: f64,
     registered: usize,
     all_pairs: usize,
@@ -117,6 +120,7 @@ impl SiteTotals {
         self.reachable += o.reachable;
         self.flagged += o.flagged;
         self.flagged_wrong += o.flagged_wrong;
+        self.confident_wrong += o.confident_wrong;
         self.slowest_ms = self.slowest_ms.max(o.ms);
         self.registered += o.registered;
         self.all_pairs += o.all_pairs;
@@ -137,12 +141,13 @@ impl SiteTotals {
             return;
         }
         println!(
-            "all {} sites: {}/{} sensors placed, {} within {tol}, {} placed wrong, {} reachable; slowest site {:.0} ms",
+            "all {} sites: {}/{} sensors placed, {} within {tol}, {} placed wrong ({} beyond 3σ of their own σ), {} reachable; slowest site {:.0} ms",
             self.sites,
             self.placed,
             self.sensors,
             self.ok,
             self.placed - self.ok,
+            self.confident_wrong,
             self.reachable,
             self.slowest_ms
         );
@@ -223,6 +228,24 @@ pub(super) fn solve_site(
         .filter_map(|(e, _)| e.map(|e| !within(e)))
         .collect();
     let ok = errors.iter().flatten().filter(|e| within(**e)).count();
+    // A wrong placement its own σ covers is a loose answer honestly said; one beyond 3σ is
+    // confidently wrong.
+    let sigma_of = |k: usize| {
+        site.sensors[k]
+            .pose
+            .as_ref()
+            .map(|p| ([p.sigma_x_m, p.sigma_y_m], p.sigma_yaw_rad))
+            .ok()
+    };
+    let confident_wrong = errors
+        .iter()
+        .enumerate()
+        .filter(|(k, e)| {
+            e.is_some_and(|e| {
+                !within(e) && sigma_of(*k).is_some_and(|(xy, yaw)| !within_sigma(e, xy, yaw, 3.0))
+            })
+        })
+        .count();
     let max_m = errors.iter().flatten().map(|e| e.0).fold(0.0, f64::max);
     let max_deg = errors
         .iter()
@@ -247,11 +270,14 @@ pub(super) fn solve_site(
                 continue;
             };
             let (et, eyaw) = pose_error(&pr.result.a_from_b, &(ta.inverse() * tb));
+            let (sxy, syaw) = sigma_of(k).unwrap_or_default();
             why_wrong.push(format!(
-                "    {} off by {:.2} m {:.1}°: pair {}–{} {} (pair error {:.2} m {:.1}°, ambiguity {:.2}, overlap {:.2})",
+                "    {} off by {:.2} m {:.1}° (its σ {:.2} m {:.2}°): pair {}–{} {} (pair error {:.2} m {:.1}°, ambiguity {:.2}, overlap {:.2})",
                 s.id,
                 dt,
                 dyaw.to_degrees(),
+                sxy[0].hypot(sxy[1]),
+                syaw.to_degrees(),
                 pr.a,
                 pr.b,
                 match &pr.result.verdict {
@@ -339,6 +365,7 @@ pub(super) fn solve_site(
         ms,
         flagged: flagged.len(),
         flagged_wrong: flagged.iter().filter(|w| **w).count(),
+        confident_wrong,
         why_wrong,
         registered: site.pairs.len(),
         all_pairs: site.pairs.len() + site.skipped.len(),
