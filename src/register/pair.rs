@@ -786,13 +786,29 @@ fn joined_with_walkers(
     fit: &WalkerFit,
     p: &RegisterParams,
 ) -> (Pose2, Matrix3<f64>) {
-    let info = |c: &Matrix3<f64>| floored_inverse(c, 0.0, 1e-12);
-    let people = info(&fit.biased_covariance(&p.walkers));
-    let Some(joined) = (info(covariance) + people).try_inverse() else {
+    let people = information(&fit.biased_covariance(&p.walkers));
+    let Some(joined) = (information(covariance) + people).try_inverse() else {
         return (*walls, *covariance);
     };
     let step = joined * people * pose_delta(walls, &fit.a_from_b);
     (pose_step(walls, &step), joined)
+}
+
+/// The covariance of a pose the walls give and walkers agree with (`fit` near it): both
+/// kinds of evidence on one relative pose, information-weighted, the fit's widened by its
+/// bias. The pose stays the walls'; what the walls leave loose, the walkers' σ bounds.
+pub fn covariance_with_walkers(
+    covariance: &Matrix3<f64>,
+    fit: &WalkerFit,
+    p: &RegisterParams,
+) -> Matrix3<f64> {
+    (information(covariance) + information(&fit.biased_covariance(&p.walkers)))
+        .try_inverse()
+        .unwrap_or(*covariance)
+}
+
+fn information(c: &Matrix3<f64>) -> Matrix3<f64> {
+    floored_inverse(c, 0.0, 1e-12)
 }
 
 /// `m` (symmetric) inverted through its eigenvalues, each taken as at least `relative` of the
