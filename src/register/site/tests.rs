@@ -612,6 +612,29 @@ fn a_sensor_one_placed_sensor_sees_stands_only_where_that_pair_alone_would_put_i
     assert!(said.is_some_and(|s| s.contains("only s0")));
 }
 
+/// `group` weighed for a join with s0 placed at `s0` and `pair` (s0–s1) the only pair.
+fn weigh_through(
+    sensors: &[SensorInput],
+    s0: Pose2,
+    pair: PairResult,
+    group: &[(usize, Pose2)],
+    p: &RegisterParams,
+    sp: &SiteParams,
+) -> Result<super::join::Join, Refusal> {
+    let (pairs, results) = ([(0, 1)], [pair]);
+    JoinContext {
+        sensors,
+        placed: vec![(0, s0)],
+        pairs: &pairs,
+        results: &results,
+        p,
+        sp,
+        reach_m: &[],
+        memo: None,
+    }
+    .weigh(group)
+}
+
 /// A group of two (s1 in the hall, s2 in a room 40 m off) that only s0 sees, through one
 /// pair: people walking without confirming that pair leave the group unplaced as they would
 /// the pair, while a walls reason the group's own joint score weighs again does not.
@@ -630,18 +653,7 @@ fn a_group_one_unconfirmed_pair_witnesses_is_not_joined() {
             verdict,
             ..undecided_pair(&sensors[0], &sensors[1], &[truth[0].inverse() * truth[1]])
         };
-        let (pairs, results) = ([(0, 1)], [pair]);
-        JoinContext {
-            sensors: &sensors,
-            placed: vec![(0, truth[0])],
-            pairs: &pairs,
-            results: &results,
-            p: &p,
-            sp: &sp,
-            reach_m: &[],
-            memo: None,
-        }
-        .weigh(&group)
+        weigh_through(&sensors, truth[0], pair, &group, &p, &sp)
     };
     let join = weigh(Ok(())).expect("a registered pair joins its group");
     let (dt, dyaw) = pose_error(&join.anchor_from_root, &truth[1]);
@@ -908,18 +920,7 @@ fn a_placement_people_saw_through_does_not_join_though_the_walls_fit_it() {
             verdict: Ok(()),
             ..undecided_pair(&sensors[0], &sensors[1], &[truth[0].inverse() * at])
         };
-        let (pairs, results) = ([(0, 1)], [pair]);
-        JoinContext {
-            sensors,
-            placed: vec![(0, Pose2::identity())],
-            pairs: &pairs,
-            results: &results,
-            p: &p,
-            sp: &sp,
-            reach_m: &[],
-            memo: None,
-        }
-        .weigh(&s1)
+        weigh_through(sensors, Pose2::identity(), pair, &s1, &p, &sp)
     };
     // The premise: by the walls alone, the mirror image joins.
     let walls_only: Vec<SensorInput> = sensors
