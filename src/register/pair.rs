@@ -312,6 +312,7 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
     // pose stands.
     let loose = weak.is_some() || too_uncertain(&covariance, p).is_some();
     let fixes = |fit: &&WalkerFit| loose && fit.places_alone_but_for_its_rival(&p.walkers);
+    let joined = by_walkers.filter(fixes).is_some();
     let (covariance, weak) = match by_walkers.filter(fixes) {
         Some(fit) => {
             let (pose, joined) = joined_with_walkers(&best.a_from_b, &covariance, fit, p);
@@ -426,13 +427,18 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
         candidates: walkers_keep(distinct, by_walkers, |(c, _)| &c.a_from_b, &p.walkers)
             .into_iter()
             .enumerate()
-            .map(|(k, (c, _))| Candidate {
-                covariance: if k == 0 {
+            .map(|(k, (c, _))| {
+                let walls = if k == 0 {
                     covariance
                 } else {
                     covariance_at(a, b, &c.a_from_b, p).0
-                },
-                ..c
+                };
+                // Once: the pose joined with the walkers has their evidence already.
+                let fit = by_walkers.filter(|_| !(joined && k == 0));
+                Candidate {
+                    covariance: weighed_with_walkers(&walls, &c.a_from_b, fit, p),
+                    ..c
+                }
             })
             .collect(),
         hypotheses: hypotheses_count,
@@ -794,17 +800,22 @@ fn joined_with_walkers(
     (pose_step(walls, &step), joined)
 }
 
-/// The covariance of a pose the walls give and walkers agree with (`fit` near it): both
-/// kinds of evidence on one relative pose, information-weighted, the fit's widened by its
-/// bias. The pose stays the walls'; what the walls leave loose, the walkers' σ bounds.
-pub fn covariance_with_walkers(
-    covariance: &Matrix3<f64>,
-    fit: &WalkerFit,
+/// What the site weighs a candidate at `at` by: the walls' covariance and, where people both
+/// saw walking agree with it (`fit` near it), theirs, information-weighted, the fit's widened
+/// by its bias. The pose stays the walls'; what the walls leave loose (a glass front's walls
+/// fix nothing across it), the walkers' σ bounds.
+fn weighed_with_walkers(
+    walls: &Matrix3<f64>,
+    at: &Pose2,
+    fit: Option<&WalkerFit>,
     p: &RegisterParams,
 ) -> Matrix3<f64> {
-    (information(covariance) + information(&fit.biased_covariance(&p.walkers)))
+    let Some(fit) = fit.filter(|f| f.near(at, &p.walkers)) else {
+        return *walls;
+    };
+    (information(walls) + information(&fit.biased_covariance(&p.walkers)))
         .try_inverse()
-        .unwrap_or(*covariance)
+        .unwrap_or(*walls)
 }
 
 fn information(c: &Matrix3<f64>) -> Matrix3<f64> {
@@ -869,6 +880,40 @@ mod tests {
             rms_m,
             correspondences: 100,
         }
+    }
+
+    /// Walls that fix nothing across a glass front (σ of kilometres) and walkers that agree
+    /// with their candidate: the candidate carries the walkers' σ, so the site can vouch for
+    /// it; a candidate the walkers do not agree with keeps the walls' own.
+    #[test]
+    fn a_candidate_the_walls_leave_loose_is_weighed_by_the_walkers_who_agree() {
+        let p = RegisterParams::default();
+        let at = crate::geometry::pose2(3.0, 1.0, 0.4);
+        let fit = WalkerFit {
+            a_from_b: at,
+            inliers: 200,
+            span_s: 20.0,
+            spread_m: 6.0,
+            rms_m: 0.06,
+            runner_up: 10,
+            walks: 8,
+            runner_up_walks: 0,
+            rival: None,
+            covariance: Matrix3::from_diagonal(&nalgebra::Vector3::new(4e-4, 4e-4, 1e-5)),
+            alone: false,
+            torso_area_m2: None,
+        };
+        let walls = Matrix3::from_diagonal(&nalgebra::Vector3::new(1e6, 1e6, 1e-2));
+        let (with_m, with_rad) = pose_sigmas(&weighed_with_walkers(&walls, &at, Some(&fit), &p));
+        // The walkers' σ (2 cm, 0.18°) widened by a chosen body's bias (5 cm).
+        assert!(
+            with_m < 0.06 && with_rad < 0.2f64.to_radians(),
+            "{with_m} {with_rad}"
+        );
+        let elsewhere = crate::geometry::pose2(7.0, 1.0, 0.4);
+        let apart = weighed_with_walkers(&walls, &elsewhere, Some(&fit), &p);
+        assert_eq!(apart, walls);
+        assert_eq!(weighed_with_walkers(&walls, &at, None, &p), walls);
     }
 
     #[test]

@@ -1298,7 +1298,9 @@ pub(crate) mod tests {
             "{dt:.3} m {:.2}°",
             dyaw.to_degrees()
         );
-        // Along the corridor the σ is the walkers' (theirs and their bias), not the walls'.
+        // Along the corridor the σ is the walkers' (theirs and their bias), not the walls',
+        // and the candidate the site weighs has it once, not twice.
+        assert_eq!(r.candidates[0].covariance, r.covariance);
         let (sigma_m, _) = crate::register::pair::pose_sigmas(&r.covariance);
         assert!(sigma_m < p.max_sigma_m, "σ {sigma_m:.3} m");
         assert!(

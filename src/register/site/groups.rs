@@ -34,7 +34,7 @@ pub(super) fn checked_edges(
     let mut registered_origin = Vec::new(); // pair index per edge
     for (k, (&pair, r)) in pairs.iter().zip(results).enumerate() {
         if r.registered()
-            && let Some(edge) = candidate_edge(pair, r, 0, p)
+            && let Some(edge) = candidate_edge(pair, r, 0)
         {
             registered.push(edge);
             registered_origin.push(k);

@@ -455,28 +455,14 @@ pub(super) fn reach_m(sensors: &[SensorInput]) -> Vec<f64> {
 const REACH_MARGIN_M: f64 = 1.0;
 
 /// The edge a pair's candidate `ci` makes (candidate 0 is the pair's own answer), with the
-/// covariance linearised at that candidate, joined with the walkers' where people both saw
-/// walking agree with it (a glass front's walls fix nothing across it; the walkers do).
-pub(super) fn candidate_edge(
-    pair: (usize, usize),
-    r: &PairResult,
-    ci: usize,
-    p: &RegisterParams,
-) -> Option<Edge> {
+/// covariance linearised at that candidate.
+pub(super) fn candidate_edge(pair: (usize, usize), r: &PairResult, ci: usize) -> Option<Edge> {
     let c = r.candidates.get(ci)?;
-    let covariance = match r
-        .walkers
-        .as_ref()
-        .filter(|f| f.near(&c.a_from_b, &p.walkers))
-    {
-        Some(fit) => crate::register::pair::covariance_with_walkers(&c.covariance, fit, p),
-        None => c.covariance,
-    };
     Some(Edge {
         a: pair.0,
         b: pair.1,
         a_from_b: c.a_from_b,
-        covariance,
+        covariance: c.covariance,
         strength: strength(r),
     })
 }

@@ -50,7 +50,7 @@ pub(super) fn solve_edges(
             sp,
         );
         if let Some(ci) = agreeing
-            && let Some(edge) = candidate_edge((a, b), r, ci, p)
+            && let Some(edge) = candidate_edge((a, b), r, ci)
         {
             edges.push(edge);
             origin.push((k, ci));

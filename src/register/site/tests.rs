@@ -678,35 +678,6 @@ fn a_group_one_unconfirmed_pair_witnesses_is_not_joined() {
     );
 }
 
-/// Walls that fix nothing across a glass front (σ of kilometres) and walkers that agree with
-/// their candidate: the edge carries the walkers' σ, so the site can vouch for the pose; a
-/// candidate the walkers do not agree with keeps the walls' own.
-#[test]
-fn an_edge_the_walls_leave_loose_takes_its_sigma_from_walkers_who_agree() {
-    let two = two_in(&hall(), [pose2(-1.0, 0.0, 0.0), pose2(1.5, 0.5, 0.3)]);
-    let p = RegisterParams::default();
-    let truth = two.pair.a_from_b;
-    let mut pair = two.pair.clone();
-    pair.candidates[0].covariance = Matrix3::from_diagonal(&nalgebra::Vector3::new(1e6, 1e6, 1e-2));
-    pair.candidates.push(crate::register::Candidate {
-        a_from_b: crate::geometry::pose_step(&truth, &nalgebra::Vector3::new(4.0, 0.0, 0.0)),
-        ..pair.candidates[0].clone()
-    });
-    pair.walkers = Some(walked_alone(truth));
-    let sigma = |ci: usize| {
-        let edge = super::candidate_edge((0, 1), &pair, ci, &p).expect("an edge");
-        crate::register::pair::pose_sigmas(&edge.covariance)
-    };
-    let (with_m, with_rad) = sigma(0);
-    // The walkers' σ (2 cm, 0.18°) widened by a chosen body's bias (5 cm).
-    assert!(
-        with_m < 0.06 && with_rad < 0.2f64.to_radians(),
-        "{with_m} {with_rad}"
-    );
-    let (without_m, _) = sigma(1);
-    assert!(without_m > 100.0, "{without_m}");
-}
-
 #[test]
 fn a_weak_join_names_the_rival_only_when_there_is_one() {
     let id = |i: usize| ["s0", "s1"][i];
