@@ -17,7 +17,7 @@ use std::collections::{BTreeMap, VecDeque};
 use std::sync::Arc;
 use std::time::{Duration, SystemTime};
 
-use crossbeam_channel::{Receiver, select};
+use crossbeam_channel::{Receiver, TryRecvError, select};
 
 use super::config::{RegistrationConfig, Survey};
 use super::local_refine::{LocalBounds, Neighbour, refine_locally};
@@ -1207,48 +1207,59 @@ pub fn run_worker(
             }
             views_at = Some(std::time::Instant::now());
         }
-        select! {
-            recv(scans) -> item => match item {
-                Ok(item) => {
+        // Commands before scans: a sensor's `Add` is sent before its driver starts, but with
+        // both waiting `select!` takes either, and a scan taken first was dropped (its sensor
+        // not yet known); under load a replay's first registration then lacked a scan or two.
+        let command = match commands.try_recv() {
+            Ok(command) => command,
+            Err(TryRecvError::Disconnected) => return,
+            Err(TryRecvError::Empty) => select! {
+                recv(scans) -> item => {
+                    let Ok(item) = item else { return };
                     arrive(&mut order, item);
                     while let Some(item) = order.pop() {
                         take(&mut registrar, item);
                     }
+                    continue;
                 }
-                Err(_) => return,
-            },
-            recv(commands) -> command => match command {
-                Ok(Command::Shutdown) | Err(_) => return,
-                Ok(Command::Finish { done }) => {
-                    while let Ok(item) = scans.try_recv() {
-                        arrive(&mut order, item);
+                recv(commands) -> command => match command {
+                    Ok(command) => command,
+                    Err(_) => return,
+                },
+                // Retries and the wait for a silent sensor fall due on the stream's clock too.
+                default(Duration::from_millis(200)) => {
+                    if registrar.due(registrar.stream_ns()) {
+                        register_and_publish(&pipeline, &mut registrar);
                     }
-                    while let Some(item) = order.pop_any() {
-                        take(&mut registrar, item);
+                    if registrar.check_due(registrar.stream_ns()) {
+                        check_and_publish(&pipeline, &mut registrar);
                     }
-                    if !registrar.pending().is_empty() {
-                        let outcomes = registrar.finish(SystemTime::now());
-                        publish(&pipeline, outcomes, false);
-                        tell(&pipeline, &mut registrar);
-                    }
-                    let _ = done.send(());
-                }
-                Ok(command) => {
-                    if let Command::Remove(id) = &command {
-                        order.forget(id);
-                    }
-                    let now = registrar.stream_ns();
-                    registrar.command(command, now);
+                    continue;
                 }
             },
-            // Retries and the wait for a silent sensor fall due on the stream's clock too.
-            default(Duration::from_millis(200)) => {
-                if registrar.due(registrar.stream_ns()) {
-                    register_and_publish(&pipeline, &mut registrar);
+        };
+        match command {
+            Command::Shutdown => return,
+            Command::Finish { done } => {
+                while let Ok(item) = scans.try_recv() {
+                    arrive(&mut order, item);
                 }
-                if registrar.check_due(registrar.stream_ns()) {
-                    check_and_publish(&pipeline, &mut registrar);
+                while let Some(item) = order.pop_any() {
+                    take(&mut registrar, item);
                 }
+                if !registrar.pending().is_empty() {
+                    let outcomes = registrar.finish(SystemTime::now());
+                    publish(&pipeline, outcomes, false);
+                    tell(&pipeline, &mut registrar);
+                }
+                let _ = done.send(());
+            }
+            command => {
+                if let Command::Remove(id) = &command {
+                    order.forget(id);
+                }
+                let now = registrar.stream_ns();
+                registrar.command(command, now);
             }
         }
     }
