@@ -451,6 +451,10 @@ pub(super) fn print_table(o: &Output) {
             p.overlap * 100.0,
             if p.used { "yes" } else { "no" },
             match (&p.reason, &p.walkers) {
+                // The pair alone abstains, but the site joined through it, checked against
+                // the other units: say both, or "used" reads as contradicting the reason.
+                (Some(why), _) if p.used =>
+                    format!("used by the site, checked against the other units; alone: {why}"),
                 (Some(why), _) => why.clone(),
                 (None, Some(w)) if p.evidence == Some("walkers") => format!(
                     "placed by people alone: {} sightings both saw over {:.0} s",
