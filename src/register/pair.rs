@@ -311,9 +311,8 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
     // (its errors run to 2-3 of its σ: `eval --diagnose`). Where the walls hold it all, their
     // pose stands.
     let loose = weak.is_some() || too_uncertain(&covariance, p).is_some();
-    let fixes = |fit: &&WalkerFit| loose && fit.places_alone_but_for_its_rival(&p.walkers);
-    let joined = by_walkers.filter(fixes).is_some();
-    let (covariance, weak) = match by_walkers.filter(fixes) {
+    let fixing = by_walkers.filter(|fit| loose && fit.places_alone_but_for_its_rival(&p.walkers));
+    let (covariance, weak) = match fixing {
         Some(fit) => {
             let (pose, joined) = joined_with_walkers(&best.a_from_b, &covariance, fit, p);
             best.a_from_b = pose;
@@ -434,7 +433,7 @@ pub fn register_pair(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> PairRe
                     covariance_at(a, b, &c.a_from_b, p).0
                 };
                 // Once: the pose joined with the walkers has their evidence already.
-                let fit = by_walkers.filter(|_| !(joined && k == 0));
+                let fit = by_walkers.filter(|_| !(fixing.is_some() && k == 0));
                 Candidate {
                     covariance: weighed_with_walkers(&walls, &c.a_from_b, fit, p),
                     ..c
@@ -793,11 +792,16 @@ fn joined_with_walkers(
     p: &RegisterParams,
 ) -> (Pose2, Matrix3<f64>) {
     let people = information(&fit.biased_covariance(&p.walkers));
-    let Some(joined) = (information(covariance) + people).try_inverse() else {
+    let Some(joined) = joined_information(covariance, &people) else {
         return (*walls, *covariance);
     };
     let step = joined * people * pose_delta(walls, &fit.a_from_b);
     (pose_step(walls, &step), joined)
+}
+
+/// The covariance of the walls' evidence and the walkers' (`people`, as information) together.
+fn joined_information(walls: &Matrix3<f64>, people: &Matrix3<f64>) -> Option<Matrix3<f64>> {
+    (information(walls) + people).try_inverse()
 }
 
 /// What the site weighs a candidate at `at` by: the walls' covariance and, where people both
@@ -813,9 +817,7 @@ fn weighed_with_walkers(
     let Some(fit) = fit.filter(|f| f.near(at, &p.walkers)) else {
         return *walls;
     };
-    (information(walls) + information(&fit.biased_covariance(&p.walkers)))
-        .try_inverse()
-        .unwrap_or(*walls)
+    joined_information(walls, &information(&fit.biased_covariance(&p.walkers))).unwrap_or(*walls)
 }
 
 fn information(c: &Matrix3<f64>) -> Matrix3<f64> {
@@ -888,7 +890,7 @@ mod tests {
     #[test]
     fn a_candidate_the_walls_leave_loose_is_weighed_by_the_walkers_who_agree() {
         let p = RegisterParams::default();
-        let at = crate::geometry::pose2(3.0, 1.0, 0.4);
+        let at = pose2(3.0, 1.0, 0.4);
         let fit = WalkerFit {
             a_from_b: at,
             inliers: 200,
@@ -910,7 +912,7 @@ mod tests {
             with_m < 0.06 && with_rad < 0.2f64.to_radians(),
             "{with_m} {with_rad}"
         );
-        let elsewhere = crate::geometry::pose2(7.0, 1.0, 0.4);
+        let elsewhere = pose2(7.0, 1.0, 0.4);
         let apart = weighed_with_walkers(&walls, &elsewhere, Some(&fit), &p);
         assert_eq!(apart, walls);
         assert_eq!(weighed_with_walkers(&walls, &at, None, &p), walls);
