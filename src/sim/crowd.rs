@@ -123,12 +123,12 @@ impl CrowdPlan {
             .crowds
             .iter()
             .flat_map(|c| c.entrances.iter().chain(&c.exits));
-        let ways = ways.chain(
+        let mut ways = ways.chain(
             self.queues
                 .iter()
                 .flat_map(|q| q.entrances.iter().chain(&q.exits)),
         );
-        ways.into_iter().any(|w| norm(sub(w.inner, p)) < DOORWAY_M)
+        ways.any(|w| norm(sub(w.inner, p)) < DOORWAY_M)
     }
 }
 
@@ -756,9 +756,9 @@ impl CrowdRun<'_> {
     /// Leader `i` just stepped from `before`: where that step walks into a stranger (nearer
     /// than [`PASS_M`] and closing), it steps round them instead, turning away from the
     /// side they are on (to the right when dead ahead), preferring a way clear for
-    /// [`LOOK_M`]; with no way round it waits. People do not walk through one another, and
-    /// two bodies in one place are no test of a tracker. Outside the walkable floor (coming
-    /// in at a door) no one gives way.
+    /// [`LOOK_M`]; with no way round it waits (for [`MAX_WAIT_TICKS`] at most). People do
+    /// not walk through one another, and two bodies in one place are no test of a tracker.
+    /// Off the walkable floor and in doorways no one gives way.
     fn give_way(&mut self, i: usize, before: BodyState) {
         let grid = &self.plan.grid;
         let (from, to) = (before.pos, self.agents[i].body.pos);
@@ -789,6 +789,16 @@ impl CrowdRun<'_> {
             self.agents[i].waited = 0;
             return;
         }
+        let target = {
+            let a = &self.agents[i];
+            a.route.get(a.route_next).copied()
+        };
+        // Going out through a doorway (the next waypoint beyond the floor): no room to step
+        // round anyone there.
+        if target.is_some_and(|t| !grid.line_free(to, t)) {
+            self.agents[i].waited = 0;
+            return;
+        }
         // The stranger nearest the way ahead: turn away from their side.
         let side = others
             .iter()
@@ -807,16 +817,6 @@ impl CrowdRun<'_> {
         for rad in DODGE_RAD {
             ways.push(turned(-side * rad));
             ways.push(turned(side * rad));
-        }
-        let target = {
-            let a = &self.agents[i];
-            a.route.get(a.route_next).copied()
-        };
-        // Going out through a doorway (the next waypoint beyond the floor): no room to step
-        // round anyone there.
-        if target.is_some_and(|t| !grid.line_free(to, t)) {
-            self.agents[i].waited = 0;
-            return;
         }
         let mut first_clear = None;
         let mut chosen = None;
