@@ -132,6 +132,15 @@ impl CrowdPlan {
     }
 }
 
+/// Whether someone now at `from` keeps clear of `strangers` at `p`: no nearer than
+/// [`PASS_M`] to any, or at least no nearer than now (one already close may step away).
+fn keeps_clear(strangers: &[[f64; 2]], from: [f64; 2], p: [f64; 2]) -> bool {
+    strangers.iter().all(|o| {
+        let d = norm(sub(*o, p));
+        d >= PASS_M || d >= norm(sub(*o, from)) - 1e-6
+    })
+}
+
 fn sub(a: [f64; 2], b: [f64; 2]) -> [f64; 2] {
     [a[0] - b[0], a[1] - b[1]]
 }
@@ -527,11 +536,7 @@ impl CrowdRun<'_> {
                 for _ in 0..20 {
                     pos = self.destination(c);
                     let Some(p) = pos else { break };
-                    if self
-                        .agents
-                        .iter()
-                        .all(|a| norm(sub(a.body.pos, p)) >= 2.0 * PASS_M)
-                    {
+                    if !self.someone_at(p) {
                         break;
                     }
                 }
@@ -596,11 +601,7 @@ impl CrowdRun<'_> {
                 let out = (norm(out) > 1e-6).then(|| unit(out));
                 let mut at = way.outer;
                 for _ in 0..100 {
-                    let taken = self
-                        .agents
-                        .iter()
-                        .any(|a| !a.gone && norm(sub(a.body.pos, at)) < 2.0 * PASS_M);
-                    let Some(out) = out.filter(|_| taken) else {
+                    let Some(out) = out.filter(|_| self.someone_at(at)) else {
                         break;
                     };
                     at = [at[0] + out[0] * PASS_M, at[1] + out[1] * PASS_M];
@@ -740,6 +741,14 @@ impl CrowdRun<'_> {
         agent.trail.truncate(80);
     }
 
+    /// Whether someone stands where a newcomer at `p` would be on top of them (both bodies
+    /// and room to pass: within twice [`PASS_M`]).
+    fn someone_at(&self, p: [f64; 2]) -> bool {
+        self.agents
+            .iter()
+            .any(|a| !a.gone && norm(sub(a.body.pos, p)) < 2.0 * PASS_M)
+    }
+
     /// Where strangers to agent `i` stand that a step from `from` of up to `reach_m` could
     /// come near.
     fn strangers_near(&self, i: usize, from: [f64; 2], reach_m: f64) -> Vec<[f64; 2]> {
@@ -777,12 +786,7 @@ impl CrowdRun<'_> {
             return;
         }
         let others = self.strangers_near(i, from, LOOK_M.max(step));
-        let clear = |p: [f64; 2]| {
-            others.iter().all(|o| {
-                let d = norm(sub(*o, p));
-                d >= PASS_M || d >= norm(sub(*o, from)) - 1e-6
-            })
-        };
+        let clear = |p: [f64; 2]| keeps_clear(&others, from, p);
         let u = unit(sub(to, from));
         let ahead = [from[0] + u[0] * LOOK_M, from[1] + u[1] * LOOK_M];
         if clear(to) && clear(ahead) {
@@ -947,11 +951,7 @@ impl CrowdRun<'_> {
         // Strangers in the way close the group in gradually, as a narrows ahead does.
         let clear_of_strangers = |s: f64| {
             let (_, p) = place(s);
-            s == 0.0
-                || strangers.iter().all(|o| {
-                    let d = norm(sub(*o, p));
-                    d >= PASS_M || d >= norm(sub(*o, own_pos))
-                })
+            s == 0.0 || keeps_clear(&strangers, own_pos, p)
         };
         // Look along the leader's way for narrows coming up, to close in gradually.
         let mut ahead: Vec<([f64; 2], [f64; 2])> = Vec::new();
