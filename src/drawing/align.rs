@@ -694,9 +694,32 @@ pub struct AutoResult {
 }
 
 /// Mean per-sensor score below which the map does not fit the drawing anywhere.
-const MIN_AUTO_SCORE: f64 = 0.15;
+pub const MIN_AUTO_SCORE: f64 = 0.15;
 /// A clearly different candidate scoring this share of the best makes the answer ambiguous.
-const MAX_AUTO_AMBIGUITY: f64 = 0.9;
+pub const MAX_AUTO_AMBIGUITY: f64 = 0.9;
+
+/// How well the site fits the drawing at `building_from_site`: the mean of the sensors'
+/// free-space scores against it (the drawing as one more scan model, [`drawing_model`]).
+pub fn site_score(
+    dmodel: &ScanModel,
+    sensors: &[AlignSensor<'_>],
+    building_from_site: &Pose2,
+    p: &RegisterParams,
+) -> f64 {
+    sensors
+        .iter()
+        .map(|s| {
+            score(
+                dmodel,
+                s.model,
+                &(building_from_site * s.site_from_sensor),
+                p,
+            )
+            .value
+        })
+        .sum::<f64>()
+        / sensors.len().max(1) as f64
+}
 
 /// Registers the sensors' scans against the drawing (see the module doc).
 pub fn automatic(
@@ -761,12 +784,7 @@ pub fn automatic(
         .map(|h| {
             // A short refinement to rank by; the winner is refined fully on every point.
             let refined = refine_n(&map, index, &Similarity::rigid(h), 0.5, 12);
-            let pose = refined.transform.pose();
-            let score = sensors
-                .iter()
-                .map(|s| score(dmodel, s.model, &(pose * s.site_from_sensor), p).value)
-                .sum::<f64>()
-                / sensors.len() as f64;
+            let score = site_score(dmodel, sensors, &refined.transform.pose(), p);
             AutoCandidate { refined, score }
         })
         .collect();

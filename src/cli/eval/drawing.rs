@@ -14,7 +14,10 @@ use anyhow::Result;
 use nalgebra::{Point2, Vector2};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use scanfuse::drawing::align::{AlignSensor, Alignment, align};
+use scanfuse::drawing::align::{
+    AlignSensor, Alignment, LineIndex, MAX_AUTO_AMBIGUITY, MIN_AUTO_SCORE, MapPoint, Similarity,
+    align, automatic, drawing_model, map_points, refine, site_score,
+};
 use scanfuse::drawing::{Drawing, WallSegment};
 use scanfuse::geometry::{Pose2, pose_error, within_sigma};
 use scanfuse::register::RegisterParams;
@@ -77,6 +80,11 @@ model = "UTM-30LX-EW"
 x = 5
 y = 8
 "#;
+
+/// A pose error (m, rad) in m and degrees.
+fn deg((m, r): (f64, f64)) -> (f64, f64) {
+    (m, r.to_degrees())
+}
 
 /// How one way of aligning came out on one site.
 #[derive(Clone)]
@@ -144,7 +152,6 @@ fn score(
             ms,
         };
     };
-    let deg = |(m, r): (f64, f64)| (m, r.to_degrees());
     let anchor = deg(pose_error(&t.pose(), truth_bfs));
     let errors: Vec<(f64, f64)> = placed
         .iter()
@@ -331,6 +338,76 @@ fn clicked_pairs(
         .collect()
 }
 
+/// Where the automatic alignment abstained: could the walls have told the truth from the
+/// other alignments? The truth's score (refined on the lines, as every candidate is) against
+/// the best candidate clearly away from it (> 0.5 m or 5°), both as `align::automatic`
+/// scores them.
+struct Tell {
+    truth: f64,
+    rival: f64,
+    /// How far the rival lies from the truth (m, degrees).
+    rival_at: (f64, f64),
+}
+
+impl Tell {
+    /// The truth fits clearly best, and well enough: abstaining threw an answer away.
+    fn could(&self) -> bool {
+        self.truth >= MIN_AUTO_SCORE && self.rival < MAX_AUTO_AMBIGUITY * self.truth
+    }
+
+    /// Another alignment fits clearly better than the truth: only its own runner-up kept the
+    /// search from being wrong.
+    fn misled(&self) -> bool {
+        self.truth < MAX_AUTO_AMBIGUITY * self.rival
+    }
+
+    fn verdict(&self) -> &'static str {
+        if self.could() {
+            "COULD tell (the truth fits clearly best)"
+        } else if self.misled() {
+            "MISLEAD (another alignment fits clearly better than the truth)"
+        } else {
+            "cannot tell"
+        }
+    }
+}
+
+/// Measures [`Tell`] for a site the automatic alignment abstained on.
+fn tell(
+    drawing: &Drawing,
+    sensors: &[AlignSensor<'_>],
+    truth_bfs: &Pose2,
+    params: &RegisterParams,
+) -> Tell {
+    let dmodel = drawing_model(drawing, params);
+    let index = LineIndex::new(drawing);
+    let (rival, rival_at) = automatic(&dmodel, &index, sensors, params)
+        .candidates
+        .iter()
+        .map(|c| {
+            (
+                c.score,
+                deg(pose_error(&c.refined.transform.pose(), truth_bfs)),
+            )
+        })
+        .find(|(_, (m, d))| *m > 0.5 || *d > 5.0)
+        .unwrap_or((0.0, (0.0, 0.0)));
+    // The truth as the search would have found it: refined on the lines like every candidate
+    // (the registration's few mm, and the walls drawn 20 cm off, move the best fit a little).
+    let map: Vec<MapPoint> = sensors
+        .iter()
+        .flat_map(|s| map_points(s.model, &s.site_from_sensor))
+        .collect();
+    let truth = refine(&map, &index, &Similarity::rigid(truth_bfs), 0.5)
+        .transform
+        .pose();
+    Tell {
+        truth: site_score(&dmodel, sensors, &truth, params),
+        rival,
+        rival_at,
+    }
+}
+
 /// One site's result.
 struct SiteOutcome {
     plan: String,
@@ -339,6 +416,8 @@ struct SiteOutcome {
     /// Largest registration error of a placed sensor against its truth, in the site frame.
     site_err: (f64, f64),
     auto: PathOutcome,
+    /// Where `auto` abstained: whether the walls could have told.
+    tell: Option<Tell>,
     pairs: PathOutcome,
     /// Moved walls the refinement named, and how many were moved.
     named: (usize, usize),
@@ -421,12 +500,16 @@ fn solve(
                 .any(|l| l.moved && ((l.a + l.b.coords) / 2.0 - mid).norm() < MOVED_M + 0.01)
         })
         .count();
+    let auto = score(&auto, &placed, &truths, &truth_bfs, auto_ms);
+    let tell = matches!(auto.verdict, Verdict::Abstained(_))
+        .then(|| tell(&drawing, &align_sensors, &truth_bfs, params));
     Ok(Some(SiteOutcome {
         plan: plan.name.clone(),
         sensors: inputs.len(),
         placed: placed.len(),
         site_err,
-        auto: score(&auto, &placed, &truths, &truth_bfs, auto_ms),
+        auto,
+        tell,
         pairs: score(&by_pairs, &placed, &truths, &truth_bfs, pairs_ms),
         named: (named, moved.len()),
         drawing_segments: drawing.segments.len(),
@@ -443,12 +526,18 @@ struct Totals {
     uncovered: usize,
     wrong: usize,
     reasons: BTreeMap<String, usize>,
+    /// Abstentions where the truth fit clearly best ([`Tell::could`]), and where another
+    /// alignment fit clearly better ([`Tell::misled`]).
+    could_tell: usize,
+    misled: usize,
     ms: Vec<f64>,
 }
 
 impl Totals {
-    fn add(&mut self, o: &PathOutcome) {
+    fn add(&mut self, o: &PathOutcome, tell: Option<&Tell>) {
         self.n += 1;
+        self.could_tell += usize::from(tell.is_some_and(Tell::could));
+        self.misled += usize::from(tell.is_some_and(Tell::misled));
         self.ms.push(o.ms);
         match &o.verdict {
             Verdict::Ok => self.ok += 1,
@@ -473,7 +562,7 @@ impl Totals {
         let pct = |k: usize| 100.0 * k as f64 / self.n.max(1) as f64;
         let abstained: usize = self.reasons.values().sum();
         println!(
-            "{label}: {} sites, every sensor within {:.0} cm / {TOL_DEG}° on {} ({:.0} %), off (near, beyond target) {} ({} beyond their own 3σ), WRONG {}, abstained {} {:?}; align ms median {:.0}, max {:.0}",
+            "{label}: {} sites, every sensor within {:.0} cm / {TOL_DEG}° on {} ({:.0} %), off (near, beyond target) {} ({} beyond their own 3σ), WRONG {}, abstained {} {:?}{}; align ms median {:.0}, max {:.0}",
             self.n,
             TOL_M * 100.0,
             self.ok,
@@ -483,6 +572,14 @@ impl Totals {
             self.wrong,
             abstained,
             self.reasons,
+            if label.contains("automatic") && abstained > 0 {
+                format!(
+                    " (the truth fit the drawing clearly best in {}, another alignment clearly better in {})",
+                    self.could_tell, self.misled
+                )
+            } else {
+                String::new()
+            },
             quantile(&self.ms, 0.5),
             quantile(&self.ms, 1.0)
         );
@@ -553,7 +650,20 @@ pub(super) fn run(plans: &[Plan], args: &Args, params: &RegisterParams) -> Resul
         );
         for (label, p) in [("auto", &o.auto), ("pairs", &o.pairs)] {
             match &p.verdict {
-                Verdict::Abstained(why) => println!("      {label} abstained: {why}"),
+                Verdict::Abstained(why) => {
+                    println!("      {label} abstained: {why}");
+                    if let Some(t) = o.tell.as_ref().filter(|_| label == "auto") {
+                        println!(
+                            "      the walls {}: the truth scores {:.3}, an alignment {:.2} m / {:.0}° from it {:.3} ({:.0} %)",
+                            t.verdict(),
+                            t.truth,
+                            t.rival_at.0,
+                            t.rival_at.1,
+                            t.rival,
+                            100.0 * t.rival / t.truth.max(1e-9)
+                        );
+                    }
+                }
                 Verdict::Ok => {}
                 _ => println!(
                     "      {label}: alignment (anchor) {:.1} cm {:.2}° off (its σ {}); {}/{} placed sensors within target, {} beyond 3σ",
@@ -567,11 +677,11 @@ pub(super) fn run(plans: &[Plan], args: &Args, params: &RegisterParams) -> Resul
             }
         }
         if is_sym {
-            sym.add(&o.auto);
-            sym_pairs.add(&o.pairs);
+            sym.add(&o.auto, o.tell.as_ref());
+            sym_pairs.add(&o.pairs, None);
         } else {
-            auto.add(&o.auto);
-            pairs.add(&o.pairs);
+            auto.add(&o.auto, o.tell.as_ref());
+            pairs.add(&o.pairs, None);
             named += o.named.0;
             moved += o.named.1;
         }
