@@ -98,12 +98,10 @@ pub struct TrackParams {
     /// ... or within 0.6 m when a low unit saw it: a leg left unpaired mid-stride lies up to
     /// that far from its person's track.
     pub leg_birth_clear_m: f64,
-    /// Two confirmed tracks within 0.3 m are one person (the younger ends): at once when their
-    /// velocities are within 0.5 m/s, else once they have kept that close for 0.5 s (people
-    /// crossing are that close only for a moment).
+    /// Two confirmed tracks within 0.3 m for 0.5 s are one person (the younger ends): people
+    /// crossing are that close only for a moment.
     pub same_track_m: f64,
     pub same_track_s: f64,
-    pub same_track_v_m_s: f64,
     /// A track is confirmed (gets its id) at its 5th detection ...
     pub confirm_hits: u32,
     /// ... when seen in at least this share of the steps since it was born: a person in view
@@ -170,7 +168,6 @@ impl Default for TrackParams {
             leg_birth_clear_m: 0.6,
             same_track_m: 0.3,
             same_track_s: 0.5,
-            same_track_v_m_s: 0.5,
             confirm_hits: 5,
             confirm_rate: 0.5,
             tentative_death_s: 0.2,
