@@ -6,7 +6,9 @@
 //! `--drawing-clutter N` N desks no scanner sees (a furniture layer nobody deselected). Each
 //! sensor's building-frame pose is scored against the simulator's truth (plan frame = building
 //! frame) for the automatic alignment and for two clicked points up to 20 cm off, refined. Two
-//! sites in a hall that is the same turned 180° close the run: they must abstain.
+//! sites in a hall that is the same turned 180° close the run: they must abstain. Where the
+//! automatic alignment abstains, the eval says whether the walls could have told (the truth's
+//! score against the best other alignment's).
 
 use super::sim::{installed_sensors, simulate_models, truth_pose};
 use super::{Args, quantile};
