@@ -86,15 +86,21 @@ impl Peer {
         }
     }
 
-    /// The next line that `want`s, skipping the others.
+    /// The next line that `want`s, skipping the others (named, if it never comes: what the
+    /// peer did hear meanwhile is what tells a lost event from a late one).
     fn next_where(&mut self, what: &str, want: impl Fn(&Value) -> bool) -> Value {
         let until = Instant::now() + PATIENCE;
+        let mut skipped: Vec<String> = Vec::new();
         loop {
             let left = until.saturating_duration_since(Instant::now());
             match self.lines.recv_timeout(left) {
                 Ok(v) if want(&v) => return v,
-                Ok(_) => {}
-                Err(e) => panic!("waiting for {what}: {e}"),
+                Ok(v) => skipped.push(format!("{} {}", v["event"], v["key"])),
+                Err(e) => panic!(
+                    "waiting for {what}: {e}; the peer heard meanwhile ({} lines, the last 20): {:?}",
+                    skipped.len(),
+                    &skipped[skipped.len().saturating_sub(20)..]
+                ),
             }
         }
     }
