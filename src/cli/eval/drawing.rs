@@ -528,8 +528,10 @@ struct Totals {
     uncovered: usize,
     wrong: usize,
     reasons: BTreeMap<String, usize>,
-    /// Abstentions where the truth fit clearly best ([`Tell::could`]), and where another
-    /// alignment fit clearly better ([`Tell::misled`]).
+    /// Abstentions measured for whether the walls could have told ([`Tell`]), those where
+    /// the truth fit clearly best ([`Tell::could`]), and those where another alignment fit
+    /// clearly better ([`Tell::misled`]).
+    told: usize,
     could_tell: usize,
     misled: usize,
     ms: Vec<f64>,
@@ -538,6 +540,7 @@ struct Totals {
 impl Totals {
     fn add(&mut self, o: &PathOutcome, tell: Option<&Tell>) {
         self.n += 1;
+        self.told += usize::from(tell.is_some());
         self.could_tell += usize::from(tell.is_some_and(Tell::could));
         self.misled += usize::from(tell.is_some_and(Tell::misled));
         self.ms.push(o.ms);
@@ -574,7 +577,7 @@ impl Totals {
             self.wrong,
             abstained,
             self.reasons,
-            if label.contains("automatic") && abstained > 0 {
+            if self.told > 0 {
                 format!(
                     " (the truth fit the drawing clearly best in {}, another alignment clearly better in {})",
                     self.could_tell, self.misled
