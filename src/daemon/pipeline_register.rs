@@ -1207,36 +1207,26 @@ pub fn run_worker(
             }
             views_at = Some(std::time::Instant::now());
         }
-        // Commands before scans: a sensor's `Add` is sent before its driver starts, but with
-        // both waiting `select!` takes either, and a scan taken first was dropped (its sensor
-        // not yet known); under load a replay's first registration then lacked a scan or two.
-        let command = match commands.try_recv() {
-            Ok(command) => command,
-            Err(TryRecvError::Disconnected) => return,
-            Err(TryRecvError::Empty) => select! {
-                recv(scans) -> item => {
-                    let Ok(item) = item else { return };
-                    arrive(&mut order, item);
-                    while let Some(item) = order.pop() {
-                        take(&mut registrar, item);
-                    }
-                    continue;
+        let command = match next_input(&commands, &scans, Duration::from_millis(200)) {
+            Input::Command(command) => command,
+            Input::Closed => return,
+            Input::Scan(item) => {
+                arrive(&mut order, item);
+                while let Some(item) = order.pop() {
+                    take(&mut registrar, item);
                 }
-                recv(commands) -> command => match command {
-                    Ok(command) => command,
-                    Err(_) => return,
-                },
-                // Retries and the wait for a silent sensor fall due on the stream's clock too.
-                default(Duration::from_millis(200)) => {
-                    if registrar.due(registrar.stream_ns()) {
-                        register_and_publish(&pipeline, &mut registrar);
-                    }
-                    if registrar.check_due(registrar.stream_ns()) {
-                        check_and_publish(&pipeline, &mut registrar);
-                    }
-                    continue;
+                continue;
+            }
+            // Retries and the wait for a silent sensor fall due on the stream's clock too.
+            Input::Idle => {
+                if registrar.due(registrar.stream_ns()) {
+                    register_and_publish(&pipeline, &mut registrar);
                 }
-            },
+                if registrar.check_due(registrar.stream_ns()) {
+                    check_and_publish(&pipeline, &mut registrar);
+                }
+                continue;
+            }
         };
         match command {
             Command::Shutdown => return,
@@ -1262,6 +1252,34 @@ pub fn run_worker(
                 registrar.command(command, now);
             }
         }
+    }
+}
+
+/// What the worker takes next.
+#[derive(Debug)]
+enum Input<C, S> {
+    Command(C),
+    Scan(S),
+    /// Nothing came within the wait.
+    Idle,
+    /// A channel closed: the daemon is stopping.
+    Closed,
+}
+
+/// The next command, else the next scan, else [`Input::Idle`] after `wait`. Commands first: a
+/// sensor's `Add` is sent before its driver starts, but with both waiting `select!` takes
+/// either, and a scan taken first was dropped (its sensor not yet known); under load a
+/// replay's first registration then lacked a scan or two.
+fn next_input<C, S>(commands: &Receiver<C>, scans: &Receiver<S>, wait: Duration) -> Input<C, S> {
+    match commands.try_recv() {
+        Ok(command) => return Input::Command(command),
+        Err(TryRecvError::Disconnected) => return Input::Closed,
+        Err(TryRecvError::Empty) => {}
+    }
+    select! {
+        recv(scans) -> item => item.map_or(Input::Closed, Input::Scan),
+        recv(commands) -> command => command.map_or(Input::Closed, Input::Command),
+        default(wait) => Input::Idle,
     }
 }
 
@@ -1642,6 +1660,38 @@ mod tests {
         // The anchor alone registered (it is the site frame), with no pair to fail.
         assert!(outcomes.iter().any(|o| o.id == "a"), "{outcomes:?}");
         assert!(r.finish(SystemTime::now()).is_empty(), "said once");
+    }
+
+    #[test]
+    fn the_worker_takes_a_waiting_command_before_a_waiting_scan() {
+        let (command_tx, commands) = crossbeam_channel::unbounded();
+        let (scan_tx, scans) = crossbeam_channel::unbounded();
+        let wait = Duration::from_millis(1);
+        assert!(matches!(
+            next_input::<&str, u64>(&commands, &scans, wait),
+            Input::Idle
+        ));
+        // A sensor's scans queued before its `Add` was looked at: the `Add` still comes first,
+        // every time (`select!` alone takes either at random).
+        for _ in 0..50 {
+            scan_tx.send(7u64).expect("open");
+            command_tx.send("add").expect("open");
+            assert!(matches!(
+                next_input(&commands, &scans, wait),
+                Input::Command("add")
+            ));
+            assert!(matches!(
+                next_input(&commands, &scans, wait),
+                Input::Scan(7)
+            ));
+        }
+        drop(scan_tx);
+        assert!(matches!(next_input(&commands, &scans, wait), Input::Closed));
+        drop(command_tx);
+        assert!(matches!(
+            next_input::<&str, u64>(&commands, &scans, wait),
+            Input::Closed
+        ));
     }
 }
 
