@@ -34,6 +34,10 @@ pub struct RegisterParams {
     /// sim success, 0.8 m was no better overall (7 more installed sensors, 4 fewer right and 1
     /// more wrong in random sites).
     pub free_space_dz_m: f64,
+    /// ... and no more than this below it (m). Unbounded for the walls' own score: it may not
+    /// assume that what a unit saw ends where its beam does, and most things stand on the
+    /// floor. Where walkers chose the pose it is `WalkerParams::chosen_free_space_dz_m` too.
+    pub free_space_dz_below_m: f64,
     /// ... and only where that sensor's beam meets the surface the point lies on (where the
     /// point's own sensor fitted one) at less than this incidence (°): a beam running along a
     /// wall, its footprint partly beside it, reaches past points on it without contradicting
@@ -125,6 +129,7 @@ impl Default for RegisterParams {
             free_margin_m: 0.15,
             free_margin_frac: 0.02,
             free_space_dz_m: 0.5,
+            free_space_dz_below_m: f64::INFINITY,
             free_space_grazing_deg: 88.0,
             violation_weight: 3.0,
             coarse_slack_m: 0.12,

@@ -109,8 +109,8 @@ fn score_dir(
 /// Whether `into`'s beam towards `q` (its frame; `p_from`, the same point in `from`'s frame)
 /// would have hit what `from` saw there: only then does a return short of it in `into`'s scan
 /// contradict it. A beam passing well above it may clear a box or partition; one passing below
-/// would hit it too, since objects stand on the floor. With a mount unknown the two planes are
-/// taken as one.
+/// would hit it too, since objects stand on the floor (unless `free_space_dz_below_m` says
+/// otherwise). With a mount unknown the two planes are taken as one.
 #[inline]
 fn crosses(
     from: &ScanModel,
@@ -120,7 +120,10 @@ fn crosses(
     p: &Tolerance,
 ) -> bool {
     match (from.plane, into.plane) {
-        (Some(f), Some(i)) => i.z_at(q) - f.z_at(p_from) <= p.free_space_dz_m,
+        (Some(f), Some(i)) => {
+            let above = i.z_at(q) - f.z_at(p_from);
+            above <= p.free_space_dz_m && -above <= p.free_space_dz_below_m
+        }
         _ => true,
     }
 }
@@ -174,6 +177,7 @@ struct Tolerance {
     free_margin_m: f64,
     free_margin_frac: f64,
     free_space_dz_m: f64,
+    free_space_dz_below_m: f64,
     grazing_cos: f64,
     violation_weight: f64,
 }
@@ -186,6 +190,7 @@ impl Tolerance {
             free_margin_m: p.free_margin_m,
             free_margin_frac: p.free_margin_frac,
             free_space_dz_m: p.free_space_dz_m,
+            free_space_dz_below_m: p.free_space_dz_below_m,
             grazing_cos: p.free_space_grazing_deg.to_radians().cos(),
             violation_weight: p.violation_weight,
         }
