@@ -474,17 +474,10 @@ pub(crate) fn placed_by_walkers(
     if !fit.places_alone_but_for_its_rival(&p.walkers) {
         return None;
     }
-    // What the placement must pass, and a rival fail: free space no more violated than a
-    // wall match may, and few of the walkers both saw seen through.
-    let fails = |at: &PoseScore, e: &MotionEvidence| {
-        at.violation() > p.max_violation
-            || e.refutes(&p.motion)
-            || e.seen_through as f64 > p.walkers.max_through_share * e.seen as f64
-    };
     if fit.has_rival(&p.walkers)
         && !fit
             .rival
-            .is_some_and(|r| fails(&score(a, b, &r, p), &co_motion(ma, mb, &r, &p.motion)))
+            .is_some_and(|r| people_fail(&score(a, b, &r, p), &co_motion(ma, mb, &r, &p.motion), p))
     {
         return None;
     }
@@ -497,7 +490,7 @@ pub(crate) fn placed_by_walkers(
     }
     let at = score(a, b, &pose, p);
     let e = co_motion(ma, mb, &pose, &p.motion);
-    if fails(&at, &e) {
+    if people_fail(&at, &e, p) {
         return None;
     }
     let covariance = fit.biased_covariance(&p.walkers);
@@ -555,10 +548,25 @@ fn walls_under_walkers(
     score(a, b, &best.a_from_b, &lenient)
 }
 
-/// The walker fit, when it decides the pose.
+/// What a pose people propose must pass, and a rival of theirs fail: free space no more
+/// violated than a wall match may, and few of the walkers both saw seen through.
+fn people_fail(at: &PoseScore, e: &MotionEvidence, p: &RegisterParams) -> bool {
+    at.violation() > p.max_violation
+        || e.refutes(&p.motion)
+        || e.seen_through as f64 > p.walkers.max_through_share * e.seen as f64
+}
+
+/// The walker fit, when it decides the pose. A runner-up that fails [`people_fail`] is no
+/// rival: walkers all along one corridor agree nearly as often with a pose turned a few
+/// degrees or slid a metre or two, which lays the corridor's walls across the other's view.
 fn decisive_walkers(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> Option<WalkerFit> {
     let (ma, mb) = (a.motion.as_ref()?, b.motion.as_ref()?);
-    fit_walkers(ma, mb, &p.walkers, &p.motion).filter(|f| f.decisive(&p.walkers))
+    let fit = fit_walkers(ma, mb, &p.walkers, &p.motion)?;
+    if fit.decisive(&p.walkers) {
+        return Some(fit);
+    }
+    let fit = fit.without(|q| people_fail(&score(a, b, q, p), &co_motion(ma, mb, q, &p.motion), p));
+    fit.decisive(&p.walkers).then_some(fit)
 }
 
 /// The walls refined from the walkers' pose: where no wall candidate lies in the walkers'
@@ -906,6 +914,7 @@ mod tests {
             spread_m: 6.0,
             rms_m: 0.06,
             runner_up: 10,
+            others: Vec::new(),
             walks: 8,
             runner_up_walks: 0,
             rival: None,

@@ -42,7 +42,9 @@ pub struct WalkerParams {
     pub ticks_scored: usize,
     /// A fit decides only with this many agreeing walker sightings, over at least `min_span_s`
     /// and across `min_spread_m` of floor, with an RMS residual under `max_rms_m`, and when the
-    /// best other pose has fewer than `max_ambiguity` times its agreements.
+    /// best other pose has fewer than `max_ambiguity` times its agreements (in registration,
+    /// the best other the walls' free space and the walkers seen through leave standing:
+    /// `WalkerFit::without`).
     pub min_inliers: usize,
     pub min_span_s: f64,
     pub min_spread_m: f64,
@@ -143,8 +145,11 @@ pub struct WalkerFit {
     /// Largest distance between agreeing sightings on the floor (m).
     pub spread_m: f64,
     pub rms_m: f64,
-    /// Agreements of the best clearly different pose.
+    /// Agreements of the best clearly different pose ...
     pub runner_up: usize,
+    /// ... among these: every clearly different pose the leaders refined to, with its
+    /// agreements.
+    pub others: Vec<(usize, Pose2)>,
     /// How many walks agree with the fit, and the most with any clearly different pose: runs
     /// of one person followed walking in both views (`TOGETHER_S`, `TOGETHER_M`). The other
     /// agreements chance may give (people crossing, a queue); a walk is one person's word.
@@ -170,6 +175,14 @@ impl WalkerFit {
             && self.spread_m >= p.min_spread_m
             && self.rms_m <= p.max_rms_m
             && (self.runner_up as f64) < p.max_ambiguity * self.inliers as f64
+    }
+
+    /// The fit with the other poses that `refuted` rules out no longer counting as its
+    /// runner-up.
+    pub fn without(mut self, refuted: impl Fn(&Pose2) -> bool) -> WalkerFit {
+        self.others.retain(|(_, q)| !refuted(q));
+        self.runner_up = self.others.iter().map(|(n, _)| *n).max().unwrap_or(0);
+        self
     }
 
     /// The runner-up's walks against the best's. In a crowd a clearly different pose collects
@@ -540,6 +553,7 @@ pub fn fit_walkers(
         spread_m,
         rms_m,
         runner_up,
+        others: others.iter().map(|(n, q, _)| (*n, *q)).collect(),
         walks: walked_together(&pairs).walks,
         runner_up_walks,
         rival,
@@ -1235,6 +1249,7 @@ pub(crate) mod tests {
             spread_m: 8.0,
             rms_m: 0.05,
             runner_up: 0,
+            others: Vec::new(),
             walks: 40,
             runner_up_walks: 0,
             rival: None,
@@ -1363,6 +1378,29 @@ pub(crate) mod tests {
         // The same against a best of few walks.
         let few = WalkerFit { walks: 3, ..crowd };
         assert!(!few.places_alone(&p), "{few:?}");
+    }
+
+    #[test]
+    fn a_runner_up_that_is_ruled_out_leaves_the_next_one_as_the_rival() {
+        let p = WalkerParams::default();
+        let plain = Matrix3::from_diagonal(&nalgebra::Vector3::new(1e-4, 1e-4, 1e-6));
+        // Along a corridor: a pose turned 9° agrees with 63 % as many sightings, another far
+        // off with 30 %.
+        let (turned, far) = (pose2(3.2, 1.1, 0.66), pose2(-20.0, 4.0, 3.0));
+        let fit = WalkerFit {
+            inliers: 250,
+            runner_up: 158,
+            others: vec![(158, turned), (75, far)],
+            ..strong_fit(plain)
+        };
+        assert!(!fit.decisive(&p), "{fit:?}");
+        let ruled_out = fit.clone().without(|q| *q == turned);
+        assert_eq!(ruled_out.runner_up, 75);
+        assert!(ruled_out.decisive(&p), "{ruled_out:?}");
+        // Ruling out one that is not the runner-up changes nothing.
+        let same = fit.without(|q| *q == far);
+        assert_eq!(same.runner_up, 158);
+        assert!(!same.decisive(&p), "{same:?}");
     }
 
     #[test]

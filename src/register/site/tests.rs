@@ -734,6 +734,7 @@ fn walked_alone(a_from_b: Pose2) -> crate::register::walkers::WalkerFit {
         spread_m: 9.0,
         rms_m: 0.06,
         runner_up: 20,
+        others: Vec::new(),
         walks: 25,
         runner_up_walks: 1,
         rival: None,
