@@ -955,8 +955,7 @@ mod tests {
     }
 
     #[test]
-    fn where_walkers_chose_the_pose_a_beam_above_or_below_what_the_other_saw_does_not_contradict_it()
-     {
+    fn under_walkers_beams_above_or_below_what_the_other_saw_do_not_contradict_it() {
         use crate::register::score::tests::facing;
         let p = RegisterParams::default();
         // Both at one spot: the unit at 1.0 m hits a counter 3 m out, the one at 1.3 m sees
