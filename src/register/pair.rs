@@ -556,10 +556,11 @@ fn people_fail(at: &PoseScore, e: &MotionEvidence, p: &RegisterParams) -> bool {
         || e.seen_through as f64 > p.walkers.max_through_share * e.seen as f64
 }
 
-/// The walker fit, when it decides the pose. A runner-up that fails [`people_fail`] is no
+/// The walker fit, when it decides the pose (what registration acts on; eval's calibration
+/// of walker fits measures these). A runner-up that fails [`people_fail`] is no
 /// rival: walkers all along one corridor agree nearly as often with a pose turned a few
 /// degrees or slid a metre or two, which lays the corridor's walls across the other's view.
-fn decisive_walkers(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> Option<WalkerFit> {
+pub fn decisive_walkers(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> Option<WalkerFit> {
     let (ma, mb) = (a.motion.as_ref()?, b.motion.as_ref()?);
     let fit = fit_walkers(ma, mb, &p.walkers, &p.motion)?;
     if fit.decisive(&p.walkers) {

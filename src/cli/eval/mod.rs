@@ -656,15 +656,9 @@ fn diagnose(cases: &[Case], tol_m: f64, tol_rad: f64, params: &RegisterParams) {
 /// bias, as the walls are joined with them): a fit whose errors run past its σ would let
 /// a pose the walkers fix be placed wrong.
 fn walker_calibration(cases: &[Case], params: &RegisterParams) {
-    use scanfuse::register::walkers::fit_walkers;
     let (mut d2, mut along, mut yaw) = (Vec::new(), Vec::new(), Vec::new());
     for case in cases {
-        let (Some(ma), Some(mb)) = (case.a.motion.as_ref(), case.b.motion.as_ref()) else {
-            continue;
-        };
-        let Some(fit) = fit_walkers(ma, mb, &params.walkers, &params.motion)
-            .filter(|f| f.decisive(&params.walkers))
-        else {
+        let Some(fit) = scanfuse::register::pair::decisive_walkers(&case.a, &case.b, params) else {
             continue;
         };
         let c = fit.biased_covariance(&params.walkers);
