@@ -104,6 +104,7 @@ impl MotionParams {
             gap_m: self.gap_m,
             min_points: self.min_points,
             max_width_m: self.max_width_m,
+            far_body_m: 0.0,
         }
     }
 }

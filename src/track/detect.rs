@@ -19,6 +19,21 @@ pub struct BlobParams {
     pub gap_m: f64,
     pub min_points: usize,
     pub max_width_m: f64,
+    /// Far off, a body spans few beams and some of its returns drop out: a blob there needs
+    /// no more returns than beams fall across this much of a body at its range, and at
+    /// least 2 (0: always `min_points`) (m).
+    pub far_body_m: f64,
+}
+
+impl BlobParams {
+    /// How many returns a blob `range_m` away needs, beams `beam_rad` apart.
+    pub fn min_points_at(&self, range_m: f64, beam_rad: f64) -> usize {
+        if self.far_body_m <= 0.0 || range_m <= 0.0 || beam_rad <= 0.0 {
+            return self.min_points;
+        }
+        let across = (self.far_body_m / (range_m * beam_rad)).floor() as usize;
+        across.max(2).min(self.min_points)
+    }
 }
 
 /// Whether a return at `r` (m, horizontal) is short of the background `s` (NaN: nothing
@@ -42,14 +57,18 @@ pub fn blobs(
         };
         is_moved(r, s, p)
     };
+    let beam_rad = beam_spacing_rad(points);
     let mut out: Vec<Vec<Point2<f64>>> = Vec::new();
     let mut run: Vec<(usize, Point2<f64>)> = Vec::new();
     let mut close = |run: &mut Vec<(usize, Point2<f64>)>| {
-        let width = match (run.first(), run.last()) {
-            (Some(a), Some(b)) => (a.1 - b.1).norm(),
-            _ => 0.0,
+        let (width, range_m) = match (run.first(), run.last()) {
+            (Some(a), Some(b)) => (
+                (a.1 - b.1).norm(),
+                0.5 * (a.1.coords.norm() + b.1.coords.norm()),
+            ),
+            _ => (0.0, 0.0),
         };
-        if run.len() >= p.min_points && width <= p.max_width_m {
+        if run.len() >= p.min_points_at(range_m, beam_rad) && width <= p.max_width_m {
             out.push(run.iter().map(|(_, q)| *q).collect());
         }
         run.clear();
@@ -68,6 +87,23 @@ pub fn blobs(
     }
     close(&mut run);
     out
+}
+
+/// The angle between neighbouring beams (rad): the median over the scan's first neighbouring
+/// returns; 0 when it cannot be told.
+fn beam_spacing_rad(points: &[ScanPoint]) -> f64 {
+    let bearing = |q: &ScanPoint| q.p.y.atan2(q.p.x);
+    let mut steps: Vec<f64> = points
+        .windows(2)
+        .filter(|w| w[1].beam == w[0].beam + 1)
+        .map(|w| crate::geometry::wrap_angle_rad(bearing(&w[1]) - bearing(&w[0])).abs())
+        .take(65)
+        .collect();
+    if steps.is_empty() {
+        return 0.0;
+    }
+    let mid = steps.len() / 2;
+    *steps.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
 /// The width of a blob: its first to its last return (m).
@@ -331,6 +367,7 @@ mod tests {
             gap_m: 0.3,
             min_points: 3,
             max_width_m: 1.2,
+            far_body_m: 0.0,
         }
     }
 
@@ -356,6 +393,47 @@ mod tests {
         assert_eq!(found[0].len(), 4);
         // Nothing short of the background: no blob.
         assert!(blobs(&points, &background, &background, &params()).is_empty());
+    }
+
+    #[test]
+    fn far_off_two_returns_make_a_blob_and_near_by_they_do_not() {
+        // A wall across beams 0.25° apart; beams 10 and 11 hit something 0.5 m in front of it.
+        let step = 0.25f64.to_radians();
+        let scan = |range_m: f64| {
+            let mut points = Vec::new();
+            let (mut ranges, mut background) = (Vec::new(), Vec::new());
+            for b in 0..20 {
+                let r = if (10..=11).contains(&b) {
+                    range_m - 0.5
+                } else {
+                    range_m
+                };
+                let a = (b as f64 - 10.0) * step;
+                points.push(sp(b, r * a.cos(), r * a.sin()));
+                ranges.push(r as f32);
+                background.push(range_m as f32);
+            }
+            (points, ranges, background)
+        };
+        let p = BlobParams {
+            moved_m: 0.2,
+            margin_frac: 0.0,
+            far_body_m: 0.3,
+            ..params()
+        };
+        // At 24 m a 0.3 m body spans under 3 beams (10.5 cm apart): two returns are a walker.
+        let (points, ranges, background) = scan(24.0);
+        assert_eq!(blobs(&points, &ranges, &background, &p).len(), 1);
+        assert_eq!(p.min_points_at(24.0, step), 2);
+        // Without the rule, or at 8 m where such a body spans 8 beams, they are not.
+        let strict = BlobParams {
+            far_body_m: 0.0,
+            ..p
+        };
+        assert!(blobs(&points, &ranges, &background, &strict).is_empty());
+        let (points, ranges, background) = scan(8.0);
+        assert!(blobs(&points, &ranges, &background, &p).is_empty());
+        assert_eq!(p.min_points_at(8.0, step), 3);
     }
 
     #[test]
