@@ -209,7 +209,9 @@ fn little_view_pairs(plan: &Plan, seed: u64, params: &RegisterParams) -> Result<
 }
 
 /// Why a little-shared-view pair abstained, in the debug log: the people's own fit (decisive
-/// or not) against the truth, and each of the thresholds that keep it from placing the pair.
+/// or not, as fitted and as registration takes it once rivals the walls or walkers rule out
+/// are dropped) against the truth, and each of the thresholds that keep it from placing the
+/// pair.
 fn explain_abstention(
     plan: &Plan,
     seed: u64,
@@ -240,13 +242,14 @@ fn explain_abstention(
     let walls = scanfuse::register::score::score(&a.model, &b.model, &fit.a_from_b, params);
     let people = scanfuse::register::motion::co_motion(ma, mb, &fit.a_from_b, &params.motion);
     tracing::debug!(
-        "{} seed {seed} {}–{}: {why}; fit {:.0} cm {:.1}° off, decisive {}, alone {}: inliers {} span {:.1} s spread {:.1} m rms {:.3} m walks {} rival {} ({:.2}) σ {:.1} cm {:.2}°; there walls overlap {:.2} violation {:.2}, people seen {} through {}",
+        "{} seed {seed} {}–{}: {why}; fit {:.0} cm {:.1}° off, decisive {} (with rivals ruled out: {}), alone {}: inliers {} span {:.1} s spread {:.1} m rms {:.3} m walks {} rival {} ({:.2}) σ {:.1} cm {:.2}°; there walls overlap {:.2} violation {:.2}, people seen {} through {}",
         plan.name,
         a.id,
         b.id,
         dt * 100.0,
         dyaw.to_degrees(),
         fit.decisive(w),
+        scanfuse::register::pair::decisive_walkers(&a.model, &b.model, params).is_some(),
         fit.places_alone(w),
         fit.inliers,
         fit.span_s,

@@ -614,7 +614,7 @@ fn diagnose(cases: &[Case], tol_m: f64, tol_rad: f64, params: &RegisterParams) {
             let (s_m, s_rad) = scanfuse::register::pair::pose_sigmas(&f.covariance);
             let e = scanfuse::register::motion::co_motion(ma, mb, &case.a_from_b, &params.motion);
             println!(
-                "    walkers: fit {:.2} m {:.1}° off, σ {:.1} cm {:.2}°, inliers {}, span {:.1} s, spread {:.1} m, rms {:.2}, walks {} vs {}, decisive {}, alone {}; at truth seen {} through {}",
+                "    walkers: fit {:.2} m {:.1}° off, σ {:.1} cm {:.2}°, inliers {}, span {:.1} s, spread {:.1} m, rms {:.2}, walks {} vs {}, decisive {} (with rivals ruled out: {}), alone {}; at truth seen {} through {}",
                 fit_m,
                 fit_rad.to_degrees(),
                 s_m * 100.0,
@@ -626,6 +626,7 @@ fn diagnose(cases: &[Case], tol_m: f64, tol_rad: f64, params: &RegisterParams) {
                 f.walks,
                 f.runner_up_walks,
                 f.decisive(&params.walkers),
+                scanfuse::register::pair::decisive_walkers(&case.a, &case.b, params).is_some(),
                 f.places_alone_but_for_its_rival(&params.walkers),
                 e.seen,
                 e.seen_through
