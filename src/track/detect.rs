@@ -57,7 +57,11 @@ pub fn blobs(
         };
         is_moved(r, s, p)
     };
-    let beam_rad = beam_spacing_rad(points);
+    let beam_rad = if p.far_body_m > 0.0 {
+        beam_spacing_rad(points)
+    } else {
+        0.0
+    };
     let mut out: Vec<Vec<Point2<f64>>> = Vec::new();
     let mut run: Vec<(usize, Point2<f64>)> = Vec::new();
     let mut close = |run: &mut Vec<(usize, Point2<f64>)>| {
@@ -240,6 +244,54 @@ pub fn centre(blob: &[Point2<f64>], body: Body) -> Option<Point2<f64>> {
     };
     let d = c.norm();
     (d > 1e-6).then(|| Point2::from(c * ((d + push_m) / d)))
+}
+
+/// Splits a blob where people already followed stand in it: `centres` (sensor frame) whose
+/// bearing lies within the blob's and whose range is from `behind_m` short of its nearest
+/// return to `behind_m` past it (a body's centre lies behind its near side) each take the
+/// returns nearest their bearing, cut midway between neighbours. Two people walking close
+/// together, one partly behind the other, show one run of returns no wider than one person.
+/// Stays whole unless two or more centres lie in it and every part keeps `min_points`.
+pub fn split_by_centres(
+    blob: Vec<Point2<f64>>,
+    centres: &[Point2<f64>],
+    behind_m: f64,
+    min_points: usize,
+) -> Vec<Vec<Point2<f64>>> {
+    let Some(first) = blob.first() else {
+        return vec![blob];
+    };
+    let b0 = first.y.atan2(first.x);
+    let rel = |q: &Point2<f64>| crate::geometry::wrap_angle_rad(q.y.atan2(q.x) - b0);
+    let bearings: Vec<f64> = blob.iter().map(rel).collect();
+    let (lo, hi) = bearings
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), b| {
+            (l.min(*b), h.max(*b))
+        });
+    let near_m = blob
+        .iter()
+        .map(|q| q.coords.norm())
+        .fold(f64::INFINITY, f64::min);
+    let mut inside: Vec<f64> = centres
+        .iter()
+        .filter(|c| (c.coords.norm() - near_m).abs() <= behind_m)
+        .map(rel)
+        .filter(|b| (lo..=hi).contains(b))
+        .collect();
+    if inside.len() < 2 {
+        return vec![blob];
+    }
+    inside.sort_by(f64::total_cmp);
+    let cuts: Vec<f64> = inside.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect();
+    let mut parts: Vec<Vec<Point2<f64>>> = vec![Vec::new(); inside.len()];
+    for (q, b) in blob.iter().zip(&bearings) {
+        parts[cuts.iter().filter(|c| *b > **c).count()].push(*q);
+    }
+    if parts.iter().any(|part| part.len() < min_points) {
+        return vec![blob];
+    }
+    parts
 }
 
 /// Splits a blob wider than `max_person_m` into as many equal runs (by count of returns) as
@@ -434,6 +486,32 @@ mod tests {
         let (points, ranges, background) = scan(8.0);
         assert!(blobs(&points, &ranges, &background, &p).is_empty());
         assert_eq!(p.min_points_at(8.0, step), 3);
+    }
+
+    #[test]
+    fn a_run_with_two_followed_people_in_it_is_cut_between_them() {
+        // One run of returns 4 m off, 0.5 m across: two people, one partly behind the other.
+        let blob: Vec<Point2<f64>> = (0..10)
+            .map(|k| Point2::new(4.0 + 0.01 * k as f64, -0.25 + 0.05 * k as f64))
+            .collect();
+        let left = Point2::new(4.2, -0.15);
+        let right = Point2::new(4.3, 0.15);
+        let parts = split_by_centres(blob.clone(), &[right, left], 0.5, 2);
+        assert_eq!(parts.len(), 2, "{parts:?}");
+        assert_eq!(parts[0].len() + parts[1].len(), blob.len());
+        assert!(parts[0].iter().all(|q| q.y < 0.0) && parts[1].iter().all(|q| q.y >= 0.0));
+        // One person in it, one far behind it, one beside it, or parts too small: whole.
+        let behind = Point2::new(6.0, 0.15);
+        let beside = Point2::new(4.2, 0.6);
+        for centres in [vec![left], vec![left, behind], vec![left, beside]] {
+            assert_eq!(split_by_centres(blob.clone(), &centres, 0.5, 2).len(), 1);
+        }
+        let edge = Point2::new(4.2, 0.2);
+        assert_eq!(
+            split_by_centres(blob.clone(), &[left, edge], 0.5, 4).len(),
+            2
+        );
+        assert_eq!(split_by_centres(blob, &[left, edge], 0.5, 5).len(), 1);
     }
 
     #[test]

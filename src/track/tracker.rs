@@ -417,6 +417,19 @@ impl Tracker {
                     .torsos
                     .area_m2
                     .map_or(detect::Body::Round, detect::Body::Area);
+                // Where people followed already stand in one run of returns, they share it.
+                let followed: Vec<Point2<f64>> = self
+                    .tracks
+                    .iter()
+                    .filter(|t| t.id != 0)
+                    .map(|t| pose.inverse() * t.filter.position())
+                    .collect();
+                let blobs = blobs
+                    .into_iter()
+                    .flat_map(|b| {
+                        detect::split_by_centres(b, &followed, p.split_behind_m, p.split_min_points)
+                    })
+                    .collect();
                 people_in(blobs, body, p)
             };
             state.seen.extend(centres.into_iter().map(|c| pose * c));
