@@ -1,6 +1,7 @@
 //! The tracker: scans of placed sensors in, confirmed tracks out, by the scans' own clock.
 //!
-//! Per sensor: foreground against its [`Background`], blobs ([`detect`]), centres to the site
+//! Per sensor: foreground against its [`Background`], blobs ([`detect`]; a level unit's run
+//! in which people already followed stand is cut between them), centres to the site
 //! frame; a low unit's legs go to the confirmed tracks they lie nearest at the step, and only
 //! the rest are paired into people. Once per `step_s` (as soon as every placed sensor due
 //! has delivered its scan) the latest detections of every sensor are merged (one person seen
@@ -418,11 +419,12 @@ impl Tracker {
                     .area_m2
                     .map_or(detect::Body::Round, detect::Body::Area);
                 // Where people followed already stand in one run of returns, they share it.
+                let sensor_from_site = pose.inverse();
                 let followed: Vec<Point2<f64>> = self
                     .tracks
                     .iter()
                     .filter(|t| t.id != 0)
-                    .map(|t| pose.inverse() * t.filter.position())
+                    .map(|t| sensor_from_site * t.filter.position())
                     .collect();
                 let blobs = blobs
                     .into_iter()
