@@ -125,6 +125,16 @@ fn bad_input_exits_2_with_the_file_named() {
 }
 
 #[test]
+fn eval_refuses_a_csv_no_part_it_runs_would_write() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("pairs.csv");
+    let out = scanfuse(&["eval", "--only", "crowd", "--csv", csv.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out));
+    assert!(text(&out).contains("--csv"), "{}", text(&out));
+    assert!(!csv.exists());
+}
+
+#[test]
 fn every_committed_fixture_reads_whole_and_carries_truth() {
     for name in ["lab", "hall", "moved"] {
         let path = common::repo().join(format!("fixtures/{name}.mcap"));

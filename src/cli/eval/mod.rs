@@ -92,8 +92,9 @@ pub struct Args {
     /// translation hypotheses, coarse ranking or refinement) and what the walkers' fit says.
     #[arg(long)]
     pub diagnose: bool,
-    /// Also write one CSV row per registered pair (truth error, verdict, ambiguity, score,
-    /// estimated overlap, violation) to this file, for choosing thresholds.
+    /// Also write one CSV row per pair of the pair tables (`sim`, `real`: truth error,
+    /// verdict, ambiguity, score, estimated overlap, violation) to this file, for choosing
+    /// thresholds. Refused when `--only` names neither.
     #[arg(long)]
     pub csv: Option<PathBuf>,
     /// Also solve every site registering all pairs, and print where pair selection differs
@@ -119,6 +120,16 @@ pub enum Floor {
 pub fn run(args: Args) -> Result<()> {
     let wants = |part: &str| args.only.is_empty() || args.only.iter().any(|o| o == part);
     let params = RegisterParams::default();
+    if let Some(path) = &args.csv
+        && !(wants("sim") || wants("real"))
+    {
+        return Err(super::BadInput(format!(
+            "--csv {}: only the pair tables (--only sim, real) write rows, and --only {} names neither",
+            path.display(),
+            args.only.join(",")
+        ))
+        .into());
+    }
     let mut csv = match &args.csv {
         Some(path) => {
             let mut f = std::fs::File::create(path)
