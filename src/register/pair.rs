@@ -474,11 +474,7 @@ pub(crate) fn placed_by_walkers(
     if !fit.places_alone_but_for_its_rival(&p.walkers) {
         return None;
     }
-    if fit.has_rival(&p.walkers)
-        && !fit
-            .rival
-            .is_some_and(|r| people_fail(&score(a, b, &r, p), &co_motion(ma, mb, &r, &p.motion), p))
-    {
+    if fit.has_rival(&p.walkers) && !fit.rival.is_some_and(|r| people_fail_at(a, b, &r, p)) {
         return None;
     }
     let mut pose = fit.a_from_b;
@@ -556,17 +552,35 @@ fn people_fail(at: &PoseScore, e: &MotionEvidence, p: &RegisterParams) -> bool {
         || e.seen_through as f64 > p.walkers.max_through_share * e.seen as f64
 }
 
+/// [`people_fail`] at `at` (B's pose in A's frame); true without walkers in both scans.
+fn people_fail_at(a: &ScanModel, b: &ScanModel, at: &Pose2, p: &RegisterParams) -> bool {
+    let (Some(ma), Some(mb)) = (&a.motion, &b.motion) else {
+        return true;
+    };
+    people_fail(&score(a, b, at, p), &co_motion(ma, mb, at, &p.motion), p)
+}
+
 /// The walker fit, when it decides the pose (what registration acts on; eval's calibration
-/// of walker fits measures these). A runner-up that fails [`people_fail`] is no
-/// rival: walkers all along one corridor agree nearly as often with a pose turned a few
-/// degrees or slid a metre or two, which lays the corridor's walls across the other's view.
+/// of walker fits measures these).
 pub fn decisive_walkers(a: &ScanModel, b: &ScanModel, p: &RegisterParams) -> Option<WalkerFit> {
     let (ma, mb) = (a.motion.as_ref()?, b.motion.as_ref()?);
-    let fit = fit_walkers(ma, mb, &p.walkers, &p.motion)?;
+    deciding(a, b, fit_walkers(ma, mb, &p.walkers, &p.motion)?, p)
+}
+
+/// `fit`, if it decides the pose: decisive as fitted, or once a runner-up that fails
+/// [`people_fail`] no longer counts. Walkers all along one corridor agree nearly as often
+/// with a pose turned a few degrees or slid a metre or two, which lays the corridor's walls
+/// across the other's view.
+pub fn deciding(
+    a: &ScanModel,
+    b: &ScanModel,
+    fit: WalkerFit,
+    p: &RegisterParams,
+) -> Option<WalkerFit> {
     if fit.decisive(&p.walkers) {
         return Some(fit);
     }
-    let fit = fit.without(|q| people_fail(&score(a, b, q, p), &co_motion(ma, mb, q, &p.motion), p));
+    let fit = fit.without(|q| people_fail_at(a, b, q, p));
     fit.decisive(&p.walkers).then_some(fit)
 }
 
@@ -914,8 +928,7 @@ mod tests {
             span_s: 20.0,
             spread_m: 6.0,
             rms_m: 0.06,
-            runner_up: 10,
-            others: Vec::new(),
+            others: vec![(10, pose2(-2.0, 5.0, 1.5))],
             walks: 8,
             runner_up_walks: 0,
             rival: None,

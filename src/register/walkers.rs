@@ -145,10 +145,8 @@ pub struct WalkerFit {
     /// Largest distance between agreeing sightings on the floor (m).
     pub spread_m: f64,
     pub rms_m: f64,
-    /// Agreements of the best clearly different pose ...
-    pub runner_up: usize,
-    /// ... among these: every clearly different pose the leaders refined to, with its
-    /// agreements.
+    /// Every clearly different pose the leaders refined to, with its agreements (the most of
+    /// them: [`runner_up`](Self::runner_up)).
     pub others: Vec<(usize, Pose2)>,
     /// How many walks agree with the fit, and the most with any clearly different pose: runs
     /// of one person followed walking in both views (`TOGETHER_S`, `TOGETHER_M`). The other
@@ -174,14 +172,18 @@ impl WalkerFit {
             && self.span_s >= p.min_span_s
             && self.spread_m >= p.min_spread_m
             && self.rms_m <= p.max_rms_m
-            && (self.runner_up as f64) < p.max_ambiguity * self.inliers as f64
+            && (self.runner_up() as f64) < p.max_ambiguity * self.inliers as f64
+    }
+
+    /// Agreements of the best clearly different pose.
+    pub fn runner_up(&self) -> usize {
+        self.others.iter().map(|(n, _)| *n).max().unwrap_or(0)
     }
 
     /// The fit with the other poses that `refuted` rules out no longer counting as its
     /// runner-up.
     pub fn without(mut self, refuted: impl Fn(&Pose2) -> bool) -> WalkerFit {
         self.others.retain(|(_, q)| !refuted(q));
-        self.runner_up = self.others.iter().map(|(n, _)| *n).max().unwrap_or(0);
         self
     }
 
@@ -525,7 +527,6 @@ pub fn fit_walkers(
         .skip(1)
         .filter(|(_, q, _)| !same(q, &pose))
         .collect();
-    let runner_up = others.iter().map(|(n, _, _)| *n).max().unwrap_or(0);
     // A rival's walks count only where the winner does not explain them too: a pose a few
     // degrees off, refined from a subset of the same walkers (a corridor's walkers all far
     // along one line leave such subsets), is the winner's evidence again, not another place.
@@ -552,7 +553,6 @@ pub fn fit_walkers(
         span_s: (t1 - t0).max(0.0),
         spread_m,
         rms_m,
-        runner_up,
         others: others.iter().map(|(n, q, _)| (*n, *q)).collect(),
         walks: walked_together(&pairs).walks,
         runner_up_walks,
@@ -1248,7 +1248,6 @@ pub(crate) mod tests {
             span_s: 20.0,
             spread_m: 8.0,
             rms_m: 0.05,
-            runner_up: 0,
             others: Vec::new(),
             walks: 40,
             runner_up_walks: 0,
@@ -1360,13 +1359,13 @@ pub(crate) mod tests {
         // A crowd: the rival pose collects 40 % as many sightings as the right one, all of
         // them from one walk congruent with another by chance.
         let crowd = WalkerFit {
-            runner_up: 160,
+            others: vec![(160, pose2(-4.0, 2.0, 1.0))],
             runner_up_walks: 1,
             rival: None,
             walks: 12,
             ..strong_fit(plain)
         };
-        assert!(crowd.runner_up as f64 > p.alone_max_ambiguity * crowd.inliers as f64);
+        assert!(crowd.runner_up() as f64 > p.alone_max_ambiguity * crowd.inliers as f64);
         assert!(crowd.places_alone(&p) && crowd.decisive(&p), "{crowd:?}");
         // Four people walking as the rival says are a rival.
         let rival = WalkerFit {
@@ -1389,17 +1388,16 @@ pub(crate) mod tests {
         let (turned, far) = (pose2(3.2, 1.1, 0.66), pose2(-20.0, 4.0, 3.0));
         let fit = WalkerFit {
             inliers: 250,
-            runner_up: 158,
             others: vec![(158, turned), (75, far)],
             ..strong_fit(plain)
         };
         assert!(!fit.decisive(&p), "{fit:?}");
         let ruled_out = fit.clone().without(|q| *q == turned);
-        assert_eq!(ruled_out.runner_up, 75);
+        assert_eq!(ruled_out.runner_up(), 75);
         assert!(ruled_out.decisive(&p), "{ruled_out:?}");
         // Ruling out one that is not the runner-up changes nothing.
         let same = fit.without(|q| *q == far);
-        assert_eq!(same.runner_up, 158);
+        assert_eq!(same.runner_up(), 158);
         assert!(!same.decisive(&p), "{same:?}");
     }
 

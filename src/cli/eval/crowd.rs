@@ -191,7 +191,7 @@ fn little_view_pairs(plan: &Plan, seed: u64, params: &RegisterParams) -> Result<
                             fit.map_or(0, |f| f.walks),
                             fit.map_or(0, |f| f.runner_up_walks),
                             fit.map_or(0, |f| f.inliers),
-                            fit.map_or(0, |f| f.runner_up),
+                            fit.map_or(0, |f| f.runner_up()),
                         );
                     }
                 }
@@ -249,7 +249,7 @@ fn explain_abstention(
         dt * 100.0,
         dyaw.to_degrees(),
         fit.decisive(w),
-        scanfuse::register::pair::decisive_walkers(&a.model, &b.model, params).is_some(),
+        scanfuse::register::pair::deciding(&a.model, &b.model, fit.clone(), params).is_some(),
         fit.places_alone(w),
         fit.inliers,
         fit.span_s,

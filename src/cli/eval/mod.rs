@@ -637,7 +637,7 @@ fn diagnose(cases: &[Case], tol_m: f64, tol_rad: f64, params: &RegisterParams) {
                 f.walks,
                 f.runner_up_walks,
                 f.decisive(&params.walkers),
-                scanfuse::register::pair::decisive_walkers(&case.a, &case.b, params).is_some(),
+                scanfuse::register::pair::deciding(&case.a, &case.b, f.clone(), params).is_some(),
                 f.places_alone_but_for_its_rival(&params.walkers),
                 e.seen,
                 e.seen_through
