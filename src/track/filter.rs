@@ -78,11 +78,17 @@ impl Kalman {
         (y, s)
     }
 
-    /// Squared Mahalanobis distance of `z` (None when the covariance is degenerate).
-    pub fn mahalanobis2(&self, z: &Point2<f64>, sigma_m: f64) -> Option<f64> {
+    /// How unlikely a position measured at `z` with noise `sigma_m` is for this track: its
+    /// negative log-likelihood up to a constant, the squared Mahalanobis distance plus
+    /// ln(det S / σ⁴), 0 for a measurement right where a track known exactly expects it. The
+    /// distance alone favours the least certain track (a wide covariance makes any
+    /// detection near), so a track coasting unseen would take the person of one seen a
+    /// moment ago.
+    pub fn cost(&self, z: &Point2<f64>, sigma_m: f64) -> Option<f64> {
         let (y, s) = self.innovation(z, sigma_m);
         let inv = s.try_inverse()?;
-        Some((y.transpose() * inv * y)[(0, 0)])
+        let spread = s.determinant() / sigma_m.powi(4);
+        (spread > 0.0).then(|| (y.transpose() * inv * y)[(0, 0)] + spread.ln())
     }
 
     /// Takes a position measured at `z` with noise `sigma_m`.
@@ -126,14 +132,19 @@ mod tests {
             k.position()
         );
         assert!(k.sigma_m() < 0.05, "{}", k.sigma_m());
-        // Coasting grows the uncertainty, and a far measurement is far in σ.
+        // Coasting grows the uncertainty: where it expects its person costs more than it
+        // did while seen, and a far measurement is far in σ.
+        let seen = k.cost(&k.position(), 0.05).unwrap_or(f64::INFINITY);
         let before = k.sigma_m();
         k.predict(1.0, 1.0);
         assert!(k.sigma_m() > before);
-        let near = k.mahalanobis2(&k.position(), 0.05).unwrap_or(f64::INFINITY);
+        let near = k.cost(&k.position(), 0.05).unwrap_or(0.0);
         let far = k
-            .mahalanobis2(&(k.position() + Vector2::new(3.0, 0.0)), 0.05)
+            .cost(&(k.position() + Vector2::new(3.0, 0.0)), 0.05)
             .unwrap_or(0.0);
-        assert!(near < 1e-9 && far > 9.0, "{near} {far}");
+        assert!(
+            seen < 1.0 && near > seen + 2.0 && far > near + 9.0,
+            "{seen} {near} {far}"
+        );
     }
 }
