@@ -84,19 +84,20 @@ pub struct TrackParams {
     /// The filter's white acceleration (m²/s³): people walk smoothly; a looser filter follows
     /// a passer-by's blob onto a neighbour (0.5 against 2.0: id switches per 5 person-minutes
     /// 3.1 → 2.7 in hall20, 9.7 → 7.4 with 50 people, `eval --only tracking`, seeds 1–2).
+    /// With [`filter::Kalman::cost`], seeds 1–6, all sensors: 0.2, 0.3, 0.5, 1.0 gave 246,
+    /// 223, 219, 247 id switches, mean MOTA 0.9768, 0.9770, 0.9761, 0.9745.
     pub accel_psd: f64,
     /// A detection may go to a track at this cost ([`filter::Kalman::cost`]: the squared
     /// Mahalanobis distance plus how much less sure the track is than one just seen) and no
-    /// further than `gate_max_m` (1 m); the assignment minimises the summed cost. With the
-    /// rule that a track unlisted for want of sightings gives way to one seen (`step`),
-    /// against the distance alone and the younger giving way (`eval --only tracking`, all
-    /// sensors, seeds 1–6): id switches 258 → 220 (hall20 ×50: 72 → 59), mean MOTA 0.9758 →
-    /// 0.9760. 30, far past the 99.9 % of 2 dof
-    /// (13.8): the filter is stiff
-    /// (`accel_psd`), so a person turning at a door or stopping short leaves a tight gate,
-    /// coasts unseen and comes back as a new track (13.8 → 30: id switches per 5
-    /// person-minutes 2.2 → 1.9 in hall20, 22.8 → 14.2 with legs, `eval --only tracking`,
-    /// seeds 1–2; 240 s of hall20 ×20: 2.5 → 1.8).
+    /// further than `gate_max_m` (1 m); the assignment minimises the summed cost. With a
+    /// coasting track giving way to one seen (`step`), against the distance alone and the
+    /// younger giving way (`eval --only tracking`, all sensors, seeds 1–6): id switches 258
+    /// → 219 (hall20 ×50: 72 → 59), mean MOTA 0.9758 → 0.9761; gated at 20 or 45 instead:
+    /// 245 and 214, MOTA 0.9758 and 0.9752. 30, far past the 99.9 % of 2 dof (13.8): the
+    /// filter is stiff (`accel_psd`), so a person turning at a door or stopping short leaves
+    /// a tight gate, coasts unseen and comes back as a new track (by the distance alone,
+    /// 13.8 → 30: id switches per 5 person-minutes 2.2 → 1.9 in hall20, 22.8 → 14.2 with
+    /// legs, `eval --only tracking`, seeds 1–2; 240 s of hall20 ×20: 2.5 → 1.8).
     pub gate_chi2: f64,
     pub gate_max_m: f64,
     /// A sighting at most 0.15 m nearer one confirmed track than another within the gate
