@@ -478,13 +478,14 @@ pub(crate) fn placed_by_walkers(
         return None;
     }
     let mut pose = fit.a_from_b;
-    if score(a, b, &pose, p).overlap() >= p.min_overlap {
+    let mut at = score(a, b, &pose, p);
+    if at.overlap() >= p.min_overlap {
         pose = polish(a, b, &pose, p);
         if !fit.near(&pose, &p.walkers) {
             return None;
         }
+        at = score(a, b, &pose, p);
     }
-    let at = score(a, b, &pose, p);
     let e = co_motion(ma, mb, &pose, &p.motion);
     if people_fail(&at, &e, p) {
         return None;
